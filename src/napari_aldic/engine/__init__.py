@@ -1,0 +1,27 @@
+"""napari-free DIC engine: NumPy/SciPy/Numba only (no napari, no Qt).
+
+Public API::
+
+    from napari_aldic.engine import correlate, DICParams, DICResult
+"""
+
+from . import synthetic
+from .correlate import correlate
+from .images import as_gray_float
+from .interpolation import SplineImage, prefilter, sample
+from .params import DICParams
+from .reasons import Reason
+from .results import DICResult, load_result
+
+__all__ = [
+    "correlate",
+    "DICParams",
+    "DICResult",
+    "Reason",
+    "load_result",
+    "as_gray_float",
+    "prefilter",
+    "sample",
+    "SplineImage",
+    "synthetic",
+]

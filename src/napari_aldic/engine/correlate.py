@@ -1,0 +1,306 @@
+"""``correlate``: DIC of one reference/deformed image pair."""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from typing import Callable
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .icgn import icgn_solve
+from .images import validate_pair, validate_roi
+from .init_guess import ncc_search_widening
+from .interpolation import prefilter, reference_gradients
+from .mesh import NodeGrid, make_grid
+from .outliers import lattice_neighbours, median_test
+from .params import DICParams
+from .reasons import Reason
+from .results import DICResult
+from .subsets import SubsetMasks, split_subsets
+
+__all__ = ["correlate"]
+
+ProgressFn = Callable[[float, str], None]
+
+
+@contextmanager
+def _numba_threads(n: int | None):
+    if n is None:
+        yield
+        return
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+
+
+def _versions() -> dict[str, str]:
+    import scipy
+
+    from .. import __version__
+
+    return {"napari-aldic": __version__, "numpy": np.__version__,
+            "scipy": scipy.__version__, "numba": numba.__version__}
+
+
+def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
+              method: str = "local", *, params: DICParams | None = None,
+              progress: ProgressFn | None = None, **kwargs) -> DICResult:
+    """Measure the displacement field between two images by subset DIC.
+
+    Parameters
+    ----------
+    reference, deformed : (H, W) array
+        Grey images (integer or float; RGB is converted with a warning).
+    roi : (H, W) bool array or None
+        Region of interest, True where material is analysed; holes and
+        cracks False. None analyses the whole image.
+    subset : int
+        Odd full subset width in pixels (31 -> 31 x 31).
+    step : int
+        Node spacing in pixels.
+    method : {"local", "aldic"}
+        Local IC-GN, or augmented Lagrangian DIC.
+    params : DICParams, optional
+        All parameters at once; ``subset``, ``step``, ``method`` and
+        ``kwargs`` then override its fields only when given explicitly.
+    progress : callable(fraction, message), optional
+        Called as the analysis advances.
+    **kwargs
+        Any other :class:`DICParams` field (``search``, ``tol``, ...).
+
+    Returns
+    -------
+    DICResult
+        Node coordinates, displacements (pixels, Lagrangian), gradients,
+        ``valid``/``reason`` flags and ZNCC per node.
+
+    Examples
+    --------
+    >>> from napari_aldic.engine import correlate, synthetic
+    >>> ref, dfm = synthetic.speckle_pair((128, 128), synthetic.Translation(0.4, -0.2))
+    >>> res = correlate(ref, dfm, subset=31, step=8)
+    >>> round(float(res.u[res.valid].mean()), 2), round(float(res.v[res.valid].mean()), 2)
+    (0.4, -0.2)
+    """
+    t_start = time.perf_counter()
+    if params is None:
+        params = DICParams(subset=subset, step=step, method=method, **kwargs)
+    else:
+        changes = dict(kwargs)
+        defaults = DICParams()
+        for name, val in (("subset", subset), ("step", step), ("method", method)):
+            if val != getattr(defaults, name):
+                changes[name] = val
+        params = params.replace(**changes) if changes else params
+    if params.method == "aldic":
+        raise NotImplementedError(
+            "method='aldic' (augmented Lagrangian DIC) is not available yet; "
+            "use method='local'"
+        )
+    if params.init == "seeds":
+        raise NotImplementedError(
+            "init='seeds' (seed propagation) is not available yet; use init='fft'"
+        )
+    report = progress or (lambda frac, msg: None)
+    timing: dict[str, float] = {}
+
+    def lap(name: str, t0: float) -> float:
+        t1 = time.perf_counter()
+        timing[name] = timing.get(name, 0.0) + t1 - t0
+        return t1
+
+    t = time.perf_counter()
+    f, g = validate_pair(reference, deformed)
+    mask = validate_roi(roi, f.shape)
+    grid = make_grid(mask, params.subset, params.step)
+    sub = split_subsets(mask, grid, params.subset, params.min_component)
+    t = lap("setup", t)
+    report(0.05, f"{grid.n} nodes")
+
+    order = 3 if params.interpolation == "cubic" else 5
+    f_spline = prefilter(f, order)
+    fgx, fgy = reference_gradients(f_spline)
+    del f_spline
+    g_spline = prefilter(g, order)
+    t = lap("prefilter", t)
+    report(0.15, "interpolation ready")
+
+    with _numba_threads(params.n_threads):
+        p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask, grid, sub, params,
+                                              timing, report)
+
+    valid = reason == Reason.OK
+    timing["total"] = time.perf_counter() - t_start
+    report(1.0, "done")
+    return DICResult(
+        x=grid.x.astype(np.float64), y=grid.y.astype(np.float64),
+        u=p[:, 0].copy(), v=p[:, 3].copy(),
+        dudx=p[:, 1].copy(), dudy=p[:, 2].copy(), dvdx=p[:, 4].copy(), dvdy=p[:, 5].copy(),
+        valid=valid, zncc=zncc, reason=reason, iterations=iters,
+        grid_ix=grid.ix, grid_iy=grid.iy, grid_xs=grid.xs, grid_ys=grid.ys,
+        image_shape=tuple(f.shape), params=params,
+        meta={"timing": timing, "versions": _versions(),
+              "n_nodes": grid.n, "n_valid": int(valid.sum())},
+    )
+
+
+def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """First-order extrapolation of affine parameters by (dx, dy) pixels."""
+    p0 = p_from.copy()
+    p0[:, 0] += p_from[:, 1] * dx + p_from[:, 2] * dy
+    p0[:, 3] += p_from[:, 4] * dx + p_from[:, 5] * dy
+    return p0
+
+
+def _ncc_guess(f, g, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
+               params: DICParams) -> np.ndarray:
+    """Affine parameters from an NCC search at ``nodes`` (gradients zero)."""
+    h = params.half
+    masks = None
+    if np.any(sub.slot[nodes] >= 0):
+        masks = np.ones((nodes.size, params.subset, params.subset), np.uint8)
+        cut = sub.slot[nodes] >= 0
+        masks[cut] = sub.masks[sub.slot[nodes][cut]]
+    res = ncc_search_widening(f, g, grid.x[nodes], grid.y[nodes], h, params.search,
+                              params.resolved_search_max(f.shape), masks)
+    p0 = np.zeros((nodes.size, 6))
+    p0[:, 0] = res.u
+    p0[:, 3] = res.v
+    return p0
+
+
+def _solve_local(f, g, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks,
+                 params: DICParams, timing: dict, report: ProgressFn):
+    """Local IC-GN at every node with a coarse-to-fine initial guess.
+
+    1. NCC at coarse nodes (every k-th lattice node), IC-GN there.
+    2. Every other node starts from its nearest converged coarse node,
+       extrapolated to first order with that node's gradient; IC-GN.
+    3. Nodes that fail (no convergence, low ZNCC, divergence) are retried
+       from their nearest converged neighbour, then from their own NCC search;
+       a retry is kept only if it converges with a higher ZNCC.
+    """
+    n = grid.n
+    h = params.half
+    usable = sub.reason == Reason.OK
+    p = np.zeros((n, 6))
+    zncc = np.full(n, np.nan)
+    iters = np.zeros(n, np.int32)
+    reason = sub.reason.astype(np.int8).copy()
+
+    def run(active: np.ndarray, p_init: np.ndarray):
+        out = (p.copy(), zncc.copy(), iters.copy(), reason.copy())
+        return icgn_solve(f, fgx, fgy, g_spline, grid.x, grid.y, p_init, active,
+                          sub.slot, sub.masks, h, params.max_iter, params.tol, out=out)
+
+    def accept(res, nodes: np.ndarray, only_better: bool):
+        rp, rz, ri, rr = res
+        take = nodes
+        if only_better:
+            new_ok = (rr[nodes] == Reason.OK) & (rz[nodes] >= params.zncc_min)
+            old_ok = (reason[nodes] == Reason.OK) & (zncc[nodes] >= params.zncc_min)
+            take = nodes[new_ok & (~old_ok | (rz[nodes] > zncc[nodes]))]
+        p[take] = rp[take]
+        zncc[take] = rz[take]
+        iters[take] = ri[take]
+        reason[take] = rr[take]
+
+    t = time.perf_counter()
+    k = max(1, params.resolved_init_spacing() // params.step)
+    coarse = np.nonzero(usable & (grid.ix % k == 0) & (grid.iy % k == 0))[0]
+    if coarse.size == 0:
+        coarse = np.nonzero(usable)[0]
+    p_init = np.zeros((n, 6))
+    p_init[coarse] = _ncc_guess(f, g, grid, sub, coarse, params)
+    timing["init"] = time.perf_counter() - t
+    report(0.3, f"initial guess at {coarse.size} coarse nodes")
+
+    t = time.perf_counter()
+    active = np.zeros(n, bool)
+    active[coarse] = True
+    accept(run(active, p_init), coarse, only_better=False)
+    good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
+    rest = np.nonzero(usable & ~active)[0]
+    if rest.size:
+        if good_c.size:
+            tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
+            _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
+            src = good_c[j]
+            p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
+                                        grid.y[rest] - grid.y[src])
+        else:
+            p_init[rest] = _ncc_guess(f, g, grid, sub, rest, params)
+        active[:] = False
+        active[rest] = True
+        accept(run(active, p_init), rest, only_better=False)
+    timing["icgn"] = time.perf_counter() - t
+    report(0.8, "IC-GN done")
+
+    # --- rescue failed nodes
+    t = time.perf_counter()
+
+    def failed() -> np.ndarray:
+        return np.nonzero(usable & ((reason != Reason.OK) | ~(zncc >= params.zncc_min)))[0]
+
+    bad = failed()
+    if bad.size and bad.size < n:
+        good = np.nonzero(usable & (reason == Reason.OK) & (zncc >= params.zncc_min))[0]
+        if good.size:
+            tree = cKDTree(np.column_stack([grid.x[good], grid.y[good]]))
+            _, j = tree.query(np.column_stack([grid.x[bad], grid.y[bad]]))
+            src = good[j]
+            p_try = p_init.copy()
+            p_try[bad] = _extrapolate(p[src], grid.x[bad] - grid.x[src],
+                                      grid.y[bad] - grid.y[src])
+            active[:] = False
+            active[bad] = True
+            accept(run(active, p_try), bad, only_better=True)
+    bad = failed()
+    bad = bad[reason[bad] != Reason.OUT_OF_IMAGE]  # material left the view: no retry
+    if bad.size:
+        p_try = p_init.copy()
+        p_try[bad] = _ncc_guess(f, g, grid, sub, bad, params)
+        active[:] = False
+        active[bad] = True
+        accept(run(active, p_try), bad, only_better=True)
+    # whatever still fails keeps its best attempt, flagged
+    conv = reason == Reason.OK
+    zmin = params.zncc_min
+    if params.zncc_rel > 0 and conv.any():
+        floor = max(params.zncc_rel * float(np.median(1.0 - zncc[conv])), 0.1)
+        zmin = max(zmin, 1.0 - floor)
+    low = usable & conv & ~(zncc >= zmin)
+    reason[low] = Reason.LOW_CORRELATION
+
+    # --- outliers: converged but inconsistent with their neighbours
+    nbrs = lattice_neighbours(grid, roi)
+    trusted = reason == Reason.OK
+    out = median_test(p[:, 0], p[:, 3], trusted, nbrs)
+    if out.any():
+        bad = np.nonzero(out)[0]
+        p_try = p_init.copy()
+        m = nbrs[bad]
+        ok = m >= 0
+        ok[ok] = trusted[m[ok]] & ~out[m[ok]]
+        for c in range(6):
+            vals = np.where(ok, p[np.where(ok, m, 0), c], np.nan)
+            with np.errstate(all="ignore"):
+                p_try[bad, c] = np.nan_to_num(np.nanmedian(vals, axis=1))
+        active[:] = False
+        active[bad] = True
+        res = run(active, p_try)
+        p[bad], zncc[bad], iters[bad], reason[bad] = (res[0][bad], res[1][bad],
+                                                      res[2][bad], res[3][bad])
+        reason[bad[(reason[bad] == Reason.OK) & ~(zncc[bad] >= zmin)]] = \
+            Reason.LOW_CORRELATION
+        trusted = reason == Reason.OK
+        out = median_test(p[:, 0], p[:, 3], trusted, nbrs)
+        reason[out] = Reason.OUTLIER
+    timing["rescue"] = time.perf_counter() - t
+    return p, zncc, iters, reason

@@ -1,0 +1,44 @@
+"""Reason codes explaining why a node is (or is not) trusted."""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+__all__ = ["Reason"]
+
+
+class Reason(IntEnum):
+    """Why a node is flagged; ``OK`` (0) means converged and trusted."""
+
+    OK = 0
+    #: the mask-connected part of the subset holds under ``min_component`` of its area
+    SMALL_COMPONENT = 1
+    #: IC-GN hit its iteration cap without meeting the tolerance
+    NOT_CONVERGED = 2
+    #: the deformed subset leaves the image
+    OUT_OF_IMAGE = 3
+    #: final ZNCC below ``zncc_min``
+    LOW_CORRELATION = 4
+    #: subset has too little texture (flat grey levels, singular Hessian)
+    NO_TEXTURE = 5
+    #: the iteration diverged (displacement update beyond the subset size)
+    DIVERGED = 6
+    #: no initial guess could be found (no converged neighbour, failed search)
+    NO_INITIAL_GUESS = 7
+    #: displacement inconsistent with its mask-connected neighbours (median test)
+    OUTLIER = 8
+
+    @classmethod
+    def describe(cls, code: int) -> str:
+        """Human-readable text of a reason code."""
+        return {
+            0: "converged",
+            1: "subset component too small (mask)",
+            2: "not converged (iteration cap)",
+            3: "deformed subset leaves the image",
+            4: "low correlation (ZNCC below threshold)",
+            5: "no texture in subset",
+            6: "diverged",
+            7: "no initial guess",
+            8: "outlier (median test)",
+        }.get(int(code), f"unknown ({code})")

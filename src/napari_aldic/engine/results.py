@@ -1,0 +1,184 @@
+"""Result of a DIC analysis of one image pair, with save/load (no pickle)."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .params import DICParams
+from .reasons import Reason
+
+__all__ = ["DICResult", "load_result"]
+
+_FORMAT = "napari-aldic-result"
+_FORMAT_VERSION = 1
+_ARRAYS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc",
+           "reason", "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys")
+
+
+@dataclass
+class DICResult:
+    """Displacements at the nodes of one reference/deformed pair.
+
+    Coordinates and displacements are in pixels of the reference image
+    (x = column, y = row; pixel centres at integers); displacement is
+    Lagrangian: the material point at ``(x, y)`` in the reference image is at
+    ``(x + u, y + v)`` in the deformed image.
+
+    Attributes
+    ----------
+    x, y : (n,) float64
+        Node coordinates.
+    u, v : (n,) float64
+        Displacement along x and y.
+    dudx, dudy, dvdx, dvdy : (n,) float64
+        Displacement gradient of each subset's affine shape function.
+    valid : (n,) bool
+        Node converged and is trusted (``reason == 0``).
+    zncc : (n,) float64
+        Zero-normalised cross-correlation of the matched subset (1 = perfect).
+    reason : (n,) int8
+        :class:`~napari_aldic.engine.reasons.Reason` code per node.
+    iterations : (n,) int32
+        IC-GN iterations used.
+    grid_ix, grid_iy : (n,) int64
+        Lattice indices of the nodes; ``grid_xs``/``grid_ys`` give the lattice.
+    image_shape : (rows, cols)
+    params : DICParams
+    meta : dict
+        Software versions, timing (seconds per stage) and input names.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    dudx: np.ndarray
+    dudy: np.ndarray
+    dvdx: np.ndarray
+    dvdy: np.ndarray
+    valid: np.ndarray
+    zncc: np.ndarray
+    reason: np.ndarray
+    iterations: np.ndarray
+    grid_ix: np.ndarray
+    grid_iy: np.ndarray
+    grid_xs: np.ndarray
+    grid_ys: np.ndarray
+    image_shape: tuple[int, int]
+    params: DICParams
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    # ------------------------------------------------------------- views
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+    @property
+    def n_valid(self) -> int:
+        return int(np.count_nonzero(self.valid))
+
+    @property
+    def F(self) -> np.ndarray:
+        """Displacement gradient per node, shape (n, 2, 2): [[du/dx, du/dy], [dv/dx, dv/dy]]."""
+        return np.stack([np.stack([self.dudx, self.dudy], -1),
+                         np.stack([self.dvdx, self.dvdy], -1)], -2)
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        return (self.grid_ys.size, self.grid_xs.size)
+
+    def to_grid(self, name: str = "u", invalid=np.nan) -> np.ndarray:
+        """Field ``name`` on the node lattice (rows = y), ``invalid`` where no
+        trusted node is (use ``invalid=None`` to keep untrusted values)."""
+        vals = np.asarray(getattr(self, name), dtype=np.float64)
+        out = np.full(self.grid_shape, np.nan)
+        out[self.grid_iy, self.grid_ix] = vals
+        if invalid is not None:
+            bad = np.ones(self.grid_shape, bool)
+            bad[self.grid_iy, self.grid_ix] = ~self.valid
+            out[bad] = invalid
+        return out
+
+    def reason_counts(self) -> dict[str, int]:
+        """Number of nodes per reason (text)."""
+        codes, counts = np.unique(self.reason, return_counts=True)
+        return {Reason.describe(c): int(k) for c, k in zip(codes, counts)}
+
+    def summary(self) -> str:
+        """A short text summary."""
+        v = self.valid
+        lines = [
+            f"{len(self)} nodes ({self.n_valid} valid), subset {self.params.subset} px, "
+            f"step {self.params.step} px, method {self.params.method}",
+        ]
+        if v.any():
+            lines.append(
+                f"u: mean {self.u[v].mean():+.4f} px [{self.u[v].min():+.3f}, {self.u[v].max():+.3f}]; "
+                f"v: mean {self.v[v].mean():+.4f} px [{self.v[v].min():+.3f}, {self.v[v].max():+.3f}]; "
+                f"median ZNCC {np.median(self.zncc[v]):.4f}"
+            )
+        t = self.meta.get("timing", {})
+        if "total" in t:
+            lines.append(f"time {t['total']:.3f} s ({len(self) / max(t['total'], 1e-9):,.0f} POI/s)")
+        flagged = {k: c for k, c in self.reason_counts().items() if k != "converged"}
+        if flagged:
+            lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))
+        return "\n".join(lines)
+
+    # ------------------------------------------------------------- I/O
+    def save(self, path) -> Path:
+        """Write the result to ``path`` (``.npz``, no pickled objects).
+
+        The file is written under a temporary name and renamed when complete,
+        so an interrupted save never leaves a truncated file behind.
+        """
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_suffix(".npz")
+        if not path.parent.exists():
+            raise FileNotFoundError(f"folder {path.parent} does not exist; create it first")
+        header = {
+            "format": _FORMAT,
+            "format_version": _FORMAT_VERSION,
+            "image_shape": list(self.image_shape),
+            "params": self.params.to_dict(),
+            "meta": self.meta,
+        }
+        arrays = {k: np.asarray(getattr(self, k)) for k in _ARRAYS}
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path) -> "DICResult":
+        """Read a result written by :meth:`save`."""
+        return load_result(path)
+
+
+def load_result(path) -> DICResult:
+    """Read a ``.npz`` result written by :meth:`DICResult.save`."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no result file at {path}")
+    with np.load(path, allow_pickle=False) as z:
+        if "header" not in z.files:
+            raise ValueError(f"{path} is not a napari-aldic result file (no header)")
+        header = json.loads(str(z["header"]))
+        if header.get("format") != _FORMAT:
+            raise ValueError(f"{path} is not a napari-aldic result file")
+        arrays = {k: z[k] for k in _ARRAYS}
+    return DICResult(**arrays, image_shape=tuple(header["image_shape"]),
+                     params=DICParams.from_dict(header["params"]), meta=header["meta"])
