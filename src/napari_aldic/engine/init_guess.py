@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from scipy import fft as sfft
 
@@ -48,11 +49,30 @@ def _subpixel(c_m, c_0, c_p):
     return np.clip(np.nan_to_num(d), -0.5, 0.5)
 
 
-def _box_sums(a: np.ndarray, S: int) -> np.ndarray:
-    """Sums of ``a`` (B, L, L) over all S x S windows -> (B, L-S+1, L-S+1)."""
-    c = np.cumsum(np.cumsum(a, axis=1, dtype=np.float64), axis=2)
-    c = np.pad(c, ((0, 0), (1, 0), (1, 0)))
-    return c[:, S:, S:] - c[:, :-S, S:] - c[:, S:, :-S] + c[:, :-S, :-S]
+@nb.njit(cache=True, parallel=True)
+def _box_sums(a, S):
+    """Sums of ``a`` and ``a**2`` (B, L, L) over every S x S window, float64."""
+    B, L, _ = a.shape
+    K = L - S + 1
+    s1 = np.empty((B, K, K))
+    s2 = np.empty((B, K, K))
+    for b in nb.prange(B):
+        c1 = np.zeros((L + 1, L + 1))
+        c2 = np.zeros((L + 1, L + 1))
+        for i in range(L):
+            r1 = 0.0
+            r2 = 0.0
+            for j in range(L):
+                x = np.float64(a[b, i, j])
+                r1 += x
+                r2 += x * x
+                c1[i + 1, j + 1] = c1[i, j + 1] + r1
+                c2[i + 1, j + 1] = c2[i, j + 1] + r2
+        for i in range(K):
+            for j in range(K):
+                s1[b, i, j] = c1[i + S, j + S] - c1[i, j + S] - c1[i + S, j] + c1[i, j]
+                s2[b, i, j] = c2[i + S, j + S] - c2[i, j + S] - c2[i + S, j] + c2[i, j]
+    return s1, s2
 
 
 def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
@@ -118,8 +138,7 @@ def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, hal
         num = sfft.irfft2(FT * FW, s=(N, N), workers=workers)[:, :nshift, :nshift]
         del FT
         if M is None:
-            s1 = _box_sums(W, S)
-            s2 = _box_sums(W.astype(np.float64) ** 2, S)
+            s1, s2 = _box_sums(W, S)
             var = s2 - s1 * s1 / npx
         else:
             FM = np.conj(sfft.rfft2(M, s=(N, N), workers=workers))

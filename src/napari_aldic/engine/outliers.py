@@ -10,9 +10,11 @@ the ROI count, so the two faces of a crack never vote against each other.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from .mesh import NodeGrid
+from .subsets import integral_image
 
 __all__ = ["lattice_neighbours", "median_test"]
 
@@ -33,11 +35,14 @@ def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
     idx = np.pad(grid.index_image(), _RADIUS, constant_values=-1)
     offsets = [(dy, dx) for dy in range(-_RADIUS, _RADIUS + 1)
                for dx in range(-_RADIUS, _RADIUS + 1) if (dy, dx) != (0, 0)]
-    nb = np.empty((grid.n, len(offsets)), np.int64)
-    ii = np.zeros((roi.shape[0] + 1, roi.shape[1] + 1), np.int64)
-    np.cumsum(np.cumsum(~roi, axis=0, dtype=np.int64), axis=1, out=ii[1:, 1:])
+    nb_ = np.empty((grid.n, len(offsets)), np.int64)
+    full = bool(roi.all())
+    ii = None if full else integral_image((~roi).view(np.uint8))
     for k, (dy, dx) in enumerate(offsets):
         j = idx[grid.iy + _RADIUS + dy, grid.ix + _RADIUS + dx]
+        if full:  # no hole anywhere: every neighbour is visible
+            nb_[:, k] = j
+            continue
         has = np.nonzero(j >= 0)[0]
         jj = j[has]
         xa, ya, xb, yb = grid.x[has], grid.y[has], grid.x[jj], grid.y[jj]
@@ -53,8 +58,8 @@ def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
             sy = np.rint(ya[check, None] + t * (yb - ya)[check, None]).astype(np.int64)
             blocked = ~roi[sy, sx].all(axis=1)
             j[has[check[blocked]]] = -1
-        nb[:, k] = j
-    return nb
+        nb_[:, k] = j
+    return nb_
 
 
 def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: np.ndarray,
@@ -69,20 +74,35 @@ def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: n
     threshold : normalised residual above which a node is an outlier.
     eps : pixels, the noise floor of the fluctuation (avoids flagging
         everything on noise-free, perfectly smooth fields).
+    min_neighbours : nodes with fewer trusted neighbours are not tested.
     """
-    ok = (neighbours >= 0)
-    ok[ok] = trusted[neighbours[ok]]
-    count = ok.sum(axis=1)
     out = np.zeros(u.size, bool)
-    test = trusted & (count >= min_neighbours)
-    if not test.any():
-        return out
-    nbr = neighbours[test]
-    m = ok[test]
-    for comp in (u, v):
-        vals = np.where(m, comp[np.where(m, nbr, 0)], np.nan)
-        med = np.nanmedian(vals, axis=1)
-        fluct = np.nanmedian(np.abs(vals - med[:, None]), axis=1)
-        r = np.abs(comp[test] - med) / (fluct + eps)
-        out[np.nonzero(test)[0][r > threshold]] = True
+    _median_test(np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64),
+                 trusted, neighbours, float(threshold), float(eps), int(min_neighbours), out)
     return out
+
+
+@nb.njit(cache=True, parallel=True)
+def _median_test(u, v, trusted, nbr, threshold, eps, min_nb, out):
+    n, k = nbr.shape
+    for i in nb.prange(n):
+        if not trusted[i]:
+            continue
+        a = np.empty(k)
+        b = np.empty(k)
+        c = 0
+        for j in range(k):
+            q = nbr[i, j]
+            if q >= 0 and trusted[q]:
+                a[c] = u[q]
+                b[c] = v[q]
+                c += 1
+        if c < min_nb:
+            continue
+        for comp in range(2):
+            vals = a[:c] if comp == 0 else b[:c]
+            x = u[i] if comp == 0 else v[i]
+            med = np.median(vals)
+            fl = np.median(np.abs(vals - med))
+            if abs(x - med) / (fl + eps) > threshold:
+                out[i] = True

@@ -13,13 +13,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from scipy import ndimage
 
 from .mesh import NodeGrid
 from .reasons import Reason
 
-__all__ = ["SubsetMasks", "split_subsets"]
+__all__ = ["SubsetMasks", "split_subsets", "integral_image"]
 
 
 @dataclass
@@ -45,10 +46,21 @@ class SubsetMasks:
     reason: np.ndarray
 
 
-def _window_sums(img: np.ndarray, x: np.ndarray, y: np.ndarray, h: int) -> np.ndarray:
-    """Sum of ``img`` over the (2h+1)^2 windows centred at (x, y), via an integral image."""
-    ii = np.zeros((img.shape[0] + 1, img.shape[1] + 1), np.int64)
-    np.cumsum(np.cumsum(img, axis=0, dtype=np.int64), axis=1, out=ii[1:, 1:])
+@nb.njit(cache=True)
+def integral_image(mask):
+    """Summed-area table (H+1, W+1) int64 of a boolean/uint8 image."""
+    h, w = mask.shape
+    ii = np.zeros((h + 1, w + 1), np.int64)
+    for i in range(h):
+        run = 0
+        for j in range(w):
+            run += mask[i, j]
+            ii[i + 1, j + 1] = ii[i, j + 1] + run
+    return ii
+
+
+def _window_sums(ii: np.ndarray, x: np.ndarray, y: np.ndarray, h: int) -> np.ndarray:
+    """Sums over the (2h+1)^2 windows centred at (x, y) from an integral image."""
     y0, y1, x0, x1 = y - h, y + h + 1, x - h, x + h + 1
     return ii[y1, x1] - ii[y0, x1] - ii[y1, x0] + ii[y0, x0]
 
@@ -65,7 +77,10 @@ def split_subsets(roi: np.ndarray, grid: NodeGrid, subset: int,
     """
     h = subset // 2
     area = subset * subset
-    outside = _window_sums((~roi).astype(np.uint8), grid.x, grid.y, h)
+    if roi.all():  # nothing cut: skip the integral image
+        outside = np.zeros(grid.n, np.int64)
+    else:
+        outside = _window_sums(integral_image((~roi).view(np.uint8)), grid.x, grid.y, h)
     slot = np.full(grid.n, -1, np.int32)
     fraction = np.ones(grid.n)
     reason = np.zeros(grid.n, np.int8)

@@ -1,0 +1,159 @@
+"""Headless figures of DIC results (matplotlib only, no GUI backend).
+
+matplotlib is imported inside the functions, so importing the engine stays
+light. Figures are built on :class:`matplotlib.figure.Figure` directly, not
+through ``pyplot``: no backend is selected, no window can open and no global
+figure state is touched, which makes them safe in scripts, batch jobs and
+worker threads.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["displacement_figure", "plot_displacement", "truth_at_nodes"]
+
+
+def truth_at_nodes(result, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Exact displacement ``(u, v)`` at the nodes of ``result``.
+
+    ``truth`` is a displacement field with a ``displacement(x, y)`` method
+    (e.g. from :mod:`napari_aldic.engine.synthetic`), a callable
+    ``truth(x, y) -> (u, v)``, or a pair of arrays with one value per node.
+    """
+    if hasattr(truth, "displacement"):
+        ut, vt = truth.displacement(result.x, result.y)
+    elif callable(truth):
+        ut, vt = truth(result.x, result.y)
+    else:
+        ut, vt = truth
+    ut = np.broadcast_to(np.asarray(ut, dtype=np.float64), result.x.shape)
+    vt = np.broadcast_to(np.asarray(vt, dtype=np.float64), result.x.shape)
+    return ut, vt
+
+
+def _lattice_extent(result) -> tuple[float, float, float, float]:
+    """imshow extent putting each lattice cell centred on its node."""
+    xs = np.asarray(result.grid_xs, float)
+    ys = np.asarray(result.grid_ys, float)
+    step = float(result.params.step)
+    dx = xs[1] - xs[0] if xs.size > 1 else step
+    dy = ys[1] - ys[0] if ys.size > 1 else step
+    return (xs[0] - dx / 2, xs[-1] + dx / 2, ys[-1] + dy / 2, ys[0] - dy / 2)
+
+
+def _symmetric_limit(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    lim = float(np.abs(finite).max()) if finite.size else 0.0
+    return lim if lim > 0 else 1.0
+
+
+def displacement_figure(result, truth=None, image=None, title: str | None = None):
+    """Figure with the u and v maps of ``result`` and an error (or ZNCC) map.
+
+    Parameters
+    ----------
+    result : DICResult
+        The analysis to show. Fields are drawn on the node lattice
+        (``result.to_grid``), one cell per node centred on it, in pixel
+        coordinates of the reference image; untrusted nodes are blank.
+    truth : displacement field, callable or (u, v) arrays, optional
+        Exact displacement (see :func:`truth_at_nodes`). When given, the
+        third panel is the error magnitude ``|(u, v) - truth|`` in pixels;
+        otherwise it is the ZNCC of every node.
+    image : (H, W) array, optional
+        Reference image drawn in grey underneath (visible where there is no
+        trusted node: holes, borders, flagged nodes).
+    title : str, optional
+        Figure title (default: a one-line summary of the result).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    rows, cols = (int(s) for s in result.image_shape)
+    extent = _lattice_extent(result)
+    diverging = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0, 0, 0, 0))
+    sequential = matplotlib.colormaps["viridis"].with_extremes(bad=(0, 0, 0, 0))
+
+    panels: list[dict[str, Any]] = []
+    for name in ("u", "v"):
+        grid = result.to_grid(name)
+        lim = _symmetric_limit(grid)
+        panels.append(dict(data=grid, cmap=diverging, vmin=-lim, vmax=lim,
+                           label=f"{name} (px)", title=f"{name} displacement", extend="neither"))
+    if truth is not None:
+        ut, vt = truth_at_nodes(result, truth)
+        err = np.hypot(result.u - ut, result.v - vt)
+        sel = result.valid & np.isfinite(err)
+        rmse = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else float("nan")
+        grid = np.full(result.grid_shape, np.nan)
+        grid[result.grid_iy[sel], result.grid_ix[sel]] = err[sel]
+        top = float(np.percentile(err[sel], 99)) if sel.any() else 1.0
+        top = top if top > 0 else 1.0
+        panels.append(dict(data=grid, cmap=matplotlib.colormaps["magma"].with_extremes(
+            bad=(0, 0, 0, 0)), vmin=0.0, vmax=top, label="error |(u, v) - truth| (px)",
+            title=f"error vs truth (RMSE {rmse:.4f} px)",
+            extend="max" if float(np.nanmax(grid, initial=0.0)) > top else "neither"))
+    else:
+        grid = result.to_grid("zncc", invalid=None)
+        finite = grid[np.isfinite(grid)]
+        lo = float(min(finite.min(), 0.9)) if finite.size else 0.0
+        panels.append(dict(data=grid, cmap=sequential, vmin=lo, vmax=1.0, label="ZNCC",
+                           title="correlation quality", extend="neither"))
+
+    wide = cols > 1.6 * rows
+    n = len(panels)
+    panel_w = 4.2 if not wide else 8.0
+    panel_h = panel_w * rows / cols
+    if wide:
+        fig = Figure(figsize=(panel_w + 1.4, n * (panel_h + 0.7) + 0.5), layout="constrained")
+        axes = fig.subplots(n, 1, sharex=True, sharey=True)
+    else:
+        fig = Figure(figsize=(n * (panel_w + 1.2), panel_h + 1.2), layout="constrained")
+        axes = fig.subplots(1, n, sharex=True, sharey=True)
+    axes = np.atleast_1d(axes)
+
+    bad = ~np.asarray(result.valid, bool)
+    for ax, panel in zip(axes, panels):
+        ax.set_facecolor("0.85")
+        if image is not None:
+            ax.imshow(np.asarray(image), cmap="gray", extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
+                      interpolation="nearest")
+        im = ax.imshow(panel["data"], cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"],
+                       extent=extent, interpolation="nearest")
+        if bad.any():
+            ax.plot(result.x[bad], result.y[bad], linestyle="none", marker="x", markersize=3,
+                    color="k", alpha=0.6, label="flagged node")
+        ax.set_xlim(-0.5, cols - 0.5)
+        ax.set_ylim(rows - 0.5, -0.5)
+        ax.set_title(panel["title"], fontsize=10)
+        ax.set_xlabel("x (px)")
+        ax.set_ylabel("y (px)")
+        fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"], shrink=0.9)
+    p = result.params
+    if title is None:
+        title = (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "
+                 f"step {p.step} px, {p.method}")
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def plot_displacement(result, path, truth=None, image=None, title: str | None = None,
+                      dpi: int = 120) -> Path:
+    """Save :func:`displacement_figure` to ``path`` (PNG, PDF, SVG... by suffix).
+
+    Returns the path written. The figure is closed afterwards (no pyplot state).
+    """
+    path = Path(path)
+    if not path.parent.exists():
+        raise FileNotFoundError(f"folder {path.parent} does not exist; create it first")
+    fig = displacement_figure(result, truth=truth, image=image, title=title)
+    fig.savefig(path, dpi=dpi)
+    return path
