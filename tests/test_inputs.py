@@ -106,12 +106,6 @@ def test_rgb_is_converted_with_warning(pair):
     np.testing.assert_allclose(res.u, grey.u, atol=1e-4)
 
 
-def test_aldic_not_yet_available(pair):
-    ref, dfm = pair
-    with pytest.raises(NotImplementedError, match="aldic"):
-        correlate(ref, dfm, method="aldic")
-
-
 def test_params_object_and_overrides(pair):
     ref, dfm = pair
     p = DICParams(subset=21, step=10)

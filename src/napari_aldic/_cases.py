@@ -10,8 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .engine import synthetic
-
 __all__ = ["FIELDS", "SyntheticCase", "crack_roi", "make_field", "make_case"]
 
 #: displacement fields the demo knows, first one is the default
@@ -24,7 +22,7 @@ class SyntheticCase:
 
     kind: str
     description: str
-    field: synthetic.DisplacementField
+    field: object  # an engine.synthetic.DisplacementField
     reference: np.ndarray
     deformed: np.ndarray
     roi: np.ndarray | None  # True = analysed; None = whole image
@@ -47,6 +45,8 @@ def make_field(kind: str, shape: tuple[int, int]):
 
     Returns ``(field, description)``.
     """
+    from .engine import synthetic
+
     rows, cols = shape
     cx, cy = cols / 2.0, rows / 2.0
     if kind == "strain":
@@ -73,11 +73,12 @@ def make_field(kind: str, shape: tuple[int, int]):
 
 
 def make_case(kind: str = "strain", shape=(512, 512), noise: float = 0.0,
-              seed: int = 0) -> SyntheticCase:
+              seed: int = 0, n_quad: int = 4) -> SyntheticCase:
     """Render the synthetic case ``kind`` (see :data:`FIELDS`).
 
     ``noise`` is the standard deviation of independent Gaussian noise in grey
-    levels added to each 8-bit image.
+    levels added to each 8-bit image; ``n_quad`` the Gauss-Legendre points
+    per pixel axis of the rendering (fewer is faster, slightly less exact).
     """
     if np.isscalar(shape):
         shape = (int(shape), int(shape))
@@ -86,7 +87,9 @@ def make_case(kind: str = "strain", shape=(512, 512), noise: float = 0.0,
         raise ValueError(f"synthetic image size {shape} is too small; use at least 48 px")
     if noise < 0:
         raise ValueError(f"noise={noise} must be >= 0 grey levels")
+    from .engine import synthetic
+
     field, desc = make_field(kind, shape)
-    ref, dfm = synthetic.speckle_pair(shape, field, noise=noise, seed=seed)
+    ref, dfm = synthetic.speckle_pair(shape, field, noise=noise, seed=seed, n_quad=n_quad)
     roi = crack_roi(shape, field.tip) if kind == "crack" else None
     return SyntheticCase(kind, desc, field, ref, dfm, roi)

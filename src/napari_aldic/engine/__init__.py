@@ -7,6 +7,7 @@ Public API::
 
 from . import synthetic
 from .correlate import correlate
+from .figures import displacement_figure, plot_displacement
 from .images import as_gray_float
 from .interpolation import SplineImage, prefilter, sample
 from .params import DICParams
@@ -24,4 +25,6 @@ __all__ = [
     "sample",
     "SplineImage",
     "synthetic",
+    "displacement_figure",
+    "plot_displacement",
 ]

@@ -10,6 +10,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .admm import run_admm
+from .global_solve import uniform_mesh
 from .icgn import icgn_solve
 from .images import validate_pair, validate_roi
 from .init_guess import ncc_search_widening
@@ -98,11 +100,6 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
             if val != getattr(defaults, name):
                 changes[name] = val
         params = params.replace(**changes) if changes else params
-    if params.method == "aldic":
-        raise NotImplementedError(
-            "method='aldic' (augmented Lagrangian DIC) is not available yet; "
-            "use method='local'"
-        )
     if params.init == "seeds":
         raise NotImplementedError(
             "init='seeds' (seed propagation) is not available yet; use init='fft'"
@@ -135,19 +132,52 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask, grid, sub, params,
                                               timing, report)
 
+    meta = {"versions": _versions(), "n_nodes": grid.n}
+    u, v = p[:, 0].copy(), p[:, 3].copy()
+    grad = p[:, [1, 2, 4, 5]].copy()
+    local = None
+    if params.method == "aldic":
+        report(0.85, "AL-DIC iterations")
+        state = _solve_aldic(f, fgx, fgy, g_spline, mask, grid, sub, params, p, reason,
+                             timing)
+        local = (u, v)
+        u, v = state.uh, state.vh
+        grad = state.grad
+        zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)
+        reason = np.where(reason == Reason.OK, state.reason, reason).astype(np.int8)
+        iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
+        meta["admm_history"] = state.history
     valid = reason == Reason.OK
     timing["total"] = time.perf_counter() - t_start
+    meta["timing"] = timing
+    meta["n_valid"] = int(valid.sum())
     report(1.0, "done")
     return DICResult(
-        x=grid.x.astype(np.float64), y=grid.y.astype(np.float64),
-        u=p[:, 0].copy(), v=p[:, 3].copy(),
-        dudx=p[:, 1].copy(), dudy=p[:, 2].copy(), dvdx=p[:, 4].copy(), dvdy=p[:, 5].copy(),
+        x=grid.x.astype(np.float64), y=grid.y.astype(np.float64), u=u, v=v,
+        dudx=grad[:, 0], dudy=grad[:, 1], dvdx=grad[:, 2], dvdy=grad[:, 3],
         valid=valid, zncc=zncc, reason=reason, iterations=iters,
         grid_ix=grid.ix, grid_iy=grid.iy, grid_xs=grid.xs, grid_ys=grid.ys,
-        image_shape=tuple(f.shape), params=params,
-        meta={"timing": timing, "versions": _versions(),
-              "n_nodes": grid.n, "n_valid": int(valid.sum())},
+        image_shape=tuple(f.shape), params=params, meta=meta,
+        u_local=None if local is None else local[0],
+        v_local=None if local is None else local[1],
     )
+
+
+def _solve_aldic(f, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks,
+                 params: DICParams, p: np.ndarray, reason: np.ndarray, timing: dict):
+    """ADMM on the uniform Q4 mesh of the node lattice, from the local result."""
+    t = time.perf_counter()
+    mesh = uniform_mesh(grid, roi)
+    trusted = reason == Reason.OK
+    timing["mesh"] = time.perf_counter() - t
+    state, _ = run_admm(
+        f, fgx, fgy, g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half, mesh,
+        p[:, 0], p[:, 3], p[:, [1, 2, 4, 5]], trusted, trusted,
+        mu=params.mu, beta=params.beta, step=params.step, max_iter=params.admm_max_iter,
+        tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol)
+    for k, val in state.timing.items():
+        timing["admm_" + k] = val
+    return state
 
 
 def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:

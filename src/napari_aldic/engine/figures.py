@@ -104,19 +104,23 @@ def displacement_figure(result, truth=None, image=None, title: str | None = None
     else:
         grid = result.to_grid("zncc", invalid=None)
         finite = grid[np.isfinite(grid)]
-        lo = float(min(finite.min(), 0.9)) if finite.size else 0.0
+        lo = min(float(np.percentile(finite, 1)), 0.99) if finite.size else 0.0
+        clipped = finite.size and float(finite.min()) < lo
         panels.append(dict(data=grid, cmap=sequential, vmin=lo, vmax=1.0, label="ZNCC",
-                           title="correlation quality", extend="neither"))
+                           title="correlation quality", extend="min" if clipped else "neither"))
 
-    wide = cols > 1.6 * rows
+    # size the figure so each map keeps the image aspect with room for its colour bar
     n = len(panels)
-    panel_w = 4.2 if not wide else 8.0
-    panel_h = panel_w * rows / cols
+    wide = cols > 1.6 * rows
     if wide:
-        fig = Figure(figsize=(panel_w + 1.4, n * (panel_h + 0.7) + 0.5), layout="constrained")
+        ax_w = 8.0
+        ax_h = ax_w * rows / cols
+        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.6), layout="constrained")
         axes = fig.subplots(n, 1, sharex=True, sharey=True)
     else:
-        fig = Figure(figsize=(n * (panel_w + 1.2), panel_h + 1.2), layout="constrained")
+        ax_h = min(7.0, 4.2 * rows / cols)
+        ax_w = ax_h * cols / rows
+        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.3), layout="constrained")
         axes = fig.subplots(1, n, sharex=True, sharey=True)
     axes = np.atleast_1d(axes)
 
@@ -136,7 +140,7 @@ def displacement_figure(result, truth=None, image=None, title: str | None = None
         ax.set_title(panel["title"], fontsize=10)
         ax.set_xlabel("x (px)")
         ax.set_ylabel("y (px)")
-        fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"], shrink=0.9)
+        fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
     p = result.params
     if title is None:
         title = (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "

@@ -27,7 +27,7 @@ from .reasons import Reason
 # fast-math without the no-NaN/no-inf assumptions, so NaN checks survive
 _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
-__all__ = ["icgn_solve"]
+__all__ = ["icgn_solve", "icgn_solve_translation"]
 
 _OK = int(Reason.OK)
 _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
@@ -113,6 +113,81 @@ def _sample_cubic_many(c1, stride, xw, yw, out, m):
         out[q] = wy0 * r0 + wy1 * r1 + wy2 * r2 + wy3 * r3
 
 
+@nb.njit(inline="always")
+def _gather(f, fgx, fgy, masks, sl, x0, y0, h, dxs, dys, gx, gy, fs):
+    """Copy the node's subset pixels (its mask component only) into buffers.
+
+    Returns ``(m, fm, df2)``: pixel count, mean and sum of squared deviations.
+    """
+    m = 0
+    sf = 0.0
+    sff = 0.0
+    for a in range(-h, h + 1):
+        for bb in range(-h, h + 1):
+            if sl >= 0 and masks[sl, a + h, bb + h] == 0:
+                continue
+            fv = f[y0 + a, x0 + bb]
+            dxs[m] = bb
+            dys[m] = a
+            gx[m] = fgx[y0 + a, x0 + bb]
+            gy[m] = fgy[y0 + a, x0 + bb]
+            fs[m] = fv
+            sf += fv
+            sff += fv * fv
+            m += 1
+    fm = sf / m
+    return m, fm, sff - m * fm * fm
+
+
+@nb.njit(inline="always", fastmath=_FM)
+def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+               dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax):
+    """Warp the subset, sample the deformed image and return the sums of one
+    Gauss-Newton step: ``(inside, sg, sgg, sfg, sum gx g, sum gx g dx,
+    sum gx g dy, sum gy g, sum gy g dx, sum gy g dy)``.
+
+    The loops are split so that LLVM can vectorise the warp and the sums.
+    """
+    xlo = ylo = 1e300
+    xhi = yhi = -1e300
+    for q in range(m):
+        dx = dxs[q]
+        dy = dys[q]
+        xv = x0 + dx + u + ux * dx + uy * dy
+        yv = y0 + dy + v + vx * dx + vy * dy
+        xw[q] = xv
+        yw[q] = yv
+        xlo = min(xlo, xv)
+        xhi = max(xhi, xv)
+        ylo = min(ylo, yv)
+        yhi = max(yhi, yv)
+    sg = sgg = sfg = 0.0
+    t0 = t1 = t2 = t3 = t4 = t5 = 0.0
+    if xlo < 0.0 or ylo < 0.0 or xhi > xmax or yhi > ymax or not (xhi - xlo < 1e9):
+        return False, sg, sgg, sfg, t0, t1, t2, t3, t4, t5
+    if order == 3:
+        _sample_cubic_many(c1, stride, xw, yw, gv, m)
+    else:
+        for q in range(m):
+            gv[q] = sample_quintic(coef, xw[q], yw[q])
+    for q in range(m):
+        g = np.float64(gv[q])
+        dx = dxs[q]
+        dy = dys[q]
+        sg += g
+        sgg += g * g
+        sfg += fs[q] * g
+        a1 = gx[q] * g
+        a2 = gy[q] * g
+        t0 += a1
+        t1 += a1 * dx
+        t2 += a1 * dy
+        t3 += a2
+        t4 += a2 * dx
+        t5 += a2 * dy
+    return True, sg, sgg, sfg, t0, t1, t2, t3, t4, t5
+
+
 @nb.njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
 def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                  h, max_iter, tol, p_out, zncc_out, iters_out, reason_out):
@@ -123,7 +198,6 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     S = 2 * h + 1
     npx_max = S * S
     nchunks = (n + _CHUNK - 1) // _CHUNK
-    lo = 0.0
     xmax = cols - 1.0
     ymax = rows - 1.0
     for c in nb.prange(nchunks):
@@ -144,26 +218,7 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                 continue
             x0 = nx[k]
             y0 = ny[k]
-            sl = slot[k]
-            # --- gather the reference subset (once per node)
-            m = 0
-            sf = 0.0
-            sff = 0.0
-            for a in range(-h, h + 1):
-                for bb in range(-h, h + 1):
-                    if sl >= 0 and masks[sl, a + h, bb + h] == 0:
-                        continue
-                    fv = f[y0 + a, x0 + bb]
-                    dxs[m] = bb
-                    dys[m] = a
-                    gx[m] = fgx[y0 + a, x0 + bb]
-                    gy[m] = fgy[y0 + a, x0 + bb]
-                    fs[m] = fv
-                    sf += fv
-                    sff += fv * fv
-                    m += 1
-            fm = sf / m
-            df2 = sff - m * fm * fm
+            m, fm, df2 = _gather(f, fgx, fgy, masks, slot[k], x0, y0, h, dxs, dys, gx, gy, fs)
             # --- Hessian, sum(J) and sum(J (f - fm)) of the reference subset
             for i in range(6):
                 for j in range(6):
@@ -239,47 +294,12 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
             it = 0
             while it < max_iter:
                 it += 1
-                # --- warp the subset; split loops so LLVM can vectorise them
-                xlo = ylo = 1e300
-                xhi = yhi = -1e300
-                for q in range(m):
-                    dx = dxs[q]
-                    dy = dys[q]
-                    xv = x0 + dx + u + ux * dx + uy * dy
-                    yv = y0 + dy + v + vx * dx + vy * dy
-                    xw[q] = xv
-                    yw[q] = yv
-                    xlo = min(xlo, xv)
-                    xhi = max(xhi, xv)
-                    ylo = min(ylo, yv)
-                    yhi = max(yhi, yv)
-                if xlo < lo or ylo < lo or xhi > xmax or yhi > ymax or not (xhi - xlo < 1e9):
+                inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
+                    c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+                    dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
+                if not inside:
                     status = _OUT
                     break
-                # --- sample the deformed image (float32 weights: exact to ~1e-5 grey level)
-                if order == 3:
-                    _sample_cubic_many(c1, stride, xw, yw, gv, m)
-                else:
-                    for q in range(m):
-                        gv[q] = sample_quintic(coef, xw[q], yw[q])
-                # --- the nine sums of the ZNSSD Gauss-Newton step
-                sg = sgg = sfg = 0.0
-                t0 = t1 = t2 = t3 = t4 = t5 = 0.0
-                for q in range(m):
-                    g = np.float64(gv[q])
-                    dx = dxs[q]
-                    dy = dys[q]
-                    sg += g
-                    sgg += g * g
-                    sfg += fs[q] * g
-                    a1 = gx[q] * g
-                    a2 = gy[q] * g
-                    t0 += a1
-                    t1 += a1 * dx
-                    t2 += a1 * dy
-                    t3 += a2
-                    t4 += a2 * dx
-                    t5 += a2 * dy
                 gm = sg / m
                 dg2 = sgg - m * gm * gm
                 if dg2 <= 1e-6 * m:
@@ -381,3 +401,146 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
                  np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
                  int(half), int(max_iter), float(tol), p, zn, it, rs)
     return p, zn, it, rs
+
+
+@nb.njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, active,
+                  slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out, reason_out):
+    n = nx.size
+    rows, cols = f.shape
+    stride = coef.shape[1]
+    c1 = coef.ravel()
+    S = 2 * h + 1
+    npx_max = S * S
+    nchunks = (n + _CHUNK - 1) // _CHUNK
+    xmax = cols - 1.0
+    ymax = rows - 1.0
+    for c in nb.prange(nchunks):
+        dxs = np.empty(npx_max)
+        dys = np.empty(npx_max)
+        gx = np.empty(npx_max)
+        gy = np.empty(npx_max)
+        fs = np.empty(npx_max)
+        xw = np.empty(npx_max)
+        yw = np.empty(npx_max)
+        gv = np.empty(npx_max, np.float32)
+        for k in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
+            if not active[k]:
+                continue
+            x0 = nx[k]
+            y0 = ny[k]
+            m, fm, df2 = _gather(f, fgx, fgy, masks, slot[k], x0, y0, h, dxs, dys, gx, gy, fs)
+            h00 = h01 = h11 = sj0 = sj3 = b0 = b3 = 0.0
+            for q in range(m):
+                a1 = gx[q]
+                a2 = gy[q]
+                fv = fs[q] - fm
+                h00 += a1 * a1
+                h01 += a1 * a2
+                h11 += a2 * a2
+                sj0 += a1
+                sj3 += a2
+                b0 += a1 * fv
+                b3 += a2 * fv
+            if df2 <= 1e-6 * m or h00 * h11 - h01 * h01 <= 1e-12 * (h00 + h11) ** 2:
+                reason_out[k] = _FLAT
+                zncc_out[k] = np.nan
+                iters_out[k] = 0
+                uv_out[k, 0] = uv_init[k, 0]
+                uv_out[k, 1] = uv_init[k, 1]
+                continue
+            dfn = np.sqrt(df2)
+            ux = grad[k, 0]
+            uy = grad[k, 1]
+            vx = grad[k, 2]
+            vy = grad[k, 3]
+            # A = I + F maps a reference-frame shift to a deformed-frame shift
+            a11 = 1.0 + ux
+            a12 = uy
+            a21 = vx
+            a22 = 1.0 + vy
+            pen = mu * 0.5 * (h00 + h11)  # penalty stiffness, scaled to the data term
+            # normal matrix (H + pen A^T A), constant over the iterations
+            m00 = h00 + pen * (a11 * a11 + a21 * a21)
+            m01 = h01 + pen * (a11 * a12 + a21 * a22)
+            m11 = h11 + pen * (a12 * a12 + a22 * a22)
+            det = m00 * m11 - m01 * m01
+            tu = target[k, 0]
+            tv = target[k, 1]
+            u = uv_init[k, 0]
+            v = uv_init[k, 1]
+            status = _NOT_CONVERGED
+            zn = np.nan
+            it = 0
+            while it < max_iter:
+                it += 1
+                inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
+                    c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+                    dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
+                if not inside:
+                    status = _OUT
+                    break
+                gm = sg / m
+                dg2 = sgg - m * gm * gm
+                if dg2 <= 1e-6 * m:
+                    status = _FLAT
+                    break
+                dgn = np.sqrt(dg2)
+                zn = (sfg - m * fm * gm) / (dfn * dgn)
+                r = dfn / dgn
+                g0 = b0 - r * (t0 - gm * sj0)
+                g3 = b3 - r * (t3 - gm * sj3)
+                # (H + pen A^T A) d = -g + pen A^T (u - t)
+                eu = u - tu
+                ev = v - tv
+                r0 = -g0 + pen * (a11 * eu + a21 * ev)
+                r1 = -g3 + pen * (a12 * eu + a22 * ev)
+                d0 = (m11 * r0 - m01 * r1) / det
+                d1 = (m00 * r1 - m01 * r0) / det
+                du = a11 * d0 + a12 * d1
+                dv = a21 * d0 + a22 * d1
+                u -= du
+                v -= dv
+                if abs(u - uv_init[k, 0]) > S or abs(v - uv_init[k, 1]) > S or not np.isfinite(u + v):
+                    status = _DIVERGED
+                    break
+                if du * du + dv * dv < tol * tol:
+                    status = _OK
+                    break
+            uv_out[k, 0] = u
+            uv_out[k, 1] = v
+            zncc_out[k] = zn
+            iters_out[k] = it
+            reason_out[k] = status
+
+
+def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad, target,
+                           mu, active, slot, masks, half, max_iter=40, tol=1e-3):
+    """AL-DIC local step: IC-GN on the displacement only, with the gradient fixed.
+
+    Minimises, per node, ``SSD(u; F fixed) + mu' / 2 |u - target|^2`` where
+    ``mu' = mu * tr(H) / 2`` scales the dimensionless ``mu`` by the subset's
+    Gauss-Newton stiffness (H: 2x2 Hessian of the data term), so one ``mu``
+    suits every image contrast and subset size.
+
+    Parameters
+    ----------
+    uv_init : (n, 2) starting displacements.
+    grad : (n, 4) fixed gradients (du/dx, du/dy, dv/dx, dv/dy).
+    target : (n, 2) penalty targets ``û + v`` (scaled multiplier included).
+    mu : float, dimensionless penalty weight.
+
+    Returns
+    -------
+    uv, zncc, iters, reason
+    """
+    n = nodes_x.size
+    uv = np.array(uv_init, dtype=np.float64, copy=True)
+    zn = np.full(n, np.nan)
+    it = np.zeros(n, np.int32)
+    rs = np.full(n, _NOT_CONVERGED, np.int8)
+    _icgn2_kernel(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
+                  np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64),
+                  np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks,
+                  int(half), int(max_iter), float(tol), uv, zn, it, rs)
+    return uv, zn, it, rs

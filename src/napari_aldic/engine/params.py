@@ -71,6 +71,18 @@ class DICParams:
     min_component : float, default 0.5
         Smallest fraction of the full subset area that the mask-connected
         component containing the node must keep; smaller ones are flagged.
+    mu : float, default 1.0
+        AL-DIC displacement penalty, dimensionless: the local step's penalty
+        stiffness is ``mu`` times the subset's mean Gauss-Newton stiffness.
+    beta : float, default 1.0
+        AL-DIC gradient penalty, dimensionless: ``β/μ = beta * step**2`` in
+        the global solve, so the smoothing it implies scales with the node
+        spacing. Larger values make the global field smoother.
+    admm_max_iter : int, default 8
+        Cap on ADMM iterations.
+    admm_tol : float, default 1e-3
+        ADMM stops when the RMS change of the global displacement between
+        iterations is below this (pixels).
     n_threads : int or None, default None
         Threads for the Numba kernels; ``None`` uses Numba's default (all
         cores).
@@ -90,6 +102,10 @@ class DICParams:
     zncc_min: float = 0.6
     zncc_rel: float = 10.0
     min_component: float = 0.5
+    mu: float = 1.0
+    beta: float = 1.0
+    admm_max_iter: int = 8
+    admm_tol: float = 1e-3
     n_threads: int | None = None
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
@@ -97,7 +113,7 @@ class DICParams:
         def bad(msg: str) -> None:
             raise ValueError(f"Invalid DIC parameter: {msg}")
 
-        for name in ("subset", "step", "search", "max_iter"):
+        for name in ("subset", "step", "search", "max_iter", "admm_max_iter"):
             val = getattr(self, name)
             if isinstance(val, bool) or not isinstance(val, int):
                 # accept integral floats from JSON/CLI, reject anything else
@@ -131,6 +147,14 @@ class DICParams:
             bad(f"zncc_rel={self.zncc_rel} must be >= 0 (0 disables the relative test)")
         if not (0 < self.min_component <= 1):
             bad(f"min_component={self.min_component} must be in (0, 1]")
+        if not self.mu > 0:
+            bad(f"mu={self.mu} must be > 0")
+        if not self.beta > 0:
+            bad(f"beta={self.beta} must be > 0")
+        if self.admm_max_iter < 1:
+            bad(f"admm_max_iter={self.admm_max_iter} must be >= 1")
+        if not (0 < self.admm_tol < 1):
+            bad(f"admm_tol={self.admm_tol} must be in (0, 1) pixel")
         if self.n_threads is not None and self.n_threads < 1:
             bad(f"n_threads={self.n_threads} must be >= 1 or None")
         seeds = tuple((float(s[0]), float(s[1])) for s in self.seeds)

@@ -52,7 +52,10 @@ class DICResult:
     image_shape : (rows, cols)
     params : DICParams
     meta : dict
-        Software versions, timing (seconds per stage) and input names.
+        Software versions, timing (seconds per stage), ADMM history.
+    u_local, v_local : (n,) float64 or None
+        For ``method="aldic"``: the last local (subset) displacements, kept
+        for inspection; ``u``/``v`` are then the compatible global field.
     """
 
     x: np.ndarray
@@ -74,6 +77,8 @@ class DICResult:
     image_shape: tuple[int, int]
     params: DICParams
     meta: dict[str, Any] = field(default_factory=dict)
+    u_local: np.ndarray | None = None
+    v_local: np.ndarray | None = None
 
     # ------------------------------------------------------------- views
     def __len__(self) -> int:
@@ -151,10 +156,16 @@ class DICResult:
             "meta": self.meta,
         }
         arrays = {k: np.asarray(getattr(self, k)) for k in _ARRAYS}
+        for k in ("u_local", "v_local"):
+            if getattr(self, k) is not None:
+                arrays[k] = np.asarray(getattr(self, k))
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
                 np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; use normal permissions
             os.replace(tmp, path)
         except BaseException:
             if os.path.exists(tmp):
@@ -180,5 +191,8 @@ def load_result(path) -> DICResult:
         if header.get("format") != _FORMAT:
             raise ValueError(f"{path} is not a napari-aldic result file")
         arrays = {k: z[k] for k in _ARRAYS}
+        for k in ("u_local", "v_local"):
+            if k in z.files:
+                arrays[k] = z[k]
     return DICResult(**arrays, image_shape=tuple(header["image_shape"]),
                      params=DICParams.from_dict(header["params"]), meta=header["meta"])

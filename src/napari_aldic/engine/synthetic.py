@@ -65,14 +65,18 @@ class DisplacementField:
         """
         x = np.asarray(x, float)
         y = np.asarray(y, float)
-        X, Y = x.copy(), y.copy()
-        for it in range(iters):
-            u, v = self.displacement(X, Y)
-            Xn, Yn = x - u, y - v
-            step = np.nanmax(np.abs(Xn - X) + np.abs(Yn - Y)) if X.size else 0.0
-            X, Y = Xn, Yn
-            if step < tol:
+        X, Y = x.copy().ravel(), y.copy().ravel()
+        xf, yf = x.ravel(), y.ravel()
+        todo = np.arange(X.size)  # iterate only the points still moving
+        for _ in range(iters):
+            if todo.size == 0:
                 break
+            u, v = self.displacement(X[todo], Y[todo])
+            Xn, Yn = xf[todo] - u, yf[todo] - v
+            moving = (np.abs(Xn - X[todo]) + np.abs(Yn - Y[todo])) >= tol
+            X[todo], Y[todo] = Xn, Yn
+            todo = todo[moving]
+        X, Y = X.reshape(x.shape), Y.reshape(x.shape)
         u, v = self.displacement(X, Y)
         # no preimage (e.g. inside an opened crack): the iteration oscillates
         bad = np.hypot(X + u - x, Y + v - y) > 1e-6

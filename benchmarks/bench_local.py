@@ -1,0 +1,199 @@
+"""Throughput and memory of Local DIC, optionally side by side with pyALDIC.
+
+Usage::
+
+    python benchmarks/bench_local.py                      # napari-aldic only
+    python benchmarks/bench_local.py --pyaldic /work/pyaldic-venv/bin/python
+    python benchmarks/bench_local.py --sizes 256 512 1024 2048 --rss 1024 4096
+
+For every size N the same synthetic 8-bit speckle pair (analytic truth: 0.2 %
+uniform strain, 0.2 degree rotation and a sub-pixel translation, plus 2 grey
+levels of noise) is correlated with subset 31, step 8, FFT initial guess.
+Times are the median of ``--repeat`` runs after a JIT warm-up, in points of
+interest (nodes) per second; the RMSE against the truth is over valid nodes.
+Peak resident memory is measured in a fresh subprocess per case
+(``ru_maxrss``: the whole process, interpreter, imports and the two images
+included; the RSS before the call is reported too). With ``--pyaldic`` the
+reference program runs on the very same images in the same benchmark run
+(see ``benchmarks/pyaldic_runner.py``), so speed ratios are like for like.
+Images are cached in ``benchmarks/_cache/`` (not tracked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+CACHE = HERE / "_cache"
+
+
+def field_for(n: int):
+    from napari_aldic.engine import synthetic as S
+
+    return S.Affine.strain_rotation(exx=0.002, eyy=-0.001, angle_deg=0.2,
+                                    center=(n / 2, n / 2), t=(0.37, -0.61))
+
+
+def pair_path(n: int) -> Path:
+    """Cached ``.npz`` with ``ref``/``dfm`` (uint8) for size ``n``."""
+    from napari_aldic.engine import synthetic as S
+
+    CACHE.mkdir(exist_ok=True)
+    p = CACHE / f"pair_{n}.npz"
+    if not p.exists():
+        t = time.perf_counter()
+        ref, dfm = S.speckle_pair((n, n), field_for(n), noise=2.0, seed=n,
+                                  n_quad=3 if n > 2048 else 4)
+        np.savez(p, ref=ref, dfm=dfm)
+        print(f"  generated {n}x{n} pair in {time.perf_counter() - t:.1f} s", flush=True)
+    return p
+
+
+def tiff_paths(n: int) -> tuple[Path, Path]:
+    import tifffile
+
+    r, d = CACHE / f"ref_{n}.tif", CACHE / f"dfm_{n}.tif"
+    if not r.exists() or not d.exists():
+        z = np.load(pair_path(n))
+        tifffile.imwrite(r, z["ref"], photometric="minisblack")
+        tifffile.imwrite(d, z["dfm"], photometric="minisblack")
+    return r, d
+
+
+def time_ours(n: int, repeat: int, **kw) -> dict:
+    from napari_aldic.engine import correlate
+
+    z = np.load(pair_path(n))
+    ref, dfm = z["ref"], z["dfm"]
+    correlate(ref[:256, :256], dfm[:256, :256])  # JIT warm-up (cached after first run)
+    secs, res = [], None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        res = correlate(ref, dfm, subset=31, step=8, **kw)
+        secs.append(time.perf_counter() - t)
+    ut, vt = field_for(n).displacement(res.x, res.y)
+    v = res.valid
+    rmse = float(np.sqrt(np.mean((res.u[v] - ut[v]) ** 2 + (res.v[v] - vt[v]) ** 2)))
+    med = float(np.median(secs))
+    stages = {k: round(s, 4) for k, s in res.meta["timing"].items()}
+    return {"n_poi": len(res), "n_valid": int(v.sum()), "median_s": med,
+            "poi_per_s": len(res) / med, "rmse_px": rmse, "seconds": secs,
+            "stages_last_run": stages}
+
+
+_RSS_CHILD = r"""
+import json, resource, sys, time
+import numpy as np
+from napari_aldic.engine import correlate
+z = np.load(sys.argv[1]); ref, dfm = z["ref"], z["dfm"]
+search = int(sys.argv[2])
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t = time.perf_counter()
+res = correlate(ref, dfm, subset=31, step=8, search=search)
+el = time.perf_counter() - t
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"n_poi": len(res), "n_valid": int(res.valid.sum()), "seconds": el,
+                  "rss_before_mb": base / 1024, "peak_rss_mb": peak / 1024}))
+"""
+
+
+def rss_ours(n: int, search: int) -> dict:
+    path = pair_path(n)
+    out = subprocess.run([sys.executable, "-c", _RSS_CHILD, str(path), str(search)],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_pyaldic(python: str, n: int, repeat: int, method: str = "local") -> dict:
+    r, d = tiff_paths(n)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "res.npz"
+        cmd = [python, str(HERE / "pyaldic_runner.py"), str(r), str(d), "--subset", "31",
+               "--step", "8", "--method", method, "--repeat", str(repeat), "--out", str(out)]
+        proc = subprocess.run(cmd, capture_output=True, text=True,
+                              env={**os.environ, "QT_QPA_PLATFORM": "offscreen"})
+        if proc.returncode != 0:
+            return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr else "failed"}
+        summary = json.loads(proc.stdout.strip().splitlines()[-1])
+        z = np.load(out)
+        ut, vt = field_for(n).displacement(z["x"], z["y"])
+        ok = np.isfinite(z["u"]) & np.isfinite(z["v"])
+        summary["rmse_px"] = float(np.sqrt(np.mean((z["u"][ok] - ut[ok]) ** 2
+                                                   + (z["v"][ok] - vt[ok]) ** 2)))
+    return summary
+
+
+def machine() -> dict:
+    import numba
+    import scipy
+
+    import napari_aldic
+
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "numba": numba.__version__,
+            "napari_aldic": napari_aldic.__version__,
+            "numba_threads": numba.get_num_threads()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512, 1024, 2048])
+    ap.add_argument("--rss", type=int, nargs="*", default=[1024, 4096],
+                    help="sizes for the peak-RSS runs (fresh subprocess each)")
+    ap.add_argument("--rss-search", type=int, default=64,
+                    help="NCC search half-range (px) for the RSS runs")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--pyaldic", metavar="PYTHON",
+                    help="python of a venv with al-dic installed, to run pyALDIC too")
+    ap.add_argument("--json", type=Path, help="write all figures to this file")
+    args = ap.parse_args(argv)
+
+    report = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
+              "params": {"subset": 31, "step": 8, "method": "local"}, "throughput": [],
+              "rss": []}
+    print(json.dumps(report["machine"]))
+    for n in args.sizes:
+        row = {"size": n, "ours": time_ours(n, args.repeat)}
+        if args.pyaldic:
+            row["pyaldic"] = run_pyaldic(args.pyaldic, n, args.repeat)
+            if "poi_per_s" in row["pyaldic"]:
+                row["ratio"] = row["ours"]["poi_per_s"] / row["pyaldic"]["poi_per_s"]
+        report["throughput"].append(row)
+        o = row["ours"]
+        line = (f"{n:5d}^2  ours {o['poi_per_s']:9,.0f} POI/s ({o['n_poi']} POI, "
+                f"median {o['median_s']:.3f} s, RMSE {o['rmse_px']:.4f} px)")
+        if "pyaldic" in row and "poi_per_s" in row["pyaldic"]:
+            p = row["pyaldic"]
+            line += (f" | pyALDIC {p['poi_per_s']:8,.0f} POI/s (RMSE {p['rmse_px']:.4f} px)"
+                     f" | x{row['ratio']:.2f}")
+        print(line, flush=True)
+    for n in args.rss:
+        row = {"size": n, "search": args.rss_search, "ours": rss_ours(n, args.rss_search)}
+        o = row["ours"]
+        line = (f"{n:5d}^2 RSS ours peak {o['peak_rss_mb']:7.0f} MB (before call "
+                f"{o['rss_before_mb']:.0f} MB, {o['seconds']:.2f} s, {o['n_poi']} POI)")
+        if args.pyaldic and n <= 2048:
+            p = run_pyaldic(args.pyaldic, n, 1)
+            row["pyaldic"] = p
+            if "peak_rss_mb" in p:
+                line += f" | pyALDIC peak {p['peak_rss_mb']:.0f} MB"
+        report["rss"].append(row)
+        print(line, flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

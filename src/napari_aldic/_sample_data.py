@@ -1,0 +1,118 @@
+"""Sample data for napari (npe2 ``sample_data`` contributions).
+
+Every function returns a list of layer-data tuples ``(data, kwargs, layer_type)``.
+napari itself is never imported here: only NumPy, SciPy and the engine, so the
+functions also work in scripts and tests.
+
+* :func:`make_translation_pair` - synthetic speckle pair, sub-pixel translation
+* :func:`make_crack_pair` - synthetic Mode-I crack, with the ROI as a Labels layer
+* :func:`load_open_hole_pair` - real open-hole tension images (CFRP coupon)
+
+The synthetic pairs carry their exact displacement in the layer ``metadata``
+under ``"truth"``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["make_translation_pair", "make_crack_pair", "load_open_hole_pair",
+           "sample_data_dir", "open_hole_roi"]
+
+#: translation of :func:`make_translation_pair`, pixels (u along x, v along y)
+TRANSLATION = (0.45, -0.3)
+OPEN_HOLE_FILES = ("oht_cfrp_00.tiff", "oht_cfrp_11.tiff")
+
+
+def make_translation_pair():
+    """Synthetic 256 x 256 speckle pair whose second frame is translated by
+    (u, v) = (+0.45, -0.30) px: a ``(2, 256, 256)`` uint8 stack."""
+    from .engine import synthetic
+
+    u, v = TRANSLATION
+    ref, dfm = synthetic.speckle_pair((256, 256), synthetic.Translation(u, v), seed=3)
+    stack = np.stack([ref, dfm])
+    meta = {"truth": {"field": "translation", "u": u, "v": v},
+            "description": "frame 0: reference; frame 1: rigid sub-pixel translation"}
+    return [(stack, {"name": f"speckle translation u={u:+.2f} v={v:+.2f} px",
+                     "metadata": meta, "contrast_limits": (0, 255)}, "image")]
+
+
+def make_crack_pair():
+    """Synthetic 256 x 256 Mode-I crack pair (``(2, 256, 256)`` uint8 stack)
+    and its ROI as a Labels layer (1 = analysed, 0 = the crack slot)."""
+    from ._cases import make_case
+
+    case = make_case("crack", (256, 256), seed=4, n_quad=2)
+    f = case.field
+    stack = np.stack([case.reference, case.deformed])
+    meta = {"truth": {"field": "mode_I_crack", "tip": list(f.tip), "amplitude": f.amplitude,
+                      "nu": f.nu, "t": list(f.t)},
+            "description": case.description}
+    labels = case.roi.astype(np.uint8)
+    return [
+        (stack, {"name": "speckle Mode-I crack", "metadata": meta,
+                 "contrast_limits": (0, 255)}, "image"),
+        (labels, {"name": "ROI (crack excluded)", "opacity": 0.3}, "labels"),
+    ]
+
+
+def sample_data_dir(name: str = "open_hole_tension", package_dir=None) -> Path:
+    """Folder ``sample_data/<name>`` of the installed package or the source tree.
+
+    A wheel holds it inside the package (``napari_aldic/sample_data``); an
+    editable install leaves it at the top of the repository, two levels above
+    the package folder.
+    """
+    pkg = Path(__file__).resolve().parent if package_dir is None else Path(package_dir)
+    candidates = [pkg / "sample_data" / name, pkg.parent.parent / "sample_data" / name]
+    for folder in candidates:
+        if folder.is_dir():
+            return folder
+    raise FileNotFoundError(
+        f"sample data folder {name!r} not found (looked in "
+        f"{', '.join(str(c) for c in candidates)}); reinstall napari-aldic")
+
+
+def open_hole_roi(image: np.ndarray, threshold: float = 40.0) -> np.ndarray:
+    """Estimate the ROI of an open-hole coupon image: the bright speckled
+    specimen, without the dark hole and background (True = analysed).
+
+    The image is averaged over 15 x 15 pixel windows and thresholded, cleaned by
+    a morphological opening, reduced to its largest connected region and
+    eroded by 2 pixels to keep clear of the edges.
+    """
+    from scipy import ndimage
+
+    smooth = ndimage.uniform_filter(np.asarray(image, np.float32), 15)
+    mask = ndimage.binary_opening(smooth > threshold, iterations=3)
+    lab, n = ndimage.label(mask)
+    if n > 1:
+        sizes = ndimage.sum_labels(mask, lab, index=np.arange(1, n + 1))
+        mask = lab == 1 + int(np.argmax(sizes))
+    return ndimage.binary_erosion(mask, iterations=2)
+
+
+def load_open_hole_pair():
+    """Real open-hole tension images of a CFRP coupon (1040 x 400, uint8):
+    reference and loaded state as a ``(2, 1040, 400)`` stack, plus an
+    estimated ROI (hole and background excluded) as a Labels layer.
+
+    Images from the MATLAB AL-DIC repository (Jin Yang), BSD-3-Clause; see
+    ``LICENSE-2D_ALDIC-data.txt`` beside them.
+    """
+    import tifffile
+
+    folder = sample_data_dir("open_hole_tension")
+    frames = [tifffile.imread(folder / name) for name in OPEN_HOLE_FILES]
+    stack = np.stack(frames)
+    meta = {"source": "2D_ALDIC (Jin Yang), BSD-3-Clause; see LICENSE-2D_ALDIC-data.txt",
+            "files": [str(folder / name) for name in OPEN_HOLE_FILES]}
+    roi = open_hole_roi(stack[0]).astype(np.uint8)
+    return [
+        (stack, {"name": "open-hole tension (CFRP)", "metadata": meta,
+                 "contrast_limits": (0, 255)}, "image"),
+        (roi, {"name": "ROI (estimated, hole excluded)", "opacity": 0.3}, "labels"),
+    ]

@@ -1,0 +1,253 @@
+"""Q4 finite-element meshes of the DIC nodes and the global compatibility solve.
+
+The AL-DIC global step finds a continuous displacement field ``û`` on a mesh
+of bilinear quadrilaterals (Q4) whose corners are the DIC nodes. Each node's
+displacement gradient ``(Dû)_i`` is the average, over the mesh elements that
+have node i as a corner, of that element's bilinear gradient evaluated at
+the corner. ``D`` acts on each displacement component separately, so the
+system matrix
+
+    A = β GᵀG + μ diag(w)
+
+(G: the scalar nodal-gradient operator, w: 1 for trusted nodes, a tiny
+weight for untrusted ones) is shared by u and v and factorised once.
+
+Handling of awkward elements (documented behaviour):
+
+* an element whose area is not entirely inside the ROI (it spans a hole, a
+  crack or the outline) is left out of the mesh, so the two faces of a crack
+  are never tied together;
+* an element with an untrusted corner node stays in the mesh: that node's
+  data weight is tiny (``w = 1e-6``), so its ``û`` is interpolated from its
+  trusted neighbours through the gradient term instead of pulling them
+  towards a wrong local value;
+* a node that belongs to no element keeps its local displacement
+  (``û = u - v``), since nothing constrains it.
+
+Hanging nodes of a quadtree mesh (mid-edge nodes where a refined element
+meets a coarser one) are constrained to the mean of the two end nodes of
+that edge, ``û_h = (û_a + û_b) / 2``, by eliminating them:
+``û = T û_free`` with a prolongation matrix ``T``; the reduced system
+``Tᵀ A T`` is solved and ``û`` expanded, so the constraint holds to
+rounding error and ``û`` is continuous across level transitions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
+           "element_inside_roi"]
+
+UNTRUSTED_WEIGHT = 1e-6
+DIRECT_MAX_UNKNOWNS = 150_000  # above this a warm-started CG keeps memory bounded
+
+
+@dataclass
+class Q4Mesh:
+    """Quadrilateral mesh over DIC nodes.
+
+    Attributes
+    ----------
+    x, y : (N,) float64
+        Node coordinates in pixels.
+    elements : (E, 4) int64
+        Corner node indices, in the order (x0, y0), (x1, y0), (x1, y1), (x0, y1).
+    hanging : (H, 3) int64
+        Rows ``(h, a, b)``: node h is constrained to the mean of nodes a and b.
+    level : (E,) int
+        Refinement level of each element (0 = base mesh).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    elements: np.ndarray
+    hanging: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    level: np.ndarray | None = None
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.x.size)
+
+    @property
+    def n_elements(self) -> int:
+        return int(self.elements.shape[0])
+
+    def element_size(self) -> np.ndarray:
+        e = self.elements
+        return self.x[e[:, 1]] - self.x[e[:, 0]]
+
+    def prolongation(self) -> tuple[sp.csr_matrix, np.ndarray]:
+        """``(T, free)``: û = T @ û[free]; hanging nodes expressed by free ones."""
+        n = self.n_nodes
+        is_h = np.zeros(n, bool)
+        is_h[self.hanging[:, 0]] = True
+        free = np.nonzero(~is_h)[0]
+        col = -np.ones(n, np.int64)
+        col[free] = np.arange(free.size)
+        # rows as dicts; resolve chains (a parent may itself be hanging)
+        parents = {int(h): (int(a), int(b)) for h, a, b in self.hanging}
+
+        def expand(i, w, out):
+            if i in parents:
+                a, b = parents[i]
+                expand(a, 0.5 * w, out)
+                expand(b, 0.5 * w, out)
+            else:
+                out[col[i]] = out.get(col[i], 0.0) + w
+
+        rows, cols, vals = [], [], []
+        rows.extend(free.tolist())
+        cols.extend(range(free.size))
+        vals.extend([1.0] * free.size)
+        for h in parents:
+            acc: dict[int, float] = {}
+            expand(h, 1.0, acc)
+            for c, w in acc.items():
+                rows.append(h)
+                cols.append(c)
+                vals.append(w)
+        T = sp.csr_matrix((vals, (rows, cols)), shape=(n, free.size))
+        return T, free
+
+
+def uniform_mesh(grid, roi: np.ndarray) -> Q4Mesh:
+    """Q4 mesh of a node lattice: one element per lattice cell whose four
+    corner nodes exist and whose rectangle lies inside the ROI."""
+    idx = grid.index_image()
+    c0 = idx[:-1, :-1].ravel()
+    c1 = idx[:-1, 1:].ravel()
+    c2 = idx[1:, 1:].ravel()
+    c3 = idx[1:, :-1].ravel()
+    e = np.column_stack([c0, c1, c2, c3])
+    e = e[(e >= 0).all(axis=1)]
+    x = grid.x.astype(np.float64)
+    y = grid.y.astype(np.float64)
+    e = e[element_inside_roi(x, y, e, roi)]
+    return Q4Mesh(x, y, e.astype(np.int64), level=np.zeros(e.shape[0], np.int64))
+
+
+def element_inside_roi(x: np.ndarray, y: np.ndarray, elements: np.ndarray,
+                       roi: np.ndarray) -> np.ndarray:
+    """True for elements whose whole rectangle (pixels) lies in the ROI."""
+    from .subsets import integral_image
+
+    if roi.all():
+        return np.ones(elements.shape[0], bool)
+    ii = integral_image((~roi).view(np.uint8))
+    x0 = np.rint(x[elements[:, 0]]).astype(np.int64)
+    y0 = np.rint(y[elements[:, 0]]).astype(np.int64)
+    x1 = np.rint(x[elements[:, 2]]).astype(np.int64)
+    y1 = np.rint(y[elements[:, 2]]).astype(np.int64)
+    holes = ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]
+    return holes == 0
+
+
+def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
+    """Nodal gradient operators ``(Gx, Gy, covered)`` of a scalar nodal field.
+
+    ``(Gx @ s)[i]`` is ds/dx at node i: the mean over the elements having i
+    as a corner of the bilinear element gradient evaluated at that corner.
+    ``covered[i]`` is False for nodes in no element (their rows are zero).
+    """
+    e = mesh.elements
+    E = e.shape[0]
+    n = mesh.n_nodes
+    if E == 0:
+        z = sp.csr_matrix((n, n))
+        return z, z, np.zeros(n, bool)
+    s = (mesh.x[e[:, 1]] - mesh.x[e[:, 0]]).astype(float)
+    t = (mesh.y[e[:, 3]] - mesh.y[e[:, 0]]).astype(float)
+    # corner c of a Q4 element: at (x0, y0) d/dx = (s1 - s0)/s, d/dy = (s3 - s0)/t, etc.
+    # (neighbour along x, neighbour along y) for corners 0..3, and their signs
+    nx_ = [1, 0, 3, 2]
+    ny_ = [3, 2, 1, 0]
+    sx = [1, -1, -1, 1]
+    sy = [1, 1, -1, -1]
+    rows, cols, vx, vy = [], [], [], []
+    for c in range(4):
+        i = e[:, c]
+        # ds/dx at corner c: sx * (s[nx] - s[c]) / s
+        rows += [i, i]
+        cols += [e[:, nx_[c]], i]
+        vx += [sx[c] / s, -sx[c] / s]
+        vy += [np.zeros(E), np.zeros(E)]
+        rows += [i, i]
+        cols += [e[:, ny_[c]], i]
+        vx += [np.zeros(E), np.zeros(E)]
+        vy += [sy[c] / t, -sy[c] / t]
+    r = np.concatenate(rows)
+    cidx = np.concatenate(cols)
+    count = np.bincount(e.ravel(), minlength=n).astype(float)
+    inv = np.divide(1.0, count, out=np.zeros(n), where=count > 0)
+    Gx = sp.csr_matrix((np.concatenate(vx) * inv[r], (r, cidx)), shape=(n, n))
+    Gy = sp.csr_matrix((np.concatenate(vy) * inv[r], (r, cidx)), shape=(n, n))
+    Gx.eliminate_zeros()
+    Gy.eliminate_zeros()
+    return Gx, Gy, count > 0
+
+
+class GlobalSolver:
+    """Solves ``(β GᵀG + μ diag(w)) û = β Gᵀ(F - W) + μ w (u - v)`` per component.
+
+    The matrix depends only on the mesh, β, μ and the node weights, so it is
+    factorised once (SuperLU) and reused for every ADMM iteration and for
+    every frame with the same mesh and weights. Meshes with more than
+    ``DIRECT_MAX_UNKNOWNS`` free nodes use conjugate gradients with a Jacobi
+    preconditioner, warm-started from the previous solution, to keep memory
+    bounded (the factor of a 500k-node mesh needs >1 GB).
+    """
+
+    def __init__(self, mesh: Q4Mesh, beta: float, mu: float, weights: np.ndarray,
+                 direct: bool | None = None):
+        self.mesh = mesh
+        self.beta = float(beta)
+        self.mu = float(mu)
+        self.Gx, self.Gy, self.covered = gradient_operator(mesh)
+        self.T, self.free = mesh.prolongation()
+        self.w = np.where(weights, 1.0, UNTRUSTED_WEIGHT).astype(float)
+        L = (self.Gx.T @ self.Gx + self.Gy.T @ self.Gy)
+        A = self.beta * L + self.mu * sp.diags(self.w)
+        self.A = (self.T.T @ A @ self.T).tocsc()
+        n_free = self.A.shape[0]
+        self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
+        if self.direct:
+            self._lu = spla.splu(self.A, permc_spec="MMD_AT_PLUS_A")
+        else:
+            d = self.A.diagonal()
+            self._M = sp.diags(1.0 / d)
+        self._last = None
+
+    def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
+        """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
+        return np.column_stack([self.Gx @ uh, self.Gy @ uh, self.Gx @ vh, self.Gy @ vh])
+
+    def solve(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,
+              vu: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One global step.
+
+        Parameters
+        ----------
+        F, W : (N, 4) nodal gradients and their scaled multipliers.
+        u, v : (N,) local displacements; vu, vv : (N,) their scaled multipliers.
+        """
+        b, mu, w = self.beta, self.mu, self.w
+        R = F - W
+        rhs_u = b * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mu * w * (u - vu)
+        rhs_v = b * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mu * w * (v - vv)
+        rhs = self.T.T @ np.column_stack([rhs_u, rhs_v])
+        if self.direct:
+            sol = self._lu.solve(np.asfortranarray(rhs))
+        else:
+            sol = np.empty_like(rhs)
+            for c in range(2):
+                x0 = None if self._last is None else self._last[:, c]
+                sol[:, c], info = spla.cg(self.A, rhs[:, c], x0=x0, M=self._M, rtol=1e-10,
+                                          maxiter=2000)
+            self._last = sol
+        full = self.T @ sol
+        return full[:, 0], full[:, 1]
