@@ -91,25 +91,30 @@ def time_ours(n: int, repeat: int, **kw) -> dict:
             "stages_last_run": stages}
 
 
+# Peak RSS is read from VmHWM (reset at exec), not ru_maxrss, which Linux
+# carries over from the forking parent and would report the benchmark's own size.
 _RSS_CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 import numpy as np
 from napari_aldic.engine import correlate
+def hwm():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
 z = np.load(sys.argv[1]); ref, dfm = z["ref"], z["dfm"]
-search = int(sys.argv[2])
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+search = int(sys.argv[2]); method = sys.argv[3]
+base = hwm()
 t = time.perf_counter()
-res = correlate(ref, dfm, subset=31, step=8, search=search)
+res = correlate(ref, dfm, subset=31, step=8, search=search, method=method)
 el = time.perf_counter() - t
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(json.dumps({"n_poi": len(res), "n_valid": int(res.valid.sum()), "seconds": el,
-                  "rss_before_mb": base / 1024, "peak_rss_mb": peak / 1024}))
+                  "rss_before_mb": base, "peak_rss_mb": hwm()}))
 """
 
 
-def rss_ours(n: int, search: int) -> dict:
+def rss_ours(n: int, search: int, method: str = "local") -> dict:
     path = pair_path(n)
-    out = subprocess.run([sys.executable, "-c", _RSS_CHILD, str(path), str(search)],
+    out = subprocess.run([sys.executable, "-c", _RSS_CHILD, str(path), str(search), method],
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 

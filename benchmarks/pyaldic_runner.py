@@ -252,7 +252,15 @@ def main(argv=None) -> int:
             seconds.append(time.perf_counter() - t0)
 
     x, y, u, v = _extract(result)
+    # VmHWM is reset at exec; ru_maxrss is inherited from a forking parent
     peak_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    peak_rss = int(line.split()[1]) * 1024
+    except OSError:
+        pass
     n_poi = int(x.size)
     n_valid = int(np.count_nonzero(np.isfinite(u) & np.isfinite(v)))
     median_s = float(np.median(seconds))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from typing import Callable
 
 import numba
@@ -12,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from .admm import run_admm
 from .global_solve import uniform_mesh
+from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .icgn import icgn_solve
 from .images import validate_pair, validate_roi
 from .init_guess import ncc_search_widening
@@ -52,7 +54,7 @@ def _versions() -> dict[str, str]:
 
 def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
               method: str = "local", *, params: DICParams | None = None,
-              progress: ProgressFn | None = None, **kwargs) -> DICResult:
+              refine=None, progress: ProgressFn | None = None, **kwargs) -> DICResult:
     """Measure the displacement field between two images by subset DIC.
 
     Parameters
@@ -71,6 +73,11 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     params : DICParams, optional
         All parameters at once; ``subset``, ``step``, ``method`` and
         ``kwargs`` then override its fields only when given explicitly.
+    refine : None, "light", "medium", "strong", Refinement or dict
+        Adaptive quadtree refinement of the mesh (see
+        :mod:`napari_aldic.engine.quadtree`); overrides ``params.refine``.
+        Refined nodes are extra DIC points; with ``method="aldic"`` the
+        global solve constrains hanging nodes.
     progress : callable(fraction, message), optional
         Called as the analysis advances.
     **kwargs
@@ -115,7 +122,9 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     t = time.perf_counter()
     f, g = validate_pair(reference, deformed)
     mask = validate_roi(roi, f.shape)
-    grid = make_grid(mask, params.subset, params.step)
+    base = make_grid(mask, params.subset, params.step)
+    ref_spec = resolve_refinement(refine if refine is not None else params.refine)
+    grid, qmesh = _nodes(base, mask, ref_spec, params)
     sub = split_subsets(mask, grid, params.subset, params.min_component)
     t = lap("setup", t)
     report(0.05, f"{grid.n} nodes")
@@ -128,18 +137,50 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     t = lap("prefilter", t)
     report(0.15, "interpolation ready")
 
+    meta = {"versions": _versions()}
     with _numba_threads(params.n_threads):
-        p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask, grid, sub, params,
-                                              timing, report)
+        p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask, grid, sub,
+                                              params, timing, report)
+        state = None
+        if params.method == "aldic" or (ref_spec is not None and ref_spec.error):
+            mesh = qmesh.mesh if qmesh is not None else uniform_mesh(grid, mask)
+            if params.method == "aldic":
+                report(0.85, "AL-DIC iterations")
+                state = _solve_aldic(f, fgx, fgy, g_spline, grid, sub, mesh, params, p,
+                                     reason, timing)
+            if ref_spec is not None and ref_spec.error:
+                # a-posteriori criterion: refine around poorly correlated nodes, resolve
+                zz = zncc if state is None else np.where(np.isfinite(state.zncc),
+                                                         state.zncc, zncc)
+                rr = reason if state is None else np.where(reason == Reason.OK,
+                                                           state.reason, reason)
+                bad = _poorly_correlated(zz, rr, sub.reason == Reason.OK, params)
+                meta["error_refined_nodes"] = int(bad.sum())
+                if bad.any():
+                    t = time.perf_counter()
+                    grid, qmesh = _nodes(base, mask, replace(ref_spec, error=True,
+                                         mask_boundary=False, roi_boundary=False,
+                                         brush=None, elements=(), points=(), levels=1),
+                                         params, cells=qmesh.cells if qmesh else None,
+                                         bad_xy=np.column_stack([grid.x[bad], grid.y[bad]]))
+                    sub = split_subsets(mask, grid, params.subset, params.min_component)
+                    lap("setup", t)
+                    p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask,
+                                                          grid, sub, params, timing, report)
+                    if params.method == "aldic":
+                        state = _solve_aldic(f, fgx, fgy, g_spline, grid, sub, qmesh.mesh,
+                                             params, p, reason, timing)
+            if qmesh is None:
+                qmesh_mesh = mesh
+            else:
+                qmesh_mesh = qmesh.mesh
+        else:
+            qmesh_mesh = qmesh.mesh if qmesh is not None else None
 
-    meta = {"versions": _versions(), "n_nodes": grid.n}
     u, v = p[:, 0].copy(), p[:, 3].copy()
     grad = p[:, [1, 2, 4, 5]].copy()
     local = None
-    if params.method == "aldic":
-        report(0.85, "AL-DIC iterations")
-        state = _solve_aldic(f, fgx, fgy, g_spline, mask, grid, sub, params, p, reason,
-                             timing)
+    if state is not None:
         local = (u, v)
         u, v = state.uh, state.vh
         grad = state.grad
@@ -150,7 +191,10 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     valid = reason == Reason.OK
     timing["total"] = time.perf_counter() - t_start
     meta["timing"] = timing
+    meta["n_nodes"] = grid.n
     meta["n_valid"] = int(valid.sum())
+    if ref_spec is not None:
+        meta["refine"] = _describe(ref_spec)
     report(1.0, "done")
     return DICResult(
         x=grid.x.astype(np.float64), y=grid.y.astype(np.float64), u=u, v=v,
@@ -160,23 +204,51 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         image_shape=tuple(f.shape), params=params, meta=meta,
         u_local=None if local is None else local[0],
         v_local=None if local is None else local[1],
+        elements=None if qmesh_mesh is None else qmesh_mesh.elements,
+        hanging=None if qmesh_mesh is None else qmesh_mesh.hanging,
     )
 
 
-def _solve_aldic(f, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks,
+def _describe(ref: Refinement) -> dict:
+    d = {k: getattr(ref, k) for k in ("mask_boundary", "roi_boundary", "error", "levels",
+                                      "min_size", "margin")}
+    d["brush"] = ref.brush is not None
+    d["elements"] = [int(e) for e in ref.elements]
+    d["points"] = [list(map(float, pt)) for pt in ref.points]
+    return d
+
+
+def _nodes(base: NodeGrid, roi: np.ndarray, ref: Refinement | None, params: DICParams,
+           cells=None, bad_xy=None):
+    """DIC nodes: the base lattice, plus quadtree nodes when refining."""
+    if ref is None:
+        return base, None
+    qm = build_quadtree(base, roi, ref, params.half, bad_nodes_xy=bad_xy, cells=cells)
+    extra = np.column_stack([qm.mesh.x[base.n:], qm.mesh.y[base.n:]]).astype(np.int64)
+    return base.with_extra(extra[:, 0], extra[:, 1]), qm
+
+
+def _poorly_correlated(zncc, reason, usable, params: DICParams) -> np.ndarray:
+    """Nodes the a-posteriori criterion refines around: usable but failed,
+    or matching clearly worse than the image's typical node."""
+    conv = usable & (reason == Reason.OK)
+    if not conv.any():
+        return usable & (reason != Reason.OK)
+    floor = max(3.0 * float(np.median(1.0 - zncc[conv])), 0.02)
+    return usable & ((reason != Reason.OK) | ~(1.0 - zncc <= floor))
+
+
+def _solve_aldic(f, fgx, fgy, g_spline, grid: NodeGrid, sub: SubsetMasks, mesh,
                  params: DICParams, p: np.ndarray, reason: np.ndarray, timing: dict):
-    """ADMM on the uniform Q4 mesh of the node lattice, from the local result."""
-    t = time.perf_counter()
-    mesh = uniform_mesh(grid, roi)
+    """ADMM on a Q4 mesh of the nodes, from the local result."""
     trusted = reason == Reason.OK
-    timing["mesh"] = time.perf_counter() - t
     state, _ = run_admm(
         f, fgx, fgy, g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half, mesh,
         p[:, 0], p[:, 3], p[:, [1, 2, 4, 5]], trusted, trusted,
         mu=params.mu, beta=params.beta, step=params.step, max_iter=params.admm_max_iter,
         tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol)
     for k, val in state.timing.items():
-        timing["admm_" + k] = val
+        timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
     return state
 
 

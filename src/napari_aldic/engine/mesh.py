@@ -46,10 +46,21 @@ class NodeGrid:
         return (self.ys.size, self.xs.size)
 
     def index_image(self) -> np.ndarray:
-        """Lattice-shaped array of node indices, -1 where no node is kept."""
+        """Lattice-shaped array of node indices, -1 where no node is kept
+        (extra nodes off the lattice, with ``ix = -1``, are not included)."""
         idx = np.full(self.shape, -1, np.int64)
-        idx[self.iy, self.ix] = np.arange(self.n)
+        on = self.ix >= 0
+        idx[self.iy[on], self.ix[on]] = np.nonzero(on)[0]
         return idx
+
+    def with_extra(self, x, y) -> "NodeGrid":
+        """This grid plus extra nodes at integer (x, y) off the lattice (ix = iy = -1)."""
+        x = np.asarray(x, np.int64)
+        y = np.asarray(y, np.int64)
+        m = -np.ones(x.size, np.int64)
+        return NodeGrid(np.concatenate([self.x, x]), np.concatenate([self.y, y]),
+                        np.concatenate([self.ix, m]), np.concatenate([self.iy, m]),
+                        self.xs, self.ys)
 
 
 def make_grid(roi: np.ndarray, subset: int, step: int) -> NodeGrid:

@@ -26,23 +26,36 @@ def _window_count(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:
 
 
 def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
-    """Indices (n, 24) of the nodes in each node's 5 x 5 lattice neighbourhood
-    that it can see inside the ROI (-1 = none).
+    """Indices (n, k) of each node's neighbours that it can see inside the ROI
+    (-1 = none): the 5 x 5 lattice neighbourhood, or for grids with extra
+    (quadtree) nodes the 24 nearest nodes within 2.9 lattice steps.
 
     Two nodes are connected when the straight segment between them stays in
     the ROI, so neighbours across a crack or a hole are excluded.
     """
-    idx = np.pad(grid.index_image(), _RADIUS, constant_values=-1)
-    offsets = [(dy, dx) for dy in range(-_RADIUS, _RADIUS + 1)
-               for dx in range(-_RADIUS, _RADIUS + 1) if (dy, dx) != (0, 0)]
-    nb_ = np.empty((grid.n, len(offsets)), np.int64)
-    full = bool(roi.all())
-    ii = None if full else integral_image((~roi).view(np.uint8))
-    for k, (dy, dx) in enumerate(offsets):
-        j = idx[grid.iy + _RADIUS + dy, grid.ix + _RADIUS + dx]
-        if full:  # no hole anywhere: every neighbour is visible
-            nb_[:, k] = j
-            continue
+    step = int(grid.xs[1] - grid.xs[0]) if grid.xs.size > 1 else 1
+    if np.any(grid.ix < 0):
+        from scipy.spatial import cKDTree
+
+        pts = np.column_stack([grid.x, grid.y]).astype(float)
+        k = min(25, grid.n)
+        d, j = cKDTree(pts).query(pts, k=k, distance_upper_bound=2.9 * step)
+        j = np.where(np.isfinite(d), j, -1)[:, 1:]  # drop the node itself
+        nb_ = np.where(j < grid.n, j, -1).astype(np.int64)
+    else:
+        idx = np.pad(grid.index_image(), _RADIUS, constant_values=-1)
+        offsets = [(dy, dx) for dy in range(-_RADIUS, _RADIUS + 1)
+                   for dx in range(-_RADIUS, _RADIUS + 1) if (dy, dx) != (0, 0)]
+        nb_ = np.empty((grid.n, len(offsets)), np.int64)
+        for k, (dy, dx) in enumerate(offsets):
+            nb_[:, k] = idx[grid.iy + _RADIUS + dy, grid.ix + _RADIUS + dx]
+    if roi.all():  # no hole anywhere: every neighbour is visible
+        return nb_
+    ii = integral_image((~roi).view(np.uint8))
+    nsamp = int(2 * (_RADIUS + 1) * step) + 2
+    t = np.linspace(0.0, 1.0, nsamp)
+    for k in range(nb_.shape[1]):
+        j = nb_[:, k]
         has = np.nonzero(j >= 0)[0]
         jj = j[has]
         xa, ya, xb, yb = grid.x[has], grid.y[has], grid.x[jj], grid.y[jj]
@@ -51,14 +64,10 @@ def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
                               np.maximum(xa, xb), np.maximum(ya, yb))
         check = np.nonzero(holes > 0)[0]
         if check.size:
-            nsamp = int(2 * max(abs(dx), abs(dy)) * max(1, grid.xs[1] - grid.xs[0]
-                                                        if grid.xs.size > 1 else 1)) + 2
-            t = np.linspace(0.0, 1.0, nsamp)
             sx = np.rint(xa[check, None] + t * (xb - xa)[check, None]).astype(np.int64)
             sy = np.rint(ya[check, None] + t * (yb - ya)[check, None]).astype(np.int64)
             blocked = ~roi[sy, sx].all(axis=1)
-            j[has[check[blocked]]] = -1
-        nb_[:, k] = j
+            nb_[has[check[blocked]], k] = -1
     return nb_
 
 

@@ -71,10 +71,13 @@ class DICParams:
     min_component : float, default 0.5
         Smallest fraction of the full subset area that the mask-connected
         component containing the node must keep; smaller ones are flagged.
-    mu : float, default 1.0
+    refine : {None, "light", "medium", "strong"}, default None
+        Adaptive quadtree refinement preset (``correlate(refine=...)`` also
+        takes a full :class:`~napari_aldic.engine.quadtree.Refinement`).
+    mu : float, default 0.1
         AL-DIC displacement penalty, dimensionless: the local step's penalty
         stiffness is ``mu`` times the subset's mean Gauss-Newton stiffness.
-    beta : float, default 1.0
+    beta : float, default 0.1
         AL-DIC gradient penalty, dimensionless: ``β/μ = beta * step**2`` in
         the global solve, so the smoothing it implies scales with the node
         spacing. Larger values make the global field smoother.
@@ -102,8 +105,9 @@ class DICParams:
     zncc_min: float = 0.6
     zncc_rel: float = 10.0
     min_component: float = 0.5
-    mu: float = 1.0
-    beta: float = 1.0
+    refine: str | None = None
+    mu: float = 0.1
+    beta: float = 0.1
     admm_max_iter: int = 8
     admm_tol: float = 1e-3
     n_threads: int | None = None
@@ -147,6 +151,8 @@ class DICParams:
             bad(f"zncc_rel={self.zncc_rel} must be >= 0 (0 disables the relative test)")
         if not (0 < self.min_component <= 1):
             bad(f"min_component={self.min_component} must be in (0, 1]")
+        if self.refine is not None and self.refine not in ("light", "medium", "strong", "none"):
+            bad(f"refine={self.refine!r} must be None, 'light', 'medium' or 'strong'")
         if not self.mu > 0:
             bad(f"mu={self.mu} must be > 0")
         if not self.beta > 0:

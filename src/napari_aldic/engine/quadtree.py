@@ -122,10 +122,9 @@ def _boundary_maps(roi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
     outside = np.isin(lab, border[border > 0])
     holes = excluded & ~outside
-    # the image edge counts as outline
-    out_pad = np.pad(outside, 1, constant_values=True)
+    # the image frame itself is not an ROI boundary worth refining
     grow_h = ndimage.binary_dilation(holes)
-    grow_o = ndimage.binary_dilation(out_pad)[1:-1, 1:-1]
+    grow_o = ndimage.binary_dilation(outside)
     return roi & grow_h, roi & grow_o
 
 

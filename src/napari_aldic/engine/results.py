@@ -20,6 +20,7 @@ _FORMAT = "napari-aldic-result"
 _FORMAT_VERSION = 1
 _ARRAYS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc",
            "reason", "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys")
+_OPTIONAL = ("u_local", "v_local", "elements", "hanging")
 
 
 @dataclass
@@ -48,7 +49,8 @@ class DICResult:
     iterations : (n,) int32
         IC-GN iterations used.
     grid_ix, grid_iy : (n,) int64
-        Lattice indices of the nodes; ``grid_xs``/``grid_ys`` give the lattice.
+        Lattice indices of the nodes (-1 for quadtree nodes off the base
+        lattice); ``grid_xs``/``grid_ys`` give the lattice.
     image_shape : (rows, cols)
     params : DICParams
     meta : dict
@@ -56,6 +58,10 @@ class DICResult:
     u_local, v_local : (n,) float64 or None
         For ``method="aldic"``: the last local (subset) displacements, kept
         for inspection; ``u``/``v`` are then the compatible global field.
+    elements : (E, 4) int64 or None
+        Q4 elements (corner node indices) of the AL-DIC / quadtree mesh.
+    hanging : (H, 3) int64 or None
+        Hanging-node constraints ``(h, a, b)``: ``u[h] = (u[a] + u[b]) / 2``.
     """
 
     x: np.ndarray
@@ -79,6 +85,8 @@ class DICResult:
     meta: dict[str, Any] = field(default_factory=dict)
     u_local: np.ndarray | None = None
     v_local: np.ndarray | None = None
+    elements: np.ndarray | None = None
+    hanging: np.ndarray | None = None
 
     # ------------------------------------------------------------- views
     def __len__(self) -> int:
@@ -103,10 +111,11 @@ class DICResult:
         trusted node is (use ``invalid=None`` to keep untrusted values)."""
         vals = np.asarray(getattr(self, name), dtype=np.float64)
         out = np.full(self.grid_shape, np.nan)
-        out[self.grid_iy, self.grid_ix] = vals
+        on = self.grid_ix >= 0  # quadtree nodes off the lattice are skipped
+        out[self.grid_iy[on], self.grid_ix[on]] = vals[on]
         if invalid is not None:
             bad = np.ones(self.grid_shape, bool)
-            bad[self.grid_iy, self.grid_ix] = ~self.valid
+            bad[self.grid_iy[on], self.grid_ix[on]] = ~self.valid[on]
             out[bad] = invalid
         return out
 
@@ -156,7 +165,7 @@ class DICResult:
             "meta": self.meta,
         }
         arrays = {k: np.asarray(getattr(self, k)) for k in _ARRAYS}
-        for k in ("u_local", "v_local"):
+        for k in _OPTIONAL:
             if getattr(self, k) is not None:
                 arrays[k] = np.asarray(getattr(self, k))
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
@@ -191,7 +200,7 @@ def load_result(path) -> DICResult:
         if header.get("format") != _FORMAT:
             raise ValueError(f"{path} is not a napari-aldic result file")
         arrays = {k: z[k] for k in _ARRAYS}
-        for k in ("u_local", "v_local"):
+        for k in _OPTIONAL:
             if k in z.files:
                 arrays[k] = z[k]
     return DICResult(**arrays, image_shape=tuple(header["image_shape"]),

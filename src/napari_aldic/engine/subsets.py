@@ -17,7 +17,6 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
-from .mesh import NodeGrid
 from .reasons import Reason
 
 __all__ = ["SubsetMasks", "split_subsets", "integral_image"]
@@ -65,7 +64,7 @@ def _window_sums(ii: np.ndarray, x: np.ndarray, y: np.ndarray, h: int) -> np.nda
     return ii[y1, x1] - ii[y0, x1] - ii[y1, x0] + ii[y0, x0]
 
 
-def split_subsets(roi: np.ndarray, grid: NodeGrid, subset: int,
+def split_subsets(roi: np.ndarray, grid, subset: int,
                   min_component: float = 0.5) -> SubsetMasks:
     """Compute the pixel set each node correlates (see module docstring).
 
