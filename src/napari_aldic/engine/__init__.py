@@ -13,9 +13,18 @@ from .interpolation import SplineImage, prefilter, sample
 from .params import DICParams
 from .reasons import Reason
 from .results import DICResult, load_result
+from .strain import StrainResult, compute_strain
+from .sequence import SequenceResult, open_stack, track
+from .quadtree import Refinement
 
 __all__ = [
     "correlate",
+    "track",
+    "open_stack",
+    "SequenceResult",
+    "compute_strain",
+    "StrainResult",
+    "Refinement",
     "DICParams",
     "DICResult",
     "Reason",

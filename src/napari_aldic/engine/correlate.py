@@ -54,7 +54,8 @@ def _versions() -> dict[str, str]:
 
 def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
               method: str = "local", *, params: DICParams | None = None,
-              refine=None, progress: ProgressFn | None = None, **kwargs) -> DICResult:
+              refine=None, guess: DICResult | None = None,
+              progress: ProgressFn | None = None, **kwargs) -> DICResult:
     """Measure the displacement field between two images by subset DIC.
 
     Parameters
@@ -78,6 +79,11 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         :mod:`napari_aldic.engine.quadtree`); overrides ``params.refine``.
         Refined nodes are extra DIC points; with ``method="aldic"`` the
         global solve constrains hanging nodes.
+    guess : DICResult, optional
+        A previous result whose displacements (extrapolated from its nearest
+        trusted node with its gradient) start every node, instead of the
+        cross-correlation or seed guess; nodes that then fail are rescued as
+        usual. ``track`` passes the previous frame.
     progress : callable(fraction, message), optional
         Called as the analysis advances.
     **kwargs
@@ -107,10 +113,6 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
             if val != getattr(defaults, name):
                 changes[name] = val
         params = params.replace(**changes) if changes else params
-    if params.init == "seeds":
-        raise NotImplementedError(
-            "init='seeds' (seed propagation) is not available yet; use init='fft'"
-        )
     report = progress or (lambda frac, msg: None)
     timing: dict[str, float] = {}
 
@@ -140,7 +142,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     meta = {"versions": _versions()}
     with _numba_threads(params.n_threads):
         p, zncc, iters, reason = _solve_local(f, g, fgx, fgy, g_spline, mask, grid, sub,
-                                              params, timing, report)
+                                              params, timing, report, guess=guess)
         state = None
         if params.method == "aldic" or (ref_spec is not None and ref_spec.error):
             mesh = qmesh.mesh if qmesh is not None else uniform_mesh(grid, mask)
@@ -206,6 +208,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         v_local=None if local is None else local[1],
         elements=None if qmesh_mesh is None else qmesh_mesh.elements,
         hanging=None if qmesh_mesh is None else qmesh_mesh.hanging,
+        roi=mask,
     )
 
 
@@ -252,6 +255,79 @@ def _solve_aldic(f, fgx, fgy, g_spline, grid: NodeGrid, sub: SubsetMasks, mesh,
     return state
 
 
+def _propagate_seeds(f, g, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+                     run, accept, p, zncc, reason):
+    """Seed-propagation initial guess.
+
+    Each seed is solved by a cross-correlation search over the whole image
+    and IC-GN at its nearest usable node; the solution then spreads, wave by
+    wave, to mask-connected lattice neighbours, each starting from its best
+    solved neighbour extrapolated to first order with that neighbour's
+    gradient (``u + F dX``). Every connected ROI region needs a seed.
+    """
+    from scipy import ndimage
+
+    rows, cols = roi.shape
+    seeds = np.asarray(params.seeds, float).reshape(-1, 2)
+    labels, _ = ndimage.label(roi)
+    seed_region = []
+    for sx, sy in seeds:
+        ix, iy = int(round(sx)), int(round(sy))
+        if not (0 <= ix < cols and 0 <= iy < rows) or not roi[iy, ix]:
+            raise ValueError(f"seed ({sx:g}, {sy:g}) is outside the ROI; place seeds on "
+                             "analysed material")
+        seed_region.append(labels[iy, ix])
+    usable = sub.reason == Reason.OK
+    node_region = labels[grid.y, grid.x]
+    for r in np.unique(node_region[usable]):
+        if r not in seed_region:
+            ys, xs = np.nonzero(labels == r)
+            raise ValueError(
+                f"ROI region {r} (x {xs.min()}-{xs.max()}, y {ys.min()}-{ys.max()}, "
+                f"{xs.size} px) has no seed; add a seed point inside it")
+    seed_nodes = []
+    for (sx, sy), r in zip(seeds, seed_region):
+        cand = np.nonzero(usable & (node_region == r))[0]
+        if cand.size == 0:
+            raise ValueError(f"seed ({sx:g}, {sy:g}): its ROI region has no usable node; "
+                             "enlarge the region or reduce the subset")
+        seed_nodes.append(cand[np.argmin(np.hypot(grid.x[cand] - sx, grid.y[cand] - sy))])
+    seed_nodes = np.unique(np.asarray(seed_nodes))
+    n = grid.n
+    p_init = np.zeros((n, 6))
+    # a seed may have moved anywhere: widen until the peak is convincing
+    p_init[seed_nodes] = _ncc_guess(f, g, grid, sub, seed_nodes,
+                                    params.replace(search_max=max(rows, cols, params.search)),
+                                    accept=0.9)
+    active = np.zeros(n, bool)
+    active[seed_nodes] = True
+    accept(run(active, p_init), seed_nodes, only_better=False)
+    solved = active & (reason == Reason.OK) & (zncc >= params.zncc_min)
+    if not solved.any():
+        raise ValueError("no seed could be matched in the deformed image; move the seeds to "
+                         "well-textured material")
+    attempted = active.copy()
+    nbrs = lattice_neighbours(grid, roi, radius=1)
+    while True:
+        has = nbrs >= 0
+        nb_solved = np.zeros(nbrs.shape, bool)
+        nb_solved[has] = solved[nbrs[has]]
+        cand = np.nonzero(usable & ~attempted & nb_solved.any(axis=1))[0]
+        if cand.size == 0:
+            break
+        score = np.where(nb_solved[cand], zncc[np.where(has[cand], nbrs[cand], 0)], -np.inf)
+        src = nbrs[cand, np.argmax(score, axis=1)]
+        p_init[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
+                                    grid.y[cand] - grid.y[src])
+        active[:] = False
+        active[cand] = True
+        accept(run(active, p_init), cand, only_better=False)
+        attempted[cand] = True
+        solved[cand] = (reason[cand] == Reason.OK) & (zncc[cand] >= params.zncc_min)
+    never = usable & ~attempted  # unreachable from any seed through converged nodes
+    reason[never] = Reason.NO_INITIAL_GUESS
+
+
 def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
     """First-order extrapolation of affine parameters by (dx, dy) pixels."""
     p0 = p_from.copy()
@@ -261,7 +337,7 @@ def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarr
 
 
 def _ncc_guess(f, g, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
-               params: DICParams) -> np.ndarray:
+               params: DICParams, accept: float = 0.5) -> np.ndarray:
     """Affine parameters from an NCC search at ``nodes`` (gradients zero)."""
     h = params.half
     masks = None
@@ -270,7 +346,7 @@ def _ncc_guess(f, g, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
         cut = sub.slot[nodes] >= 0
         masks[cut] = sub.masks[sub.slot[nodes][cut]]
     res = ncc_search_widening(f, g, grid.x[nodes], grid.y[nodes], h, params.search,
-                              params.resolved_search_max(f.shape), masks)
+                              params.resolved_search_max(f.shape), masks, accept=accept)
     p0 = np.zeros((nodes.size, 6))
     p0[:, 0] = res.u
     p0[:, 3] = res.v
@@ -278,7 +354,7 @@ def _ncc_guess(f, g, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
 
 
 def _solve_local(f, g, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks,
-                 params: DICParams, timing: dict, report: ProgressFn):
+                 params: DICParams, timing: dict, report: ProgressFn, guess=None):
     """Local IC-GN at every node with a coarse-to-fine initial guess.
 
     1. NCC at coarse nodes (every k-th lattice node), IC-GN there.
@@ -313,34 +389,52 @@ def _solve_local(f, g, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks
         iters[take] = ri[take]
         reason[take] = rr[take]
 
-    t = time.perf_counter()
-    k = max(1, params.resolved_init_spacing() // params.step)
-    coarse = np.nonzero(usable & (grid.ix % k == 0) & (grid.iy % k == 0))[0]
-    if coarse.size == 0:
-        coarse = np.nonzero(usable)[0]
     p_init = np.zeros((n, 6))
-    p_init[coarse] = _ncc_guess(f, g, grid, sub, coarse, params)
-    timing["init"] = time.perf_counter() - t
-    report(0.3, f"initial guess at {coarse.size} coarse nodes")
-
-    t = time.perf_counter()
     active = np.zeros(n, bool)
-    active[coarse] = True
-    accept(run(active, p_init), coarse, only_better=False)
-    good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
-    rest = np.nonzero(usable & ~active)[0]
-    if rest.size:
-        if good_c.size:
-            tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
-            _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
-            src = good_c[j]
-            p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
-                                        grid.y[rest] - grid.y[src])
-        else:
-            p_init[rest] = _ncc_guess(f, g, grid, sub, rest, params)
-        active[:] = False
-        active[rest] = True
-        accept(run(active, p_init), rest, only_better=False)
+    if guess is not None and np.any(guess.valid):
+        # a previous result (e.g. the last frame of a sequence) as the guess
+        t = time.perf_counter()
+        gv = np.nonzero(guess.valid)[0]
+        tree = cKDTree(np.column_stack([guess.x[gv], guess.y[gv]]))
+        _, j = tree.query(np.column_stack([grid.x, grid.y]))
+        src = gv[j]
+        pg = np.column_stack([guess.u, guess.dudx, guess.dudy, guess.v, guess.dvdx, guess.dvdy])
+        p_init[:] = _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
+        timing["init"] = time.perf_counter() - t
+        active[:] = usable
+        accept(run(active, p_init), np.nonzero(usable)[0], only_better=False)
+    elif params.init == "seeds":
+        t = time.perf_counter()
+        _propagate_seeds(f, g, roi, grid, sub, params, run, accept, p, zncc, reason)
+        timing["init"] = 0.0
+    else:
+        t = time.perf_counter()
+        k = max(1, params.resolved_init_spacing() // params.step)
+        coarse = np.nonzero(usable & (grid.ix >= 0) & (grid.ix % k == 0)
+                            & (grid.iy % k == 0))[0]
+        if coarse.size == 0:
+            coarse = np.nonzero(usable)[0]
+        p_init[coarse] = _ncc_guess(f, g, grid, sub, coarse, params)
+        timing["init"] = time.perf_counter() - t
+        report(0.3, f"initial guess at {coarse.size} coarse nodes")
+
+        t = time.perf_counter()
+        active[coarse] = True
+        accept(run(active, p_init), coarse, only_better=False)
+        good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
+        rest = np.nonzero(usable & ~active)[0]
+        if rest.size:
+            if good_c.size:
+                tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
+                _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
+                src = good_c[j]
+                p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
+                                            grid.y[rest] - grid.y[src])
+            else:
+                p_init[rest] = _ncc_guess(f, g, grid, sub, rest, params)
+            active[:] = False
+            active[rest] = True
+            accept(run(active, p_init), rest, only_better=False)
     timing["icgn"] = time.perf_counter() - t
     report(0.8, "IC-GN done")
 
@@ -365,7 +459,7 @@ def _solve_local(f, g, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks
             accept(run(active, p_try), bad, only_better=True)
     bad = failed()
     bad = bad[reason[bad] != Reason.OUT_OF_IMAGE]  # material left the view: no retry
-    if bad.size:
+    if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
         p_try = p_init.copy()
         p_try[bad] = _ncc_guess(f, g, grid, sub, bad, params)
         active[:] = False

@@ -25,10 +25,11 @@ def _window_count(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:
     return ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]
 
 
-def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
+def lattice_neighbours(grid: NodeGrid, roi: np.ndarray, radius: int = _RADIUS) -> np.ndarray:
     """Indices (n, k) of each node's neighbours that it can see inside the ROI
-    (-1 = none): the 5 x 5 lattice neighbourhood, or for grids with extra
-    (quadtree) nodes the 24 nearest nodes within 2.9 lattice steps.
+    (-1 = none): the (2r+1)^2 lattice neighbourhood (r = ``radius``), or for
+    grids with extra (quadtree) nodes every node within ``r + 0.9`` lattice
+    steps (at most 4 (r+1)^2 of them).
 
     Two nodes are connected when the straight segment between them stays in
     the ROI, so neighbours across a crack or a hole are excluded.
@@ -38,21 +39,21 @@ def lattice_neighbours(grid: NodeGrid, roi: np.ndarray) -> np.ndarray:
         from scipy.spatial import cKDTree
 
         pts = np.column_stack([grid.x, grid.y]).astype(float)
-        k = min(25, grid.n)
-        d, j = cKDTree(pts).query(pts, k=k, distance_upper_bound=2.9 * step)
+        k = min(4 * (radius + 1) ** 2 + 1, grid.n)
+        d, j = cKDTree(pts).query(pts, k=k, distance_upper_bound=(radius + 0.9) * step)
         j = np.where(np.isfinite(d), j, -1)[:, 1:]  # drop the node itself
         nb_ = np.where(j < grid.n, j, -1).astype(np.int64)
     else:
-        idx = np.pad(grid.index_image(), _RADIUS, constant_values=-1)
-        offsets = [(dy, dx) for dy in range(-_RADIUS, _RADIUS + 1)
-                   for dx in range(-_RADIUS, _RADIUS + 1) if (dy, dx) != (0, 0)]
+        idx = np.pad(grid.index_image(), radius, constant_values=-1)
+        offsets = [(dy, dx) for dy in range(-radius, radius + 1)
+                   for dx in range(-radius, radius + 1) if (dy, dx) != (0, 0)]
         nb_ = np.empty((grid.n, len(offsets)), np.int64)
         for k, (dy, dx) in enumerate(offsets):
-            nb_[:, k] = idx[grid.iy + _RADIUS + dy, grid.ix + _RADIUS + dx]
+            nb_[:, k] = idx[grid.iy + radius + dy, grid.ix + radius + dx]
     if roi.all():  # no hole anywhere: every neighbour is visible
         return nb_
     ii = integral_image((~roi).view(np.uint8))
-    nsamp = int(2 * (_RADIUS + 1) * step) + 2
+    nsamp = int(2 * (radius + 1) * step) + 2
     t = np.linspace(0.0, 1.0, nsamp)
     for k in range(nb_.shape[1]):
         j = nb_[:, k]

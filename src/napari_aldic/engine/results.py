@@ -62,6 +62,8 @@ class DICResult:
         Q4 elements (corner node indices) of the AL-DIC / quadtree mesh.
     hanging : (H, 3) int64 or None
         Hanging-node constraints ``(h, a, b)``: ``u[h] = (u[a] + u[b]) / 2``.
+    roi : (H, W) bool or None
+        The region of interest analysed (stored bit-packed in files).
     """
 
     x: np.ndarray
@@ -87,6 +89,7 @@ class DICResult:
     v_local: np.ndarray | None = None
     elements: np.ndarray | None = None
     hanging: np.ndarray | None = None
+    roi: np.ndarray | None = None
 
     # ------------------------------------------------------------- views
     def __len__(self) -> int:
@@ -168,6 +171,8 @@ class DICResult:
         for k in _OPTIONAL:
             if getattr(self, k) is not None:
                 arrays[k] = np.asarray(getattr(self, k))
+        if self.roi is not None:
+            arrays["roi_packed"] = np.packbits(np.asarray(self.roi, bool), axis=None)
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
@@ -203,5 +208,9 @@ def load_result(path) -> DICResult:
         for k in _OPTIONAL:
             if k in z.files:
                 arrays[k] = z[k]
+        if "roi_packed" in z.files:
+            shape = tuple(header["image_shape"])
+            bits = np.unpackbits(z["roi_packed"], count=int(np.prod(shape)))
+            arrays["roi"] = bits.reshape(shape).astype(bool)
     return DICResult(**arrays, image_shape=tuple(header["image_shape"]),
                      params=DICParams.from_dict(header["params"]), meta=header["meta"])

@@ -388,13 +388,17 @@ def render(pattern: SpecklePattern, shape, displacement: DisplacementField | Non
 
 def speckle_pair(shape=(256, 256), displacement: DisplacementField | None = None,
                  noise: float = 0.0, speckle_radius: float = 2.0, density: float = 0.5,
-                 seed: int = 0, bit_depth: int | None = 8, n_quad: int = 4):
+                 seed: int = 0, bit_depth: int | None = 8, n_quad: int = 4,
+                 margin: float = 64.0):
     """Reference and deformed images of one pattern with exact truth.
 
     Independent noise (``noise`` grey levels, standard deviation) is added to
-    each image. Returns ``(reference, deformed)``.
+    each image. ``margin`` (pixels) is how far beyond the image the pattern
+    extends, so material moving into view is textured: make it larger than the
+    largest displacement. Returns ``(reference, deformed)``.
     """
-    pat = make_pattern(shape, speckle_radius=speckle_radius, density=density, seed=seed)
+    pat = make_pattern(shape, speckle_radius=speckle_radius, density=density, seed=seed,
+                       margin=margin)
     ref = render(pat, shape, None, n_quad=n_quad, noise=noise, bit_depth=bit_depth,
                  seed=None if seed is None else seed + 1)
     dfm = render(pat, shape, displacement, n_quad=n_quad, noise=noise,

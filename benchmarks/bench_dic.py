@@ -1,10 +1,11 @@
-"""Throughput and memory of Local DIC, optionally side by side with pyALDIC.
+"""Throughput and memory of Local DIC and AL-DIC, optionally beside pyALDIC.
 
 Usage::
 
-    python benchmarks/bench_local.py                      # napari-aldic only
-    python benchmarks/bench_local.py --pyaldic /work/pyaldic-venv/bin/python
-    python benchmarks/bench_local.py --sizes 256 512 1024 2048 --rss 1024 4096
+    python benchmarks/bench_dic.py                      # napari-aldic only
+    python benchmarks/bench_dic.py --pyaldic /work/pyaldic-venv/bin/python
+    python benchmarks/bench_dic.py --methods local aldic --sizes 256 512 1024 2048 \
+        --rss 1024 4096
 
 For every size N the same synthetic 8-bit speckle pair (analytic truth: 0.2 %
 uniform strain, 0.2 degree rotation and a sub-pixel translation, plus 2 grey
@@ -70,16 +71,16 @@ def tiff_paths(n: int) -> tuple[Path, Path]:
     return r, d
 
 
-def time_ours(n: int, repeat: int, **kw) -> dict:
+def time_ours(n: int, repeat: int, method: str = "local", **kw) -> dict:
     from napari_aldic.engine import correlate
 
     z = np.load(pair_path(n))
     ref, dfm = z["ref"], z["dfm"]
-    correlate(ref[:256, :256], dfm[:256, :256])  # JIT warm-up (cached after first run)
+    correlate(ref[:256, :256], dfm[:256, :256], method=method)  # JIT warm-up
     secs, res = [], None
     for _ in range(repeat):
         t = time.perf_counter()
-        res = correlate(ref, dfm, subset=31, step=8, **kw)
+        res = correlate(ref, dfm, subset=31, step=8, method=method, **kw)
         secs.append(time.perf_counter() - t)
     ut, vt = field_for(n).displacement(res.x, res.y)
     v = res.valid
@@ -159,42 +160,48 @@ def main(argv=None) -> int:
     ap.add_argument("--rss-search", type=int, default=64,
                     help="NCC search half-range (px) for the RSS runs")
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--methods", nargs="+", default=["local", "aldic"],
+                    choices=["local", "aldic"])
     ap.add_argument("--pyaldic", metavar="PYTHON",
                     help="python of a venv with al-dic installed, to run pyALDIC too")
     ap.add_argument("--json", type=Path, help="write all figures to this file")
     args = ap.parse_args(argv)
 
     report = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
-              "params": {"subset": 31, "step": 8, "method": "local"}, "throughput": [],
-              "rss": []}
+              "params": {"subset": 31, "step": 8}, "throughput": [], "rss": []}
     print(json.dumps(report["machine"]))
-    for n in args.sizes:
-        row = {"size": n, "ours": time_ours(n, args.repeat)}
-        if args.pyaldic:
-            row["pyaldic"] = run_pyaldic(args.pyaldic, n, args.repeat)
-            if "poi_per_s" in row["pyaldic"]:
-                row["ratio"] = row["ours"]["poi_per_s"] / row["pyaldic"]["poi_per_s"]
-        report["throughput"].append(row)
-        o = row["ours"]
-        line = (f"{n:5d}^2  ours {o['poi_per_s']:9,.0f} POI/s ({o['n_poi']} POI, "
-                f"median {o['median_s']:.3f} s, RMSE {o['rmse_px']:.4f} px)")
-        if "pyaldic" in row and "poi_per_s" in row["pyaldic"]:
-            p = row["pyaldic"]
-            line += (f" | pyALDIC {p['poi_per_s']:8,.0f} POI/s (RMSE {p['rmse_px']:.4f} px)"
-                     f" | x{row['ratio']:.2f}")
-        print(line, flush=True)
-    for n in args.rss:
-        row = {"size": n, "search": args.rss_search, "ours": rss_ours(n, args.rss_search)}
-        o = row["ours"]
-        line = (f"{n:5d}^2 RSS ours peak {o['peak_rss_mb']:7.0f} MB (before call "
-                f"{o['rss_before_mb']:.0f} MB, {o['seconds']:.2f} s, {o['n_poi']} POI)")
-        if args.pyaldic and n <= 2048:
-            p = run_pyaldic(args.pyaldic, n, 1)
-            row["pyaldic"] = p
-            if "peak_rss_mb" in p:
-                line += f" | pyALDIC peak {p['peak_rss_mb']:.0f} MB"
-        report["rss"].append(row)
-        print(line, flush=True)
+    for method in args.methods:
+        for n in args.sizes:
+            row = {"size": n, "method": method, "ours": time_ours(n, args.repeat, method)}
+            if args.pyaldic:
+                row["pyaldic"] = run_pyaldic(args.pyaldic, n, args.repeat, method)
+                if "poi_per_s" in row["pyaldic"]:
+                    row["ratio"] = row["ours"]["poi_per_s"] / row["pyaldic"]["poi_per_s"]
+            report["throughput"].append(row)
+            o = row["ours"]
+            line = (f"{method:5s} {n:5d}^2  ours {o['poi_per_s']:9,.0f} POI/s ({o['n_poi']} POI,"
+                    f" median {o['median_s']:.3f} s, RMSE {o['rmse_px']:.4f} px)")
+            if "pyaldic" in row and "poi_per_s" in row["pyaldic"]:
+                p = row["pyaldic"]
+                line += (f" | pyALDIC {p['poi_per_s']:8,.0f} POI/s (RMSE {p['rmse_px']:.4f} px)"
+                         f" | x{row['ratio']:.2f}")
+            print(line, flush=True)
+            print("      stages (s, last run):", o["stages_last_run"], flush=True)
+    for method in args.methods:
+        for n in args.rss:
+            row = {"size": n, "method": method, "search": args.rss_search,
+                   "ours": rss_ours(n, args.rss_search, method)}
+            o = row["ours"]
+            line = (f"{method:5s} {n:5d}^2 RSS ours peak {o['peak_rss_mb']:7.0f} MB (before call "
+                    f"{o['rss_before_mb']:.0f} MB, {o['seconds']:.2f} s, {o['n_poi']} POI, "
+                    f"search {args.rss_search} px)")
+            if args.pyaldic and n <= 2048:
+                p = run_pyaldic(args.pyaldic, n, 1, method)
+                row["pyaldic"] = p
+                if "peak_rss_mb" in p:
+                    line += f" | pyALDIC peak {p['peak_rss_mb']:.0f} MB"
+            report["rss"].append(row)
+            print(line, flush=True)
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
     return 0

@@ -1,0 +1,393 @@
+"""Image sequences: lazy frame sources and ``track``.
+
+Results of every frame refer to frame 0 (Lagrangian): ``seq[k].u`` at node
+``(x, y)`` of frame 0 is the displacement of that material point between
+frame 0 and frame k, whatever the reference strategy:
+
+* ``reference="accumulative"``: frame k is correlated against frame 0;
+* ``reference="incremental"``: frame k against frame k-1; the increments are
+  composed back to frame 0, ``u_0k(X) = u_0,k-1(X) + du(X + u_0,k-1(X))``,
+  with ``du`` interpolated (bilinearly on the node lattice of frame k-1) at
+  the displaced positions;
+* ``update_every=N`` (accumulative only): the reference image is replaced by
+  frame N, 2N, ... and the same composition links each block back to frame 0.
+
+The previous frame's field is the initial guess of the next one (within a
+reference block). Frames are read only when needed. With ``out_dir`` each
+frame's result is written as soon as it is computed (``frame_00003.npz``,
+written under a temporary name and renamed), so an interrupted run keeps
+every finished frame, and a rerun with the same ``out_dir`` and parameters
+resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .correlate import correlate
+from .params import DICParams
+from .results import DICResult, load_result
+
+__all__ = ["FrameSource", "open_stack", "SequenceResult", "track", "Cancelled"]
+
+_IMAGE_EXT = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
+
+
+class Cancelled(Exception):
+    """Raised inside ``track`` when the cancel hook asks to stop."""
+
+
+def _natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+class FrameSource:
+    """Read-on-demand access to the frames of a stack.
+
+    Accepts a (T, H, W) NumPy or dask array, a multi-page TIFF path (one page
+    read per request with ``tifffile``) or a folder of
+    BMP/PNG/TIF/JPG images sorted naturally (``img_2`` before ``img_10``).
+    """
+
+    def __init__(self, stack):
+        self.name = None
+        self._files = None
+        self._tiff = None
+        if isinstance(stack, (str, os.PathLike)):
+            path = Path(stack)
+            self.name = str(path)
+            if path.is_dir():
+                files = sorted((p for p in path.iterdir()
+                                if p.suffix.lower() in _IMAGE_EXT), key=lambda p: _natural_key(p.name))
+                if len(files) < 2:
+                    raise ValueError(f"folder {path} holds {len(files)} image(s); a sequence "
+                                     "needs at least two (BMP, PNG, TIF or JPG)")
+                self._files = files
+                first = self._read_file(files[0])
+                self.shape = (len(files),) + first.shape[:2]
+                self._arr = None
+            elif path.exists():
+                import tifffile
+
+                with tifffile.TiffFile(path) as tf:
+                    shape = tuple(tf.series[0].shape)
+                if len(shape) == 2:
+                    raise ValueError(f"{path} holds a single image; a sequence needs a stack")
+                if len(shape) != 3:
+                    raise ValueError(f"{path}: expected a (frames, rows, cols) stack, got "
+                                     f"shape {shape}")
+                self._tiff = path  # pages are read one at a time in __getitem__
+                self._arr = None
+                self.shape = shape
+            else:
+                raise FileNotFoundError(f"no image stack at {path}")
+        else:
+            arr = stack
+            if not hasattr(arr, "ndim"):
+                arr = np.asarray(arr)
+            if arr.ndim != 3:
+                raise ValueError(f"a stack must be 3-D (frames, rows, cols); got shape {arr.shape}")
+            self._arr = arr
+            self.shape = tuple(arr.shape)
+        if self.shape[0] < 2:
+            raise ValueError("a sequence needs at least two frames")
+
+    @staticmethod
+    def _read_file(p: Path) -> np.ndarray:
+        if p.suffix.lower() in (".tif", ".tiff"):
+            import tifffile
+
+            return tifffile.imread(p)
+        from skimage import io
+
+        return io.imread(p)
+
+    def __len__(self) -> int:
+        return int(self.shape[0])
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if not -len(self) <= k < len(self):
+            raise IndexError(f"frame {k} out of range for {len(self)} frames")
+        if self._files is not None:
+            return self._read_file(self._files[k])
+        if self._tiff is not None:
+            import tifffile
+
+            with tifffile.TiffFile(self._tiff) as tf:
+                return tf.asarray(series=0, key=k % len(self))
+        return np.asarray(self._arr[k])
+
+
+def open_stack(stack) -> FrameSource:
+    """A :class:`FrameSource` for an array, a TIFF stack path or an image folder."""
+    return stack if isinstance(stack, FrameSource) else FrameSource(stack)
+
+
+@dataclass
+class SequenceResult:
+    """Per-frame results, all in frame-0 (Lagrangian) coordinates.
+
+    ``seq[0]`` is the reference frame (zero displacement); ``seq[k]`` is frame
+    k against frame 0. Frames not computed (cancelled run) are ``None``.
+    """
+
+    frames: list
+    params: DICParams
+    reference: str
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, k: int) -> DICResult | None:
+        return self.frames[k]
+
+    @property
+    def complete(self) -> bool:
+        return all(r is not None for r in self.frames)
+
+
+def _zero_result(res: DICResult) -> DICResult:
+    z = np.zeros_like(res.u)
+    out = DICResult(**{**res.__dict__})
+    for name in ("u", "v", "dudx", "dudy", "dvdx", "dvdy"):
+        setattr(out, name, z.copy())
+    out.zncc = np.ones_like(res.zncc)
+    out.meta = {**res.meta, "frame": 0}
+    return out
+
+
+def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
+    """Bilinear interpolation of a node field at points (NaN where not possible)."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    gridv = res.to_grid(name)
+    interp = RegularGridInterpolator((res.grid_ys.astype(float), res.grid_xs.astype(float)),
+                                     gridv, bounds_error=False, fill_value=np.nan)
+    return interp(np.column_stack([y, x]))
+
+
+def _compose(base: DICResult, inc: DICResult) -> DICResult:
+    """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``."""
+    xd = base.x + base.u
+    yd = base.y + base.v
+    out = DICResult(**{**base.__dict__})
+    vals = {n: _sample_on_lattice(inc, n, xd, yd)
+            for n in ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")}
+    ok = base.valid & np.all([np.isfinite(v) for v in vals.values()], axis=0)
+    out.u = np.where(ok, base.u + vals["u"], np.nan)
+    out.v = np.where(ok, base.v + vals["v"], np.nan)
+    # F_0k = (I + H_rk(x)) (I + H_0r(X)) - I
+    A = np.stack([[1 + vals["dudx"], vals["dudy"]], [vals["dvdx"], 1 + vals["dvdy"]]])
+    B = np.stack([[1 + base.dudx, base.dudy], [base.dvdx, 1 + base.dvdy]])
+    C = np.einsum("ijn,jkn->ikn", A, B)
+    out.dudx, out.dudy = C[0, 0] - 1, C[0, 1]
+    out.dvdx, out.dvdy = C[1, 0], C[1, 1] - 1
+    out.zncc = vals["zncc"]
+    out.valid = ok
+    out.reason = np.where(ok, 0, np.where(base.valid, 7, base.reason)).astype(np.int8)
+    out.meta = {**inc.meta}
+    return out
+
+
+def _pair_job(stack, ref_k: int, k: int, roi, params: DICParams) -> DICResult:
+    """One frame pair (runs in a worker thread or process)."""
+    src = open_stack(stack)
+    return correlate(src[ref_k], src[k], roi=roi, params=params)
+
+
+def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, workers,
+                  finish, results, cancel, report) -> bool:
+    """Run the pairs of ``todo`` concurrently; finish frames in order as their
+    references become available. Returns True if cancelled."""
+    spec = src.name if src.name is not None else stack
+    incs: dict = {}
+
+    def flush():
+        for i in sorted(incs):
+            r = ref_of(i)
+            if results[idx.index(r)] is None:
+                break  # its reference frame is not final yet (composition order)
+            finish(i, incs.pop(i))
+
+    if scheduler == "threads":
+        from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+        n = workers or os.cpu_count() or 1
+        one = params.replace(n_threads=1)  # frames are the parallel unit
+        with ThreadPoolExecutor(max_workers=n) as ex:
+            futs = {ex.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), one): i
+                    for i in todo}
+            pending = set(futs)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fu in done:
+                    incs[futs[fu]] = fu.result()
+                flush()
+                if cancel is not None and cancel():
+                    for fu in pending:
+                        fu.cancel()
+                    return True
+        return False
+    from distributed import Client, as_completed
+
+    client = Client(scheduler) if isinstance(scheduler, str) else scheduler
+    try:
+        futs = {}
+        for i in todo:
+            fu = client.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), params,
+                               pure=False)
+            futs[fu] = i
+        ac = as_completed(list(futs))
+        for fu in ac:
+            incs[futs[fu]] = fu.result()
+            flush()
+            if cancel is not None and cancel():
+                for other in futs:
+                    other.cancel()
+                return True
+        return False
+    finally:
+        if isinstance(scheduler, str):
+            client.close()
+
+
+def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
+          reference: str = "accumulative", *, update_every: int | None = None,
+          rois=None, frames=None, out_dir=None, params: DICParams | None = None,
+          scheduler=None, workers: int | None = None,
+          progress: Callable[[int, float, str], None] | None = None,
+          cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
+    """Track a sequence of images; every result refers to frame 0.
+
+    Parameters
+    ----------
+    stack : (T, H, W) array, dask array, TIFF stack path or image folder
+    roi : (H, W) bool, optional
+        ROI in frame 0 (holes and cracks False).
+    reference : {"accumulative", "incremental"}
+    update_every : int, optional
+        With ``"accumulative"``: use frame N, 2N, ... as the new reference.
+    rois : sequence of (H, W) bool or callable(k) -> mask, optional
+        Per-frame ROI of the *reference* image used for frame k (e.g. a
+        growing crack); the frame-0 ROI defaults to ``roi``.
+    frames : sequence of int, optional
+        Frames to analyse (must start with 0 and increase); default all.
+    out_dir : path, optional
+        Write each frame's result as it finishes; rerunning resumes.
+    scheduler : None, "threads", a ``dask.distributed.Client`` or its address
+        ``None`` runs frames one after the other, each starting from the
+        previous frame's field. Otherwise the frame pairs, which do not
+        depend on each other, run concurrently: on local threads (the Numba
+        kernels release the GIL; each frame then uses one thread) or on a
+        dask cluster; each frame then starts from its own FFT/seed guess.
+    workers : int, optional
+        Concurrent frames for ``scheduler="threads"`` (default: CPU count).
+    progress : callable(frame, fraction, message), optional
+    cancel : callable() -> bool, optional
+        Polled before each frame; True stops the run (finished frames kept).
+
+    Returns
+    -------
+    SequenceResult
+    """
+    if reference not in ("accumulative", "incremental"):
+        raise ValueError(f"reference={reference!r} must be 'accumulative' or 'incremental'")
+    if update_every is not None and (update_every < 1 or reference != "accumulative"):
+        raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
+    src = open_stack(stack)
+    if params is None:
+        params = DICParams(subset=subset, step=step, method=method, **kwargs)
+    idx = list(range(len(src))) if frames is None else [int(k) for k in frames]
+    if idx[0] != 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= len(src):
+        raise ValueError(f"frames must start at 0, increase and stay below {len(src)}")
+
+    def roi_for(k: int):
+        if rois is None:
+            return roi
+        return rois(k) if callable(rois) else rois[k]
+
+    report = progress or (lambda k, frac, msg: None)
+    out = None
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        manifest = out / "sequence.json"
+        info = {"params": params.to_dict(), "reference": reference,
+                "update_every": update_every, "frames": idx, "source": src.name}
+        if manifest.exists():
+            old = json.loads(manifest.read_text())
+            if {k: old.get(k) for k in info} != info:
+                raise ValueError(f"{out} holds results of a different analysis; choose an "
+                                 "empty folder or the same parameters to resume")
+        else:
+            tmp = manifest.with_suffix(".json.part")
+            tmp.write_text(json.dumps(info, indent=1))
+            os.replace(tmp, manifest)
+
+    t0 = time.perf_counter()
+    results: list = [None] * len(idx)
+    ref_img = src[0]
+    base = correlate(ref_img, ref_img, roi=roi_for(0), params=params)
+    results[0] = _zero_result(base)
+
+    def ref_of(i: int) -> int:
+        k = idx[i]
+        if reference == "incremental":
+            return idx[i - 1]
+        if update_every:
+            r = (k - 1) // update_every * update_every
+            return max(j for j in idx if j <= r)
+        return 0
+
+    def path_of(k: int):
+        return None if out is None else out / f"frame_{k:05d}.npz"
+
+    def finish(i: int, inc: DICResult) -> None:
+        k, r = idx[i], ref_of(i)
+        res = inc if r == 0 else _compose(results[idx.index(r)], inc)
+        res.meta["frame"] = k
+        res.meta["reference_frame"] = r
+        results[i] = res
+        if path_of(k) is not None:
+            res.save(path_of(k))
+        report(k, i / (len(idx) - 1), f"frame {k} done: {res.n_valid}/{len(res)} valid")
+
+    todo = []
+    for i in range(1, len(idx)):
+        pth = path_of(idx[i])
+        if pth is not None and pth.exists():
+            results[i] = load_result(pth)
+            report(idx[i], i / (len(idx) - 1), f"frame {idx[i]}: loaded from {pth.name}")
+        else:
+            todo.append(i)
+    cancelled = False
+    if scheduler is None:
+        ref_k, ref_img, prev_inc = 0, src[0], None
+        for i in todo:
+            if cancel is not None and cancel():
+                cancelled = True
+                break
+            r = ref_of(i)
+            if r != ref_k:
+                ref_k, ref_img, prev_inc = r, src[r], None
+            if i - 1 not in todo and i > 1:
+                prev_inc = None  # previous frame came from disk: no increment at hand
+            report(idx[i], (i - 1) / (len(idx) - 1), f"frame {idx[i]} against frame {r}")
+            inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params, guess=prev_inc)
+            prev_inc = inc
+            finish(i, inc)
+    else:
+        cancelled = _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler,
+                                  workers, finish, results, cancel, report)
+    meta = {"seconds": time.perf_counter() - t0, "frames": idx, "cancelled": cancelled,
+            "update_every": update_every, "source": src.name}
+    return SequenceResult(results, params, reference, meta)

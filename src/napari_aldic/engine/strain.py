@@ -1,0 +1,224 @@
+"""Strain from a displacement result.
+
+Displacement gradients ``H = grad u`` (reference configuration) come from
+
+* ``method="plane_fit"``: a least-squares plane ``u = a + b dx + c dy`` (and
+  the same for v) fitted, at every node, to the trusted nodes of a
+  ``window x window`` node neighbourhood (a radius of ``(window-1)/2`` node
+  spacings on quadtree meshes) that the centre node can see inside the ROI;
+  neighbours across a crack or hole never enter the fit. The virtual strain
+  gauge is ``VSG = (window - 1) * step + subset`` pixels.
+* ``method="fem"``: nodal gradients of the bilinear (Q4) interpolation of the
+  displacements on the result's mesh (the mean of the element gradients at the
+  node; VSG = ``2 * step + subset``).
+
+With ``F = I + H`` the strain measures are
+
+* infinitesimal: ``eps = (H + H^T) / 2``;
+* Green-Lagrange: ``E = (F^T F - I) / 2``;
+* Euler-Almansi: ``e = (I - F^-T F^-1) / 2`` (a spatial measure, reported at
+  the material points of the nodes).
+
+Derived quantities, for the in-plane tensor ``[[exx, exy], [exy, eyy]]``
+(``exy`` is the tensor shear, half the engineering shear):
+
+* principal strains ``e1, e2 = (exx + eyy)/2 +- sqrt(((exx - eyy)/2)^2 + exy^2)``;
+* maximum in-plane shear (tensor) ``(e1 - e2) / 2``;
+* equivalent (von Mises) strain ``sqrt(2/3 (exx^2 + eyy^2 + ezz^2 + 2 exy^2))``
+  with ``ezz = -(exx + eyy)`` (plastic incompressibility);
+* rotation ``atan2(F21 - F12, F11 + F22)`` in radians: the rotation of the
+  polar decomposition ``F = R U`` (exact in 2-D), positive from +x towards
+  +y (clockwise on screen, since y points down).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from .results import DICResult
+
+__all__ = ["StrainResult", "compute_strain", "strain_measures"]
+
+MEASURES = ("infinitesimal", "green_lagrange", "euler_almansi")
+METHODS = ("plane_fit", "fem")
+
+
+@dataclass
+class StrainResult:
+    """Strain at the nodes of a :class:`DICResult` (dimensionless)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    exx: np.ndarray
+    eyy: np.ndarray
+    exy: np.ndarray  # tensor shear
+    e1: np.ndarray
+    e2: np.ndarray
+    max_shear: np.ndarray
+    von_mises: np.ndarray
+    rotation: np.ndarray  # radians
+    dudx: np.ndarray
+    dudy: np.ndarray
+    dvdx: np.ndarray
+    dvdy: np.ndarray
+    valid: np.ndarray
+    measure: str
+    method: str
+    window: int
+    vsg: float  # virtual strain gauge, pixels
+
+
+def strain_measures(dudx, dudy, dvdx, dvdy, measure: str = "green_lagrange"):
+    """``(exx, eyy, exy)`` of the displacement gradient under ``measure``."""
+    if measure not in MEASURES:
+        raise ValueError(f"measure={measure!r} must be one of {MEASURES}")
+    if measure == "infinitesimal":
+        return dudx, dvdy, 0.5 * (dudy + dvdx)
+    if measure == "green_lagrange":
+        exx = dudx + 0.5 * (dudx**2 + dvdx**2)
+        eyy = dvdy + 0.5 * (dudy**2 + dvdy**2)
+        exy = 0.5 * (dudy + dvdx + dudx * dudy + dvdx * dvdy)
+        return exx, eyy, exy
+    # Euler-Almansi: e = (I - B^-1) / 2 with B^-1 = F^-T F^-1
+    F11, F12, F21, F22 = 1 + dudx, dudy, dvdx, 1 + dvdy
+    det = F11 * F22 - F12 * F21
+    i11, i12, i21, i22 = F22 / det, -F12 / det, -F21 / det, F11 / det  # F^-1
+    b11 = i11 * i11 + i21 * i21
+    b22 = i12 * i12 + i22 * i22
+    b12 = i11 * i12 + i21 * i22
+    return 0.5 * (1 - b11), 0.5 * (1 - b22), -0.5 * b12
+
+
+@nb.njit(cache=True, parallel=True)
+def _plane_fit(x, y, u, v, use, nbrs, min_pts, out):
+    n, k = nbrs.shape
+    for i in nb.prange(n):
+        for c in range(4):
+            out[i, c] = np.nan
+        if not use[i]:
+            continue
+        # centred normal equations of u = a + b dx + c dy
+        s = 1.0
+        sx = sy = sxx = sxy = syy = 0.0
+        su = sv = sxu = syu = sxv = syv = 0.0
+        cnt = 1
+        for j in range(k):
+            q = nbrs[i, j]
+            if q < 0 or not use[q]:
+                continue
+            dx = x[q] - x[i]
+            dy = y[q] - y[i]
+            du = u[q] - u[i]
+            dv = v[q] - v[i]
+            s += 1.0
+            sx += dx
+            sy += dy
+            sxx += dx * dx
+            sxy += dx * dy
+            syy += dy * dy
+            su += du
+            sv += dv
+            sxu += dx * du
+            syu += dy * du
+            sxv += dx * dv
+            syv += dy * dv
+            cnt += 1
+        if cnt < min_pts:
+            continue
+        # eliminate the intercept: covariance form
+        cxx = sxx - sx * sx / s
+        cxy = sxy - sx * sy / s
+        cyy = syy - sy * sy / s
+        det = cxx * cyy - cxy * cxy
+        if det <= 1e-9 * (cxx + cyy) ** 2 or cxx <= 0 or cyy <= 0:
+            continue
+        cxu = sxu - sx * su / s
+        cyu = syu - sy * su / s
+        cxv = sxv - sx * sv / s
+        cyv = syv - sy * sv / s
+        out[i, 0] = (cyy * cxu - cxy * cyu) / det
+        out[i, 1] = (cxx * cyu - cxy * cxu) / det
+        out[i, 2] = (cyy * cxv - cxy * cyv) / det
+        out[i, 3] = (cxx * cyv - cxy * cxv) / det
+
+
+def _neighbours(result: DICResult, radius: int, roi) -> np.ndarray:
+    from .mesh import NodeGrid
+    from .outliers import lattice_neighbours
+
+    grid = NodeGrid(result.x.astype(np.int64), result.y.astype(np.int64), result.grid_ix,
+                    result.grid_iy, result.grid_xs, result.grid_ys)
+    return lattice_neighbours(grid, roi, radius=radius)
+
+
+def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit",
+                   measure: str = "green_lagrange", roi=None) -> StrainResult:
+    """Strain at the nodes of ``result``.
+
+    Parameters
+    ----------
+    result : DICResult
+    window : int
+        Strain window in nodes (odd, >= 3) for ``plane_fit``; the virtual
+        strain gauge is ``(window - 1) * step + subset`` pixels.
+    method : {"plane_fit", "fem"}
+    measure : {"infinitesimal", "green_lagrange", "euler_almansi"}
+    roi : (H, W) bool, optional
+        ROI for the connectivity test; defaults to the one stored with the
+        result (``result.roi``), else the whole image.
+
+    Returns
+    -------
+    StrainResult
+    """
+    if method not in METHODS:
+        raise ValueError(f"method={method!r} must be one of {METHODS}")
+    if measure not in MEASURES:
+        raise ValueError(f"measure={measure!r} must be one of {MEASURES}")
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3 \
+            or window % 2 == 0:
+        raise ValueError(f"window={window!r} must be an odd number of nodes >= 3 (e.g. 5)")
+    if roi is None:
+        roi = getattr(result, "roi", None)
+    if roi is None:
+        roi = np.ones(result.image_shape, bool)
+    roi = np.asarray(roi, bool)
+    step = result.params.step
+    use = np.asarray(result.valid, bool)
+    if method == "plane_fit":
+        nbrs = _neighbours(result, (window - 1) // 2, roi)
+        G = np.empty((len(result), 4))
+        _plane_fit(result.x.astype(float), result.y.astype(float), result.u.astype(float),
+                   result.v.astype(float), use, nbrs, 3, G)
+        vsg = (window - 1) * step + result.params.subset
+    else:
+        from .global_solve import Q4Mesh, gradient_operator, uniform_mesh
+        from .mesh import NodeGrid
+
+        if result.elements is not None:
+            mesh = Q4Mesh(result.x, result.y, result.elements)
+        else:
+            grid = NodeGrid(result.x.astype(np.int64), result.y.astype(np.int64),
+                            result.grid_ix, result.grid_iy, result.grid_xs, result.grid_ys)
+            mesh = uniform_mesh(grid, roi)
+        e = mesh.elements
+        ok_el = use[e].all(axis=1)  # only elements whose four corners are trusted
+        mesh = Q4Mesh(mesh.x, mesh.y, e[ok_el])
+        Gx, Gy, covered = gradient_operator(mesh)
+        G = np.column_stack([Gx @ result.u, Gy @ result.u, Gx @ result.v, Gy @ result.v])
+        G[~(covered & use)] = np.nan
+        vsg = 2 * step + result.params.subset
+    dudx, dudy, dvdx, dvdy = G.T
+    exx, eyy, exy = strain_measures(dudx, dudy, dvdx, dvdy, measure)
+    mean = 0.5 * (exx + eyy)
+    rad = np.sqrt((0.5 * (exx - eyy)) ** 2 + exy**2)
+    e1, e2 = mean + rad, mean - rad
+    ezz = -(exx + eyy)
+    vm = np.sqrt(2.0 / 3.0 * (exx**2 + eyy**2 + ezz**2 + 2 * exy**2))
+    rot = np.arctan2(dvdx - dudy, 2 + dudx + dvdy)
+    valid = np.isfinite(exx) & use
+    return StrainResult(result.x, result.y, exx, eyy, exy, e1, e2, rad, vm, rot,
+                        dudx, dudy, dvdx, dvdy, valid, measure, method, int(window), float(vsg))
