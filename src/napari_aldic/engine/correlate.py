@@ -438,65 +438,67 @@ def _solve_local(f, g, fgx, fgy, g_spline, roi, grid: NodeGrid, sub: SubsetMasks
     timing["icgn"] = time.perf_counter() - t
     report(0.8, "IC-GN done")
 
-    # --- rescue failed nodes
+    # --- repair: failed, poorly correlated or inconsistent nodes
     t = time.perf_counter()
+    nbrs5 = lattice_neighbours(grid, roi)  # outlier test neighbourhoods (5 x 5)
+    nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
+    conv = usable & (reason == Reason.OK)
+    zmin = params.zncc_min
+    if params.zncc_rel > 0 and conv.any():
+        floor = max(params.zncc_rel * float(np.median(1.0 - zncc[conv])), 0.1)
+        zmin = max(zmin, 1.0 - floor)
 
-    def failed() -> np.ndarray:
-        return np.nonzero(usable & ((reason != Reason.OK) | ~(zncc >= params.zncc_min)))[0]
+    def good_nodes() -> np.ndarray:
+        ok = usable & (reason == Reason.OK) & (zncc >= zmin)
+        return ok & ~median_test(p[:, 0], p[:, 3], ok, nbrs5)
 
-    bad = failed()
-    if bad.size and bad.size < n:
-        good = np.nonzero(usable & (reason == Reason.OK) & (zncc >= params.zncc_min))[0]
-        if good.size:
-            tree = cKDTree(np.column_stack([grid.x[good], grid.y[good]]))
-            _, j = tree.query(np.column_stack([grid.x[bad], grid.y[bad]]))
-            src = good[j]
-            p_try = p_init.copy()
-            p_try[bad] = _extrapolate(p[src], grid.x[bad] - grid.x[src],
-                                      grid.y[bad] - grid.y[src])
+    def repair_waves() -> None:
+        """Grow trusted regions into bad ones, as seed propagation does: each
+        bad node next to a trusted one restarts from it (first-order
+        extrapolation); converged nodes join the trusted set, wave by wave."""
+        good = good_nodes()
+        tries = np.zeros(n, np.int8)
+        has = nbrs1 >= 0
+        while True:
+            nb_good = np.zeros(nbrs1.shape, bool)
+            nb_good[has] = good[nbrs1[has]]
+            cand = np.nonzero(usable & ~good & (tries < 2) & nb_good.any(axis=1))[0]
+            if cand.size == 0:
+                return
+            score = np.where(nb_good[cand], zncc[np.where(has[cand], nbrs1[cand], 0)], -np.inf)
+            src = nbrs1[cand, np.argmax(score, axis=1)]
+            p_try = p.copy()
+            p_try[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
+                                       grid.y[cand] - grid.y[src])
             active[:] = False
-            active[bad] = True
-            accept(run(active, p_try), bad, only_better=True)
-    bad = failed()
-    bad = bad[reason[bad] != Reason.OUT_OF_IMAGE]  # material left the view: no retry
+            active[cand] = True
+            rp, rz, ri, rr = run(active, p_try)
+            ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin)
+            take = cand[ok]
+            p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+            # a failed attempt keeps the node's earlier result (and reason)
+            tries[cand] += 1
+            tries[take] = 2
+            if take.size == 0:
+                return
+            good[take] = True
+
+    repair_waves()
+    bad = np.nonzero(usable & ~good_nodes() & (reason != Reason.OUT_OF_IMAGE))[0]
     if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
         p_try = p_init.copy()
         p_try[bad] = _ncc_guess(f, g, grid, sub, bad, params)
         active[:] = False
         active[bad] = True
-        accept(run(active, p_try), bad, only_better=True)
+        rp, rz, ri, rr = run(active, p_try)
+        ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin)
+        take = bad[ok & ~((reason[bad] == Reason.OK) & (zncc[bad] >= rz[bad]))]
+        p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+        repair_waves()
     # whatever still fails keeps its best attempt, flagged
-    conv = reason == Reason.OK
-    zmin = params.zncc_min
-    if params.zncc_rel > 0 and conv.any():
-        floor = max(params.zncc_rel * float(np.median(1.0 - zncc[conv])), 0.1)
-        zmin = max(zmin, 1.0 - floor)
-    low = usable & conv & ~(zncc >= zmin)
+    low = usable & (reason == Reason.OK) & ~(zncc >= zmin)
     reason[low] = Reason.LOW_CORRELATION
-
-    # --- outliers: converged but inconsistent with their neighbours
-    nbrs = lattice_neighbours(grid, roi)
     trusted = reason == Reason.OK
-    out = median_test(p[:, 0], p[:, 3], trusted, nbrs)
-    if out.any():
-        bad = np.nonzero(out)[0]
-        p_try = p_init.copy()
-        m = nbrs[bad]
-        ok = m >= 0
-        ok[ok] = trusted[m[ok]] & ~out[m[ok]]
-        for c in range(6):
-            vals = np.where(ok, p[np.where(ok, m, 0), c], np.nan)
-            with np.errstate(all="ignore"):
-                p_try[bad, c] = np.nan_to_num(np.nanmedian(vals, axis=1))
-        active[:] = False
-        active[bad] = True
-        res = run(active, p_try)
-        p[bad], zncc[bad], iters[bad], reason[bad] = (res[0][bad], res[1][bad],
-                                                      res[2][bad], res[3][bad])
-        reason[bad[(reason[bad] == Reason.OK) & ~(zncc[bad] >= zmin)]] = \
-            Reason.LOW_CORRELATION
-        trusted = reason == Reason.OK
-        out = median_test(p[:, 0], p[:, 3], trusted, nbrs)
-        reason[out] = Reason.OUTLIER
+    reason[median_test(p[:, 0], p[:, 3], trusted, nbrs5)] = Reason.OUTLIER
     timing["rescue"] = time.perf_counter() - t
     return p, zncc, iters, reason
