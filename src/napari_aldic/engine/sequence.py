@@ -176,12 +176,35 @@ def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
 
 
 def _compose(base: DICResult, inc: DICResult) -> DICResult:
-    """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``."""
+    """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``.
+
+    ``du`` is interpolated bilinearly on the lattice of ``inc``; where that is
+    not possible (next to an untrusted node or past the lattice edge) the
+    nearest trusted node within 1.5 steps is extrapolated with its gradient.
+    """
+    from scipy.spatial import cKDTree
+
     xd = base.x + base.u
     yd = base.y + base.v
     out = DICResult(**{**base.__dict__})
-    vals = {n: _sample_on_lattice(inc, n, xd, yd)
-            for n in ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")}
+    names = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
+    vals = {n: _sample_on_lattice(inc, n, xd, yd) for n in names}
+    miss = base.valid & ~np.all([np.isfinite(v) for v in vals.values()], axis=0)
+    good = np.nonzero(inc.valid)[0]
+    if miss.any() and good.size:
+        step = float(inc.params.step)
+        d, j = cKDTree(np.column_stack([inc.x[good], inc.y[good]])).query(
+            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=1.5 * step)
+        hit = np.isfinite(d)
+        src = good[np.where(hit, j, 0)]
+        dx = xd[miss] - inc.x[src]
+        dy = yd[miss] - inc.y[src]
+        fill = {n: getattr(inc, n)[src].astype(float) for n in names}
+        fill["u"] = fill["u"] + inc.dudx[src] * dx + inc.dudy[src] * dy
+        fill["v"] = fill["v"] + inc.dvdx[src] * dx + inc.dvdy[src] * dy
+        idx = np.nonzero(miss)[0][hit]
+        for n in names:
+            vals[n][idx] = fill[n][hit]
     ok = base.valid & np.all([np.isfinite(v) for v in vals.values()], axis=0)
     out.u = np.where(ok, base.u + vals["u"], np.nan)
     out.v = np.where(ok, base.v + vals["v"], np.nan)
@@ -193,7 +216,8 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     out.dvdx, out.dvdy = C[1, 0], C[1, 1] - 1
     out.zncc = vals["zncc"]
     out.valid = ok
-    out.reason = np.where(ok, 0, np.where(base.valid, 7, base.reason)).astype(np.int8)
+    # nodes whose material is not covered by a trusted increment are flagged
+    out.reason = np.where(ok, 0, np.where(base.valid, 3, base.reason)).astype(np.int8)
     out.meta = {**inc.meta}
     return out
 
