@@ -179,8 +179,9 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``.
 
     ``du`` is interpolated bilinearly on the lattice of ``inc``; where that is
-    not possible (next to an untrusted node or past the lattice edge) the
-    nearest trusted node within 1.5 steps is extrapolated with its gradient.
+    not possible inside the lattice (next to an untrusted node) the nearest
+    trusted node within 0.75 steps is extrapolated with its gradient. Material
+    that moved past the lattice edge is flagged (reason OUT_OF_IMAGE).
     """
     from scipy.spatial import cKDTree
 
@@ -190,11 +191,15 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     names = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
     vals = {n: _sample_on_lattice(inc, n, xd, yd) for n in names}
     miss = base.valid & ~np.all([np.isfinite(v) for v in vals.values()], axis=0)
+    # only inside the lattice: extrapolating past its edge accumulates the
+    # edge nodes' errors frame after frame
+    miss &= ((xd >= inc.grid_xs[0]) & (xd <= inc.grid_xs[-1])
+             & (yd >= inc.grid_ys[0]) & (yd <= inc.grid_ys[-1]))
     good = np.nonzero(inc.valid)[0]
     if miss.any() and good.size:
         step = float(inc.params.step)
         d, j = cKDTree(np.column_stack([inc.x[good], inc.y[good]])).query(
-            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=1.5 * step)
+            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=0.75 * step)
         hit = np.isfinite(d)
         src = good[np.where(hit, j, 0)]
         dx = xd[miss] - inc.x[src]
