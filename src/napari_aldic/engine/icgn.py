@@ -188,6 +188,24 @@ def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
     return True, sg, sgg, sfg, t0, t1, t2, t3, t4, t5
 
 
+@nb.njit(inline="always", fastmath=_FM)
+def _gn_step(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+             dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax):
+    """Sample the warped subset and return ``(status, zncc, df/dg, g mean,
+    six gradient-weighted sums)``; status is OK, OUT_OF_IMAGE or NO_TEXTURE."""
+    inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
+        c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+        dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
+    if not inside:
+        return _OUT, np.nan, 0.0, 0.0, t0, t1, t2, t3, t4, t5
+    gm = sg / m
+    dg2 = sgg - m * gm * gm
+    if dg2 <= 1e-6 * m:
+        return _FLAT, np.nan, 0.0, gm, t0, t1, t2, t3, t4, t5
+    dgn = np.sqrt(dg2)
+    return _OK, (sfg - m * fm * gm) / (dfn * dgn), dfn / dgn, gm, t0, t1, t2, t3, t4, t5
+
+
 @nb.njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
 def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                  h, max_iter, tol, p_out, zncc_out, iters_out, reason_out):
@@ -294,20 +312,13 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
             it = 0
             while it < max_iter:
                 it += 1
-                inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
+                st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = _gn_step(
                     c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-                    dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
-                if not inside:
-                    status = _OUT
+                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax)
+                if st != _OK:
+                    status = st
                     break
-                gm = sg / m
-                dg2 = sgg - m * gm * gm
-                if dg2 <= 1e-6 * m:
-                    status = _FLAT
-                    break
-                dgn = np.sqrt(dg2)
-                zn = (sfg - m * fm * gm) / (dfn * dgn)
-                r = dfn / dgn
+                zn = zn_k
                 # b = sum J [(f - fm) - (df/dg)(g - gm)];  H dp = -b
                 b[0] = b00 - r * (t0 - gm * sj0)
                 b[1] = b01 - r * (t1 - gm * sj1)
@@ -474,20 +485,13 @@ def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, a
             it = 0
             while it < max_iter:
                 it += 1
-                inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
+                st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = _gn_step(
                     c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-                    dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
-                if not inside:
-                    status = _OUT
+                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax)
+                if st != _OK:
+                    status = st
                     break
-                gm = sg / m
-                dg2 = sgg - m * gm * gm
-                if dg2 <= 1e-6 * m:
-                    status = _FLAT
-                    break
-                dgn = np.sqrt(dg2)
-                zn = (sfg - m * fm * gm) / (dfn * dgn)
-                r = dfn / dgn
+                zn = zn_k
                 g0 = b0 - r * (t0 - gm * sj0)
                 g3 = b3 - r * (t3 - gm * sj3)
                 # (H + pen A^T A) d = -g + pen A^T (u - t)
