@@ -188,6 +188,14 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         grad = state.grad
         zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)
         reason = np.where(reason == Reason.OK, state.reason, reason).astype(np.int8)
+        # the same correlation test as the local result
+        conv = reason == Reason.OK
+        if conv.any():
+            zmin = params.zncc_min
+            if params.zncc_rel > 0:
+                zmin = max(zmin, 1.0 - max(params.zncc_rel
+                                           * float(np.median(1.0 - zncc[conv])), 0.1))
+            reason[conv & ~(zncc >= zmin)] = Reason.LOW_CORRELATION
         iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
         meta["admm_history"] = state.history
     valid = reason == Reason.OK

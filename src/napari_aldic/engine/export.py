@@ -1061,7 +1061,8 @@ def _draw_field(ax, fr: Frame, name: str, units: Units, cmap, vmin, vmax, image=
     tri = _triangulation(res, units, vals)
     if tri is not None and not tri.mask.all():
         shown = np.where(np.isfinite(vals), vals, 0.0)
-        im = ax.tripcolor(tri, shown, shading="gouraud", cmap=cm, vmin=vmin, vmax=vmax)
+        im = ax.tripcolor(tri, shown, shading="gouraud", cmap=cm, vmin=vmin, vmax=vmax,
+                          rasterized=True)
     else:
         ok = np.isfinite(vals)
         im = ax.scatter(res.x[ok] * ps, res.y[ok] * ps, c=vals[ok], cmap=cm, vmin=vmin,

@@ -7,10 +7,11 @@ have node i as a corner, of that element's bilinear gradient evaluated at
 the corner. ``D`` acts on each displacement component separately, so the
 system matrix
 
-    A = β GᵀG + μ diag(w)
+    A = β Gᵀ diag(w_g) G + μ diag(w)
 
-(G: the scalar nodal-gradient operator, w: 1 for trusted nodes, a tiny
-weight for untrusted ones) is shared by u and v and factorised once.
+(G: the scalar nodal-gradient operator; w: 1 for trusted nodes, a tiny
+weight for untrusted ones; w_g: 1 for trusted nodes, 0 for untrusted ones,
+whose local gradients are unknown) is shared by u and v and factorised once.
 
 Handling of awkward elements (documented behaviour):
 
@@ -210,7 +211,12 @@ class GlobalSolver:
         self.Gx, self.Gy, self.covered = gradient_operator(mesh)
         self.T, self.free = mesh.prolongation()
         self.w = np.where(weights, 1.0, UNTRUSTED_WEIGHT).astype(float)
-        L = (self.Gx.T @ self.Gx + self.Gy.T @ self.Gy)
+        # gradient rows of untrusted nodes are dropped: their local gradient is
+        # unknown, and their displacement is still tied in through the
+        # neighbours' rows (central differences include it)
+        self.wg = np.asarray(weights, float)
+        Wg = sp.diags(self.wg)
+        L = (self.Gx.T @ Wg @ self.Gx + self.Gy.T @ Wg @ self.Gy)
         A = self.beta * L + self.mu * sp.diags(self.w)
         self.A = (self.T.T @ A @ self.T).tocsc()
         n_free = self.A.shape[0]
@@ -236,7 +242,7 @@ class GlobalSolver:
         u, v : (N,) local displacements; vu, vv : (N,) their scaled multipliers.
         """
         b, mu, w = self.beta, self.mu, self.w
-        R = F - W
+        R = (F - W) * self.wg[:, None]
         rhs_u = b * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mu * w * (u - vu)
         rhs_v = b * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mu * w * (v - vv)
         rhs = self.T.T @ np.column_stack([rhs_u, rhs_v])

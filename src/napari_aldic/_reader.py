@@ -1,0 +1,233 @@
+"""npe2 reader: image stacks as one lazy layer, and napari-aldic result files.
+
+* a multi-page TIFF (``.tif``/``.tiff``) holding a ``(frames, rows, cols)``
+  series, a folder of BMP/PNG/TIF/JPG images (natural sort: ``img_2`` before
+  ``img_10``), or several such image files chosen together, open as ONE
+  dask-backed Image layer with a time axis; frames are read only when shown
+  or analysed, and 8/16-bit data keep their type (RGB frames become grey);
+* a result file written by :meth:`napari_aldic.engine.DICResult.save` (``.npz``)
+  opens as the result layers (no time axis); a folder of per-frame result
+  files (``frame_00001.npz`` ..., as written by ``track(out_dir=...)`` or by the
+  plugin's writer) opens as result layers with a time axis.
+
+napari is not imported here.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["get_reader", "read_stack", "read_results", "is_result_file"]
+
+IMAGE_EXT = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
+_FRAME_FILE = re.compile(r"frame_(\d+)\.npz$")
+
+
+def _natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def is_result_file(path) -> bool:
+    """True if ``path`` is a napari-aldic result ``.npz`` (header checked)."""
+    path = Path(path)
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "header" not in z.files:
+                return False
+            return '"napari-aldic-result"' in str(z["header"])
+    except Exception:
+        return False
+
+
+def _result_frames(folder: Path) -> list[tuple[int, Path]]:
+    out = []
+    for p in folder.iterdir():
+        m = _FRAME_FILE.match(p.name)
+        if m and p.is_file():
+            out.append((int(m.group(1)), p))
+    return sorted(out)
+
+
+def _image_files(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXT),
+                  key=lambda p: _natural_key(p.name))
+
+
+def _tiff_stack_shape(path: Path):
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tf:
+            series = tf.series[0]
+            return tuple(series.shape), np.dtype(series.dtype), str(series.axes)
+    except Exception:
+        return None
+
+
+def get_reader(path):
+    """Return a reader function if ``path`` is something this plugin opens."""
+    if isinstance(path, (list, tuple)):
+        paths = [Path(p) for p in path]
+        if len(paths) == 1:
+            return get_reader(paths[0])
+        if paths and all(p.is_file() and p.suffix.lower() in IMAGE_EXT for p in paths):
+            return read_stack
+        if paths and all(is_result_file(p) for p in paths):
+            return read_results
+        return None
+    path = Path(path)
+    if path.is_dir():
+        if _result_frames(path):
+            return read_results
+        return read_stack if len(_image_files(path)) >= 2 else None
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return read_results if is_result_file(path) else None
+    if suffix in (".tif", ".tiff") and path.is_file():
+        info = _tiff_stack_shape(path)
+        if info is None:
+            return None
+        shape, _, axes = info
+        # a (frames, rows, cols) series; single images and RGB stacks are left
+        # to napari's own reader
+        if len(shape) == 3 and shape[0] >= 2 and not axes.endswith("S"):
+            return read_stack
+    return None
+
+
+# ----------------------------------------------------------------- stacks
+def _grey(frame: np.ndarray) -> np.ndarray:
+    """RGB(A) frames become grey (float32); grey frames are returned as they are."""
+    if frame.ndim == 3 and frame.shape[-1] in (3, 4):
+        from .engine import as_gray_float
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return as_gray_float(frame).astype(np.float32)
+    return frame
+
+
+def _read_file(path: Path) -> np.ndarray:
+    if path.suffix.lower() in (".tif", ".tiff"):
+        import tifffile
+
+        return tifffile.imread(path)
+    from skimage import io
+
+    return io.imread(path)
+
+
+def _lazy_stack(read_frame, n: int, first: np.ndarray, label: str):
+    """A (n, H, W) dask array whose frame k is ``read_frame(k)``."""
+    import dask
+    import dask.array as da
+
+    first = _grey(first)
+    shape, dtype = first.shape, first.dtype
+
+    def load(k: int) -> np.ndarray:
+        img = _grey(np.asarray(read_frame(k)))
+        if img.shape != shape:
+            raise ValueError(f"{label}: frame {k} has shape {img.shape}, frame 0 has {shape}; "
+                             "all frames of a stack must have the same size")
+        return img.astype(dtype, copy=False)
+
+    frames = [da.from_delayed(dask.delayed(load)(k), shape=shape, dtype=dtype) for k in range(n)]
+    return da.stack(frames), first
+
+
+def _stack_layer(data, first: np.ndarray, name: str, meta: dict):
+    lo, hi = float(np.min(first)), float(np.max(first))
+    if np.issubdtype(first.dtype, np.integer):
+        info = np.iinfo(first.dtype)
+        lo, hi = (lo, hi) if hi > lo else (float(info.min), float(info.max))
+    elif not hi > lo:
+        lo, hi = lo, lo + 1.0
+    kwargs = {"name": name, "metadata": meta, "contrast_limits": (lo, hi),
+              "axis_labels": ("t", "y", "x")}
+    return [(data, kwargs, "image")]
+
+
+def read_stack(path):
+    """A TIFF stack, an image folder or a list of image files as one lazy layer."""
+    from .engine import open_stack
+
+    if isinstance(path, (list, tuple)) and len(path) > 1:
+        files = sorted((Path(p) for p in path), key=lambda p: _natural_key(p.name))
+        first = _read_file(files[0])
+        data, first = _lazy_stack(lambda k: _read_file(files[k]), len(files), first,
+                                  str(files[0].parent))
+        name = files[0].parent.name or files[0].stem
+        meta = {"source": [str(f) for f in files], "frames": [f.name for f in files]}
+        return _stack_layer(data, first, name, meta)
+    if isinstance(path, (list, tuple)):
+        path = path[0]
+    path = Path(path)
+    src = open_stack(path)  # natural sort, one page or file per request
+    first = src[0]
+    data, first = _lazy_stack(src.__getitem__, len(src), first, str(path))
+    meta = {"source": str(path)}
+    if path.is_dir():
+        meta["frames"] = [p.name for p in _image_files(path)]
+    name = path.stem if path.is_file() else path.name
+    return _stack_layer(data, first, name, meta)
+
+
+# ----------------------------------------------------------------- results
+def _load_analysis(paths: list[Path], folder: bool):
+    from ._analysis import Analysis, StrainSettings, _zero_field
+    from .engine import compute_strain, load_result
+
+    loaded = [load_result(p) for p in paths]
+    settings = StrainSettings()
+    if not folder and len(loaded) == 1:
+        res = loaded[0]
+        frames, n_frames, results = [int(res.meta.get("frame", 1))], None, [res]
+    else:
+        ks = [int(r.meta.get("frame", i + 1)) for i, r in enumerate(loaded)]
+        if folder:
+            ks = [int(_FRAME_FILE.match(p.name).group(1)) for p in paths]
+        order = np.argsort(ks)
+        ks = [ks[i] for i in order]
+        results = [loaded[i] for i in order]
+        if ks[0] != 0:
+            # the reference frame itself is not stored: show it as a zero field
+            ref = min(int(r.meta.get("reference_frame", 0)) for r in results)
+            ref = ref if ref < ks[0] else 0
+            ks.insert(0, ref)
+            results.insert(0, _zero_field(results[0]))
+        frames, n_frames = ks, ks[-1] + 1
+    strains = []
+    for r in results:
+        try:
+            strains.append(compute_strain(r, window=settings.window, method=settings.method,
+                                          measure=settings.measure))
+        except ValueError:
+            strains.append(None)
+    return Analysis(results=results, strains=strains, frames=frames, n_frames=n_frames,
+                    params=results[-1].params, strain=settings,
+                    source=str(paths[0].parent if folder else paths[0]))
+
+
+def read_results(path):
+    """Result file(s) or a folder of ``frame_#####.npz`` files as result layers."""
+    from ._layers import Display, Geometry, analysis_layers
+
+    if isinstance(path, (list, tuple)):
+        paths = [Path(p) for p in path]
+        folder = False
+    else:
+        p = Path(path)
+        folder = p.is_dir()
+        paths = [q for _, q in _result_frames(p)] if folder else [p]
+    if not paths:
+        raise ValueError(f"no napari-aldic result files in {path}")
+    analysis = _load_analysis(paths, folder)
+    geometry = Geometry((1.0, 1.0, 1.0), (0.0, 0.0, 0.0)) if analysis.n_frames else Geometry()
+    return analysis_layers(analysis, geometry, Display())

@@ -1,0 +1,157 @@
+"""Layers -> engine inputs: ROI masks from Shapes/Labels layers, seeds from Points.
+
+Only the public layer API is used (``data``, ``shape_type``, ``edge_width``,
+``data_to_world``, ``world_to_data``); napari is not imported, so the
+rasterisation can be tested with plain arrays.
+
+Coordinates: napari data coordinates are ``(row, col)`` = ``(y, x)``; every
+vertex is taken from its own layer through world coordinates into the pixel
+grid of the analysed image, so layers with a different scale or offset still
+land on the right pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["shape_mask", "shapes_masks", "labels_mask", "points_xy", "to_image_pixels",
+           "build_roi", "CUT_TYPES"]
+
+#: open shapes (lines and paths) cut the ROI along their length: cracks
+CUT_TYPES = ("line", "path")
+
+
+def to_image_pixels(layer, image, coords: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` (row, col) pixel positions in ``image`` of ``layer``'s data ``coords``."""
+    coords = np.atleast_2d(np.asarray(coords, float))
+    out = np.empty((coords.shape[0], 2))
+    for i, c in enumerate(coords):
+        world = np.asarray(layer.data_to_world(c), float)
+        out[i] = np.asarray(image.world_to_data(world), float)[-2:]
+    return out
+
+
+def shape_mask(shape_type: str, rc: np.ndarray, image_shape, width: float = 1.0) -> np.ndarray:
+    """Boolean mask of one shape given by its (row, col) vertices in pixels.
+
+    Rectangles and polygons are filled polygons; an ellipse is given (as in
+    napari) by the four corners of its bounding box, possibly rotated; a line
+    or path is a band ``width`` pixels wide along it (at least one pixel).
+    """
+    from skimage.draw import polygon2mask
+
+    h, w = int(image_shape[0]), int(image_shape[1])
+    rc = np.asarray(rc, float)
+    if shape_type in ("rectangle", "polygon"):
+        return polygon2mask((h, w), rc)
+    if shape_type == "ellipse":
+        c = rc.mean(axis=0)
+        a = (rc[1] - rc[0]) / 2.0  # half-axis vectors of the bounding box
+        b = (rc[3] - rc[0]) / 2.0
+        rr, cc = np.mgrid[0:h, 0:w]
+        d = np.stack([rr - c[0], cc - c[1]], -1)
+        na, nb = a @ a, b @ b
+        if na <= 0 or nb <= 0:
+            return np.zeros((h, w), bool)
+        return (d @ a / na) ** 2 + (d @ b / nb) ** 2 <= 1.0
+    if shape_type in CUT_TYPES:
+        from skimage.draw import line
+
+        out = np.zeros((h, w), bool)
+        pts = np.rint(rc).astype(np.int64)
+        for p, q in zip(pts[:-1], pts[1:]):
+            r, c = line(int(p[0]), int(p[1]), int(q[0]), int(q[1]))
+            ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            out[r[ok], c[ok]] = True
+        half = max(0, int(round((float(width) - 1.0) / 2.0)))
+        if half and out.any():
+            from scipy import ndimage
+
+            out = ndimage.binary_dilation(out, iterations=half)
+        return out
+    raise ValueError(f"shape type {shape_type!r} cannot be turned into a region")
+
+
+def shapes_masks(layer, image, image_shape) -> tuple[np.ndarray, np.ndarray]:
+    """``(areas, cuts)``: union of the closed shapes and of the lines/paths of ``layer``."""
+    h, w = image_shape
+    areas = np.zeros((h, w), bool)
+    cuts = np.zeros((h, w), bool)
+    widths = np.broadcast_to(np.asarray(getattr(layer, "edge_width", 1.0), float),
+                             (len(layer.data),))
+    for verts, kind, width in zip(layer.data, layer.shape_type, widths):
+        rc = to_image_pixels(layer, image, verts)
+        m = shape_mask(kind, rc, (h, w), width)
+        if kind in CUT_TYPES:
+            cuts |= m
+        else:
+            areas |= m
+    return areas, cuts
+
+
+def labels_mask(layer, image_shape, frame: int = 0) -> np.ndarray:
+    """Nonzero pixels of a Labels layer of the image's size (a 3-D labels
+    stack gives its slice ``frame``)."""
+    data = layer.data
+    if getattr(layer, "multiscale", False):
+        data = data[0]
+    if tuple(data.shape[-2:]) != tuple(image_shape):
+        raise ValueError(f"labels layer '{layer.name}' is {data.shape[-2]} x {data.shape[-1]} px "
+                         f"but the image is {image_shape[0]} x {image_shape[1]} px")
+    if data.ndim == 3:
+        data = data[min(frame, data.shape[0] - 1)]
+    elif data.ndim != 2:
+        raise ValueError(f"labels layer '{layer.name}' has {data.ndim} axes; use a 2-D one")
+    return np.asarray(data) != 0
+
+
+def points_xy(layer, image) -> np.ndarray:
+    """``(N, 2)`` seed positions ``(x, y)`` in image pixels (napari points are
+    ``(..., row, col)``)."""
+    if len(layer.data) == 0:
+        return np.zeros((0, 2))
+    rc = to_image_pixels(layer, image, np.asarray(layer.data, float))
+    return rc[:, ::-1].copy()
+
+
+def build_roi(image, image_shape, add_shapes=(), subtract_shapes=(), labels=None,
+              frame: int = 0) -> tuple[np.ndarray | None, list[str]]:
+    """The analysis ROI (True = analysed) and a note per input used.
+
+    ``(union of the closed shapes of add_shapes, or the whole image) AND
+    (nonzero labels, if given) AND NOT (closed shapes of subtract_shapes)``;
+    lines and paths in any of the Shapes layers cut the ROI (cracks).
+    Returns ``None`` when no layer restricts the analysis (whole image).
+    """
+    h, w = image_shape
+    notes = []
+    roi = np.ones((h, w), bool)
+    restricted = False
+    cut = np.zeros((h, w), bool)
+    added = np.zeros((h, w), bool)
+    any_add = False
+    for layer in add_shapes:
+        a, c = shapes_masks(layer, image, (h, w))
+        cut |= c
+        if a.any() or len(layer.data):
+            any_add = any_add or a.any()
+        added |= a
+        notes.append(f"+ shapes '{layer.name}' ({len(layer.data)} shapes)")
+    if any_add:
+        roi &= added
+        restricted = True
+    if labels is not None:
+        roi &= labels_mask(labels, (h, w), frame)
+        restricted = True
+        notes.append(f"& labels '{labels.name}' (nonzero)")
+    for layer in subtract_shapes:
+        a, c = shapes_masks(layer, image, (h, w))
+        roi &= ~a
+        cut |= c
+        restricted = restricted or bool(a.any())
+        notes.append(f"- shapes '{layer.name}' ({len(layer.data)} shapes)")
+    if cut.any():
+        roi &= ~cut
+        restricted = True
+        notes.append(f"cracks cut along lines/paths ({int(cut.sum())} px)")
+    return (roi if restricted else None), notes
