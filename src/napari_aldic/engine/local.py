@@ -1,0 +1,309 @@
+"""Local DIC of one image pair: initial guess, IC-GN at every node, repair.
+
+Stages (see ``solve_local``):
+
+1. initial guess -- from a previous result (``guess``), from seed points
+   (wave propagation), or from FFT cross-correlation at coarse nodes whose
+   solutions then start every other node;
+2. IC-GN at every usable node;
+3. repair -- nodes that failed, correlate poorly or fail the median test are
+   restarted from trusted neighbours wave by wave, then from their own
+   cross-correlation search, and finally flagged.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .icgn import icgn_solve
+from .init_guess import ncc_search_widening
+from .interpolation import SplineImage, prefilter, reference_gradients
+from .mesh import NodeGrid
+from .outliers import lattice_neighbours, median_test
+from .params import DICParams
+from .reasons import Reason
+from .subsets import SubsetMasks
+
+__all__ = ["Images", "prepare_images", "solve_local", "correlation_floor"]
+
+ProgressFn = Callable[[float, str], None]
+
+
+@dataclass
+class Images:
+    """The pair as the kernels need it: reference values and spline
+    gradients, and the deformed image's B-spline coefficients."""
+
+    f: np.ndarray
+    g: np.ndarray
+    fgx: np.ndarray
+    fgy: np.ndarray
+    g_spline: SplineImage
+
+
+def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
+    """Prefilter once: reference gradients and deformed-image coefficients."""
+    order = 3 if interpolation == "cubic" else 5
+    fgx, fgy = reference_gradients(prefilter(f, order))
+    return Images(f, g, fgx, fgy, prefilter(g, order))
+
+
+def correlation_floor(zncc: np.ndarray, converged: np.ndarray, params: DICParams) -> float:
+    """Lowest acceptable ZNCC: ``zncc_min``, raised by the relative test
+    (``1 - ZNCC`` above ``zncc_rel`` times the median of converged nodes, and
+    0.1) so spurious matches of material that left the view are flagged."""
+    zmin = params.zncc_min
+    if params.zncc_rel > 0 and converged.any():
+        floor = max(params.zncc_rel * float(np.median(1.0 - zncc[converged])), 0.1)
+        zmin = max(zmin, 1.0 - floor)
+    return zmin
+
+
+def _propagate_seeds(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+                     run, accept, p, zncc, reason):
+    """Seed-propagation initial guess.
+
+    Each seed is solved by a cross-correlation search over the whole image
+    and IC-GN at its nearest usable node; the solution then spreads, wave by
+    wave, to mask-connected lattice neighbours, each starting from its best
+    solved neighbour extrapolated to first order with that neighbour's
+    gradient (``u + F dX``). Every connected ROI region needs a seed.
+    """
+    from scipy import ndimage
+
+    rows, cols = roi.shape
+    seeds = np.asarray(params.seeds, float).reshape(-1, 2)
+    labels, _ = ndimage.label(roi)
+    seed_region = []
+    for sx, sy in seeds:
+        ix, iy = int(round(sx)), int(round(sy))
+        if not (0 <= ix < cols and 0 <= iy < rows) or not roi[iy, ix]:
+            raise ValueError(f"seed ({sx:g}, {sy:g}) is outside the ROI; place seeds on "
+                             "analysed material")
+        seed_region.append(labels[iy, ix])
+    usable = sub.reason == Reason.OK
+    node_region = labels[grid.y, grid.x]
+    for r in np.unique(node_region[usable]):
+        if r not in seed_region:
+            ys, xs = np.nonzero(labels == r)
+            raise ValueError(
+                f"ROI region {r} (x {xs.min()}-{xs.max()}, y {ys.min()}-{ys.max()}, "
+                f"{xs.size} px) has no seed; add a seed point inside it")
+    seed_nodes = []
+    for (sx, sy), r in zip(seeds, seed_region):
+        cand = np.nonzero(usable & (node_region == r))[0]
+        if cand.size == 0:
+            raise ValueError(f"seed ({sx:g}, {sy:g}): its ROI region has no usable node; "
+                             "enlarge the region or reduce the subset")
+        seed_nodes.append(cand[np.argmin(np.hypot(grid.x[cand] - sx, grid.y[cand] - sy))])
+    seed_nodes = np.unique(np.asarray(seed_nodes))
+    n = grid.n
+    p_init = np.zeros((n, 6))
+    # a seed may have moved anywhere: widen until the peak is convincing
+    p_init[seed_nodes] = _ncc_guess(im, grid, sub, seed_nodes,
+                                    params.replace(search_max=max(rows, cols, params.search)),
+                                    accept=0.9)
+    active = np.zeros(n, bool)
+    active[seed_nodes] = True
+    accept(run(active, p_init), seed_nodes, only_better=False)
+    solved = active & (reason == Reason.OK) & (zncc >= params.zncc_min)
+    if not solved.any():
+        raise ValueError("no seed could be matched in the deformed image; move the seeds to "
+                         "well-textured material")
+    attempted = active.copy()
+    nbrs = lattice_neighbours(grid, roi, radius=1)
+    while True:
+        has = nbrs >= 0
+        nb_solved = np.zeros(nbrs.shape, bool)
+        nb_solved[has] = solved[nbrs[has]]
+        cand = np.nonzero(usable & ~attempted & nb_solved.any(axis=1))[0]
+        if cand.size == 0:
+            break
+        score = np.where(nb_solved[cand], zncc[np.where(has[cand], nbrs[cand], 0)], -np.inf)
+        src = nbrs[cand, np.argmax(score, axis=1)]
+        p_init[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
+                                    grid.y[cand] - grid.y[src])
+        active[:] = False
+        active[cand] = True
+        accept(run(active, p_init), cand, only_better=False)
+        attempted[cand] = True
+        solved[cand] = (reason[cand] == Reason.OK) & (zncc[cand] >= params.zncc_min)
+    never = usable & ~attempted  # unreachable from any seed through converged nodes
+    reason[never] = Reason.NO_INITIAL_GUESS
+
+
+def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """First-order extrapolation of affine parameters by (dx, dy) pixels."""
+    p0 = p_from.copy()
+    p0[:, 0] += p_from[:, 1] * dx + p_from[:, 2] * dy
+    p0[:, 3] += p_from[:, 4] * dx + p_from[:, 5] * dy
+    return p0
+
+
+def _ncc_guess(im: Images, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
+               params: DICParams, accept: float = 0.5) -> np.ndarray:
+    """Affine parameters from an NCC search at ``nodes`` (gradients zero)."""
+    h = params.half
+    masks = None
+    if np.any(sub.slot[nodes] >= 0):
+        masks = np.ones((nodes.size, params.subset, params.subset), np.uint8)
+        cut = sub.slot[nodes] >= 0
+        masks[cut] = sub.masks[sub.slot[nodes][cut]]
+    res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], h, params.search,
+                              params.resolved_search_max(im.f.shape), masks, accept=accept)
+    p0 = np.zeros((nodes.size, 6))
+    p0[:, 0] = res.u
+    p0[:, 3] = res.v
+    return p0
+
+
+def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+                timing: dict, report: ProgressFn, guess=None):
+    """Local IC-GN at every node with a coarse-to-fine initial guess.
+
+    1. NCC at coarse nodes (every k-th lattice node), IC-GN there.
+    2. Every other node starts from its nearest converged coarse node,
+       extrapolated to first order with that node's gradient; IC-GN.
+    3. Nodes that fail (no convergence, low ZNCC, divergence) are retried
+       from their nearest converged neighbour, then from their own NCC search;
+       a retry is kept only if it converges with a higher ZNCC.
+    """
+    n = grid.n
+    h = params.half
+    usable = sub.reason == Reason.OK
+    p = np.zeros((n, 6))
+    zncc = np.full(n, np.nan)
+    iters = np.zeros(n, np.int32)
+    reason = sub.reason.astype(np.int8).copy()
+
+    def run(active: np.ndarray, p_init: np.ndarray):
+        out = (p.copy(), zncc.copy(), iters.copy(), reason.copy())
+        return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, p_init, active,
+                          sub.slot, sub.masks, h, params.max_iter, params.tol, out=out)
+
+    def accept(res, nodes: np.ndarray, only_better: bool):
+        rp, rz, ri, rr = res
+        take = nodes
+        if only_better:
+            new_ok = (rr[nodes] == Reason.OK) & (rz[nodes] >= params.zncc_min)
+            old_ok = (reason[nodes] == Reason.OK) & (zncc[nodes] >= params.zncc_min)
+            take = nodes[new_ok & (~old_ok | (rz[nodes] > zncc[nodes]))]
+        p[take] = rp[take]
+        zncc[take] = rz[take]
+        iters[take] = ri[take]
+        reason[take] = rr[take]
+
+    p_init = np.zeros((n, 6))
+    active = np.zeros(n, bool)
+    if guess is not None and np.any(guess.valid):
+        # a previous result (e.g. the last frame of a sequence) as the guess
+        t = time.perf_counter()
+        gv = np.nonzero(guess.valid)[0]
+        tree = cKDTree(np.column_stack([guess.x[gv], guess.y[gv]]))
+        _, j = tree.query(np.column_stack([grid.x, grid.y]))
+        src = gv[j]
+        pg = np.column_stack([guess.u, guess.dudx, guess.dudy, guess.v, guess.dvdx, guess.dvdy])
+        p_init[:] = _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
+        timing["init"] = time.perf_counter() - t
+        active[:] = usable
+        accept(run(active, p_init), np.nonzero(usable)[0], only_better=False)
+    elif params.init == "seeds":
+        t = time.perf_counter()
+        _propagate_seeds(im, roi, grid, sub, params, run, accept, p, zncc, reason)
+        timing["init"] = 0.0
+    else:
+        t = time.perf_counter()
+        k = max(1, params.resolved_init_spacing() // params.step)
+        coarse = np.nonzero(usable & (grid.ix >= 0) & (grid.ix % k == 0)
+                            & (grid.iy % k == 0))[0]
+        if coarse.size == 0:
+            coarse = np.nonzero(usable)[0]
+        p_init[coarse] = _ncc_guess(im, grid, sub, coarse, params)
+        timing["init"] = time.perf_counter() - t
+        report(0.3, f"initial guess at {coarse.size} coarse nodes")
+
+        t = time.perf_counter()
+        active[coarse] = True
+        accept(run(active, p_init), coarse, only_better=False)
+        good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
+        rest = np.nonzero(usable & ~active)[0]
+        if rest.size:
+            if good_c.size:
+                tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
+                _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
+                src = good_c[j]
+                p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
+                                            grid.y[rest] - grid.y[src])
+            else:
+                p_init[rest] = _ncc_guess(im, grid, sub, rest, params)
+            active[:] = False
+            active[rest] = True
+            accept(run(active, p_init), rest, only_better=False)
+    timing["icgn"] = time.perf_counter() - t
+    report(0.8, "IC-GN done")
+
+    # --- repair: failed, poorly correlated or inconsistent nodes
+    t = time.perf_counter()
+    nbrs5 = lattice_neighbours(grid, roi)  # outlier test neighbourhoods (5 x 5)
+    nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
+    zmin = correlation_floor(zncc, usable & (reason == Reason.OK), params)
+
+    def good_nodes() -> np.ndarray:
+        ok = usable & (reason == Reason.OK) & (zncc >= zmin)
+        return ok & ~median_test(p[:, 0], p[:, 3], ok, nbrs5)
+
+    def repair_waves() -> None:
+        """Grow trusted regions into bad ones, as seed propagation does: each
+        bad node next to a trusted one restarts from it (first-order
+        extrapolation); converged nodes join the trusted set, wave by wave."""
+        good = good_nodes()
+        tries = np.zeros(n, np.int8)
+        has = nbrs1 >= 0
+        while True:
+            nb_good = np.zeros(nbrs1.shape, bool)
+            nb_good[has] = good[nbrs1[has]]
+            cand = np.nonzero(usable & ~good & (tries < 2) & nb_good.any(axis=1))[0]
+            if cand.size == 0:
+                return
+            score = np.where(nb_good[cand], zncc[np.where(has[cand], nbrs1[cand], 0)], -np.inf)
+            src = nbrs1[cand, np.argmax(score, axis=1)]
+            p_try = p.copy()
+            p_try[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
+                                       grid.y[cand] - grid.y[src])
+            active[:] = False
+            active[cand] = True
+            rp, rz, ri, rr = run(active, p_try)
+            ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin)
+            take = cand[ok]
+            p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+            # a failed attempt keeps the node's earlier result (and reason)
+            tries[cand] += 1
+            tries[take] = 2
+            if take.size == 0:
+                return
+            good[take] = True
+
+    repair_waves()
+    bad = np.nonzero(usable & ~good_nodes() & (reason != Reason.OUT_OF_IMAGE))[0]
+    if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
+        p_try = p_init.copy()
+        p_try[bad] = _ncc_guess(im, grid, sub, bad, params)
+        active[:] = False
+        active[bad] = True
+        rp, rz, ri, rr = run(active, p_try)
+        ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin)
+        take = bad[ok & ~((reason[bad] == Reason.OK) & (zncc[bad] >= rz[bad]))]
+        p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+        repair_waves()
+    # whatever still fails keeps its best attempt, flagged
+    low = usable & (reason == Reason.OK) & ~(zncc >= zmin)
+    reason[low] = Reason.LOW_CORRELATION
+    trusted = reason == Reason.OK
+    reason[median_test(p[:, 0], p[:, 3], trusted, nbrs5)] = Reason.OUTLIER
+    timing["rescue"] = time.perf_counter() - t
+    return p, zncc, iters, reason
