@@ -177,8 +177,6 @@ def test_method_option_reaches_the_engine(demo, tmp_path):
     out = tmp_path / "r.npz"
     rc, text, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
                           "--method", "aldic", "-o", out])
-    if rc == 2 and "not available" in err:  # engine without AL-DIC
-        pytest.skip(err.strip())
     assert rc == 0, err
     assert "method aldic" in text
     res = load_result(out)
@@ -323,3 +321,15 @@ def test_console_script_runs_in_a_subprocess(demo, tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.startswith("napari-aldic: error: no such file")
     assert "Traceback" not in proc.stderr
+
+
+def test_run_stack_incremental_matches_truth(stack_case, tmp_path):
+    path, frames, fields = stack_case
+    out = tmp_path / "inc"
+    rc, text, err = _run(["run", path, "-o", out, "--step", 12, "--reference", "incremental"])
+    assert rc == 0, err
+    assert "reference incremental" in text
+    res = load_result(out / "frame002.npz")
+    # results refer to frame 0 even though frame 2 was matched against frame 1
+    assert np.abs(res.u[res.valid] - fields[1].u).max() < 0.02
+    assert np.abs(res.v[res.valid] - fields[1].v).max() < 0.02

@@ -1,9 +1,11 @@
-"""Command line interface: ``napari-aldic demo`` and ``napari-aldic run``.
+"""Command line interface: ``napari-aldic demo``, ``run``, ``export`` and ``params``.
 
 ``demo`` renders a synthetic speckle pair with exact truth, analyses it and
 reports the error; ``run`` analyses an image pair, a multi-page TIFF stack or a
 folder of images (frame 0 is the reference; every other frame is correlated
-against it) and writes one ``.npz`` result per frame.
+against it) and writes one ``.npz`` result per frame; ``export`` turns results
+(a ``.npz``, several, or a run folder) into MATLAB, CSV, VTK, DaVis text,
+PNG/GIF/MP4 images and a PDF report; ``params`` writes a parameter file.
 
 Errors in the input (missing or unreadable files, bad parameters, images the
 engine rejects) print ``napari-aldic: error: <message>`` and exit with code 2.
@@ -31,6 +33,7 @@ TIFF_SUFFIXES = {".tif", ".tiff"}
 IMAGE_SUFFIXES = TIFF_SUFFIXES | {".png", ".bmp", ".jpg", ".jpeg", ".jp2", ".pgm"}
 #: run options that override fields of the parameter file (dest -> DICParams field)
 OVERRIDES = ("subset", "step", "search", "search_max", "method", "interpolation", "n_threads")
+EXPORT_FORMATS = ("mat", "csv", "vtu", "davis", "png", "gif", "mp4", "pdf")
 
 
 class CLIError(Exception):
@@ -74,23 +77,94 @@ def build_parser() -> argparse.ArgumentParser:
                      help="REF DEF [DEF ...], or STACK.tif, or FOLDER")
     run.add_argument("--roi", type=Path, metavar="MASK",
                      help="ROI mask: image file (nonzero = analysed) or .npy array")
-    run.add_argument("--params", type=Path, metavar="FILE.json",
-                     help="JSON object of DICParams fields; options below override it")
-    run.add_argument("--subset", type=int, help="subset full width in px, odd (default 31)")
-    run.add_argument("--step", type=int, help="node spacing in px (default 8)")
-    run.add_argument("--search", type=int, help="initial search half-range in px (default 20)")
-    run.add_argument("--search-max", type=int, dest="search_max",
-                     help="largest search half-range in px (default: automatic)")
-    run.add_argument("--method", choices=("local", "aldic"), help="solver (default local)")
-    run.add_argument("--interpolation", choices=("cubic", "quintic"),
-                     help="B-spline order (default cubic)")
-    run.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
+    _add_param_options(run)
     run.add_argument("-o", "--output", type=Path, metavar="OUT",
                      help="OUT.npz (a stack writes OUT_frame###.npz) or a folder "
                           "(writes frame###.npz); default ./aldic_result.npz")
     run.add_argument("--plot", action="store_true",
                      help="also write a PNG figure of u and v beside each result")
+    run.add_argument("--reference", choices=("accumulative", "incremental"),
+                     default="accumulative",
+                     help="stacks: correlate every frame against frame 0 (accumulative) "
+                          "or against the previous frame, composed back to frame 0 "
+                          "(incremental); results always refer to frame 0")
+    run.add_argument("--params-out", type=Path, metavar="FILE.json", dest="params_out",
+                     help="also write the complete parameters used (file and options "
+                          "merged) to FILE.json, for --params of a later run")
+    _add_unit_options(run)
+
+    prm = sub.add_parser(
+        "params", help="write a parameter file (defaults, a file, and options)",
+        description="Write the analysis parameters as readable JSON: the defaults, or "
+                    "--params FILE, with the options below applied. Use the file with "
+                    "'napari-aldic run --params FILE'.")
+    prm.add_argument("output", type=Path, metavar="OUT.json", help="file to write")
+    _add_param_options(prm)
+    _add_unit_options(prm)
+
+    exp = sub.add_parser(
+        "export", help="export results to MAT, CSV, VTU, DaVis text, PNG, GIF, MP4, PDF",
+        description="Export results: one result .npz, several, a .mat written by "
+                    "export, or a run folder (written by 'run -o FOLDER' or track). "
+                    "Outputs are named OUT.<ext> (images OUT_<field>.png, one per frame "
+                    "for a sequence: OUT_<field>_frame#####.png). See docs/exports.md.")
+    exp.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                     help="RESULT.npz [RESULT.npz ...], RESULT.mat or RUN_FOLDER")
+    exp.add_argument("--to", nargs="+", required=True, metavar="FORMAT", dest="formats",
+                     help=f"one or more of: {', '.join(EXPORT_FORMATS)} (comma or space "
+                          "separated)")
+    exp.add_argument("-o", "--output", type=Path, metavar="OUT",
+                     help="output name without extension, or a folder (default: "
+                          "RUN_FOLDER/export or RESULT without .npz)")
+    exp.add_argument("--field", nargs="+", default=None, metavar="FIELD",
+                     help="field(s) drawn in png/gif/mp4 (default u): u, v, magnitude, "
+                          "exx, eyy, exy, e1, e2, max_shear, von_mises, rotation, zncc, "
+                          "vx, vy, exx_rate, eyy_rate, exy_rate")
+    exp.add_argument("--frames", nargs="+", type=int, metavar="K",
+                     help="frame numbers to export (default all; the report picks up to 4)")
+    exp.add_argument("--line", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
+                     help="profile line for the PDF report, in pixels")
+    _add_unit_options(exp)
+    exp.add_argument("--settings", type=Path, metavar="FILE.json",
+                     help="take units and strain settings from a parameter file")
+    exp.add_argument("--no-strain", action="store_true", dest="no_strain",
+                     help="do not compute strain")
+    exp.add_argument("--strain-window", type=int, dest="strain_window", metavar="N",
+                     help="strain window in nodes, odd >= 3 (default 5)")
+    exp.add_argument("--strain-method", choices=("plane_fit", "fem"), dest="strain_method")
+    exp.add_argument("--strain-measure", dest="strain_measure",
+                     choices=("green_lagrange", "infinitesimal", "euler_almansi"))
+    exp.add_argument("--fps", type=float, default=4.0, help="GIF/MP4 frames per second")
+    exp.add_argument("--encoding", choices=("binary", "ascii"), default="binary",
+                     help="VTU data encoding (default binary = base64)")
+    exp.add_argument("--dpi", type=int, default=150, help="PNG resolution (default 150)")
     return parser
+
+
+def _add_unit_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pixel-size", type=float, dest="pixel_size", metavar="S",
+                   help="length of one pixel in --unit (e.g. 0.05 with --unit um)")
+    p.add_argument("--unit", help="length unit name (default px)")
+    p.add_argument("--frame-interval", type=float, dest="frame_interval", metavar="DT",
+                   help="time between frames in --time-unit (adds time, velocity and "
+                        "strain-rate columns)")
+    p.add_argument("--time-unit", dest="time_unit", help="time unit name (default s)")
+
+
+def _add_param_options(p: argparse.ArgumentParser) -> None:
+    """Options overriding fields of the parameter file (see ``OVERRIDES``)."""
+    p.add_argument("--params", type=Path, metavar="FILE.json",
+                   help="parameter file (JSON: DICParams fields, or a file written by "
+                        "'napari-aldic params' / --params-out); options below override it")
+    p.add_argument("--subset", type=int, help="subset full width in px, odd (default 31)")
+    p.add_argument("--step", type=int, help="node spacing in px (default 8)")
+    p.add_argument("--search", type=int, help="initial search half-range in px (default 20)")
+    p.add_argument("--search-max", type=int, dest="search_max",
+                   help="largest search half-range in px (default: automatic)")
+    p.add_argument("--method", choices=("local", "aldic"), help="solver (default local)")
+    p.add_argument("--interpolation", choices=("cubic", "quintic"),
+                   help="B-spline order (default cubic)")
+    p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,6 +179,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if args.command == "demo":
                 run_demo(args)
+            elif args.command == "export":
+                return run_export(args)
+            elif args.command == "params":
+                run_params(args)
             else:
                 run_analysis(args)
         except BrokenPipeError:  # stdout piped into a program that stopped reading
@@ -336,7 +414,11 @@ class FrameSource:
 
 
 def load_params(args):
-    """DICParams from ``--params`` (JSON) with command-line options overriding it."""
+    """DICParams from ``--params`` (JSON) with command-line options overriding it.
+
+    The file is a JSON object of DICParams fields, or a settings file written by
+    ``napari-aldic params`` / ``--params-out`` (its ``"params"`` section).
+    """
     from .engine import DICParams
 
     base = {}
@@ -348,8 +430,44 @@ def load_params(args):
             raise CLIError(f"parameter file {path} is not valid JSON: {exc}") from None
         if not isinstance(base, dict):
             raise CLIError(f"parameter file {path} must hold a JSON object of DICParams fields")
+        if isinstance(base.get("params"), dict):  # settings file: the "params" section
+            base = base["params"]
     changes = {k: getattr(args, k) for k in OVERRIDES if getattr(args, k) is not None}
     return DICParams.from_dict({**base, **changes})
+
+
+def _units_from_args(args, base=None):
+    """Units from --pixel-size/--unit/--frame-interval/--time-unit over ``base``
+    (None when nothing is given)."""
+    from .engine.units import Units
+
+    given = {k: getattr(args, k) for k in ("pixel_size", "unit", "frame_interval", "time_unit")
+             if getattr(args, k, None) is not None}
+    if not given:
+        return base
+    return Units.from_dict({**(base.to_dict() if base is not None else {}), **given})
+
+
+def _settings_extras(path):
+    """(units, strain) of a settings file given with ``--params``/``--settings``."""
+    if path is None:
+        return None, None
+    from .engine.export import load_settings
+
+    s = load_settings(_check_file(path))
+    return s["units"], s["strain"]
+
+
+def run_params(args) -> None:
+    """``napari-aldic params OUT.json``: write the parameters (and units)."""
+    from .engine.export import save_params
+
+    params = load_params(args)
+    units0, strain = _settings_extras(args.params)
+    units = _units_from_args(args, units0)
+    path = save_params(args.output, params, units=units, strain=strain)
+    print(f"wrote parameters to {path.resolve()}")
+    print(f"use them with: {PROG} run INPUT ... --params {path}")
 
 
 def _output_paths(output: Path | None, frames: list[int], stack: bool) -> dict[int, Path]:
@@ -390,37 +508,191 @@ def frame_summary(res) -> list[str]:
 
 def run_analysis(args) -> None:
     """``napari-aldic run``: every frame against frame 0, one result file each."""
-    from .engine import correlate
+    from .engine import correlate, track
     from .engine.figures import plot_displacement
 
     params = load_params(args)
     roi = read_mask(args.roi) if args.roi is not None else None
+    units0, strain = _settings_extras(args.params)
+    units = _units_from_args(args, units0)
+    if getattr(args, "params_out", None) is not None:
+        from .engine.export import save_params
+
+        written = save_params(args.params_out, params, units=units, strain=strain)
+        print(f"parameters written to {written.resolve()}")
     with FrameSource(args.inputs) as src:
         n = len(src)
         frames = list(range(1, n))
         outputs = _output_paths(args.output, frames, stack=n > 2)
-        reference = src[0]
         print(f"{PROG} run: reference {src.name(0)}, {n - 1} deformed frame(s); subset "
-              f"{params.subset} px, step {params.step} px, method {params.method}")
+              f"{params.subset} px, step {params.step} px, method {params.method}, "
+              f"reference {args.reference}")
         t0 = time.perf_counter()
-        for k in frames:
-            deformed = src[k]
-            res = correlate(reference, deformed, roi=roi, params=params,
-                            progress=_progress(f"  frame {k}/{n - 1}"))
+
+        def save(k: int, res) -> None:
             res.meta["inputs"] = {"reference": src.name(0), "deformed": src.name(k),
                                   "frame": k, "roi": None if args.roi is None else str(args.roi)}
+            if units is not None:  # carried with the result into every export
+                res.meta["units"] = units.to_dict()
             outputs[k].parent.mkdir(parents=True, exist_ok=True)
             path = res.save(outputs[k])
+            _clear_bar()
             print(f"frame {k}/{n - 1} ({src.name(k)}):")
             for line in frame_summary(res):
                 print(f"  {line}")
             print(f"  -> {path.resolve()}")
             if args.plot:
-                png = plot_displacement(res, path.with_suffix(".png"), image=reference,
+                png = plot_displacement(res, path.with_suffix(".png"), image=src[0],
                                         title=f"frame {k}: {src.name(k)}")
                 print(f"  -> {png.resolve()}")
+
+        if n == 2 and args.reference == "accumulative":
+            save(1, correlate(src[0], src[1], roi=roi, params=params,
+                              progress=_progress("  frame 1/1")))
+        else:
+            # a sequence: results refer to frame 0; the previous frame is the guess
+            track(_StackView(src), roi=roi, params=params, reference=args.reference,
+                  progress=_sequence_progress(n - 1), on_frame=save)
         if n > 2:
+            _clear_bar()
             print(f"{n - 1} frames in {time.perf_counter() - t0:.2f} s")
+
+
+class _StackView:
+    """The CLI's frame source seen as a (T, H, W) array-like by ``track``."""
+
+    ndim = 3
+
+    def __init__(self, src):
+        self._src = src
+        first = src[0]
+        self.shape = (len(src),) + tuple(first.shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, k):
+        return self._src[k]
+
+
+def _clear_bar() -> None:
+    if sys.stderr.isatty():
+        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
+
+
+def _sequence_progress(n_frames: int):
+    """Progress bar over frames with the estimated time left (interactive stderr)."""
+    if not sys.stderr.isatty():
+        return None
+    t0 = time.perf_counter()
+
+    def report(k: int, frac: float, msg: str) -> None:
+        el = time.perf_counter() - t0
+        left = el * (1 - frac) / frac if frac > 0 else float("nan")
+        eta = "--:--" if not np.isfinite(left) else f"{int(left) // 60:02d}:{int(left) % 60:02d}"
+        done = int(round(frac * n_frames))
+        bar = int(round(30 * frac))
+        print(f"\r  [{'#' * bar}{'.' * (30 - bar)}] {done}/{n_frames} frames, "
+              f"{el:5.1f} s, {eta} left  {msg:<28.28}", end="", file=sys.stderr, flush=True)
+
+    return report
+
+
+# ----------------------------------------------------------------- export
+def _export_base(inputs: list[Path], output: Path | None) -> Path:
+    if output is not None:
+        out = output.expanduser()
+        return out / "export" if out.is_dir() else out
+    first = inputs[0].expanduser()
+    if len(inputs) == 1 and first.is_dir():
+        return first / "export"
+    if len(inputs) == 1:
+        return first.with_suffix("")
+    return first.parent / "export"
+
+
+def run_export(args) -> int:
+    """``napari-aldic export``: every requested format; returns the exit code."""
+    from .engine.export import EncoderNotFoundError, export_result
+
+    formats = [f.strip().lower() for item in args.formats for f in item.split(",") if f.strip()]
+    bad = [f for f in formats if f not in EXPORT_FORMATS]
+    if bad:
+        raise CLIError(f"unknown export format(s) {bad}; choose from {', '.join(EXPORT_FORMATS)}")
+    for p in args.inputs:
+        if not p.expanduser().exists():
+            raise CLIError(f"no such file or folder: {p}")
+    if len(args.inputs) == 1:
+        data = args.inputs[0].expanduser()
+    else:
+        if any(p.is_dir() for p in args.inputs):
+            raise CLIError("give one run folder, or one or more result files")
+        data = [p.expanduser() for p in args.inputs]
+    from .engine.export import collect_frames
+
+    units0, strain0 = _settings_extras(args.settings)
+    units = _units_from_args(args, units0)
+    if args.no_strain:
+        strain = False
+    else:
+        strain = dict(strain0 or {})
+        for k, opt in (("window", "strain_window"), ("method", "strain_method"),
+                       ("measure", "strain_measure")):
+            if getattr(args, opt) is not None:
+                strain[k] = getattr(args, opt)
+        strain = strain or True
+    # read the results (and compute strain) once for every format
+    frames_all, units, _ = collect_frames(data, strain=strain, units=units)
+
+    base = _export_base(list(args.inputs), args.output)
+    known = {".mat", ".csv", ".vtu", ".txt", ".png", ".gif", ".mp4", ".pdf"}
+    single = len(formats) == 1 and base.suffix.lower() in known
+    if base.suffix.lower() in known and not single:
+        base = base.with_suffix("")
+    ext = {"mat": ".mat", "csv": ".csv", "vtu": ".vtu", "davis": ".txt", "png": ".png",
+           "gif": ".gif", "mp4": ".mp4", "pdf": ".pdf"}
+    fields = args.field or ["u"]
+    n = len(frames_all)
+    print(f"{PROG} export: {n} frame(s) ({frames_all[0].index} to {frames_all[-1].index}); "
+          f"{units.describe()}")
+    failed = 0
+    for fmt in formats:
+        jobs = []
+        if fmt in ("png", "gif", "mp4"):
+            for field in fields:
+                target = base if single and len(fields) == 1 else \
+                    base.with_name(f"{base.name}_{field}{ext[fmt]}")
+                opts = {"field": field, "frames": args.frames}
+                if fmt == "png":
+                    opts["dpi"] = args.dpi
+                else:
+                    opts["fps"] = args.fps
+                jobs.append((target, opts))
+        else:
+            target = base if single else base.with_name(base.name + ext[fmt])
+            opts = {"frames": args.frames}
+            if fmt == "pdf" and args.line is not None:
+                opts["line"] = tuple(args.line)
+            if fmt == "vtu":
+                opts["encoding"] = args.encoding
+            jobs.append((target, opts))
+        for target, opts in jobs:
+            if fmt != "davis":
+                opts["units"] = units
+                opts["strain"] = strain
+            try:
+                out = export_result(frames_all, target, to=fmt, **opts)
+            except (EncoderNotFoundError, ValueError, OSError) as exc:
+                failed += 1
+                msg = " ".join(str(exc).split())
+                print(f"{PROG}: error: {fmt}: {msg}", file=sys.stderr)
+                continue
+            paths = out if isinstance(out, list) else [out]
+            shown = paths if len(paths) <= 3 else [paths[0], f"... ({len(paths)} files)",
+                                                    paths[-1]]
+            for p in shown:
+                print(f"  {fmt}: {p.resolve() if isinstance(p, Path) else p}")
+    return 2 if failed else 0
 
 
 if __name__ == "__main__":  # python -m napari_aldic.cli

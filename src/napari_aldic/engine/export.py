@@ -43,11 +43,12 @@ __all__ = [
     "ExportError",
     "EncoderNotFoundError",
     "Frame",
+    "FrameSet",
     "collect_frames",
     "frame_columns",
     "load_run",
     "atomic_write",
-    "export",
+    "export_result",
     "export_mat",
     "load_mat",
     "export_csv",
@@ -356,7 +357,14 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
     -------
     (frames, units, info)
     """
-    pairs, info = _as_results(data)
+    if isinstance(data, FrameSet):  # already collected: keep the strain computed
+        pairs = [(f.index, f.result) for f in data]
+        info = dict(data.info)
+        given = {f.index: f.strain for f in data}
+        units = data.units if units is None else units
+    else:
+        pairs, info = _as_results(data)
+        given = {}
     pairs.sort(key=lambda kr: kr[0])
     ks = [k for k, _ in pairs]
     if len(set(ks)) != len(ks):
@@ -373,6 +381,9 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
     all_frames = [Frame(k, r) for k, r in pairs]
     for a, b in zip(all_frames, all_frames[1:]):
         b.prev = a
+    if strain is not None and strain is not False:
+        for f in all_frames:
+            f.strain = given.get(f.index)
     keep = all_frames
     if frames is not None:
         want = [int(k) for k in frames]
@@ -385,7 +396,7 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
         need |= {id(f.prev) for f in keep if f.prev is not None}
     if strain is not None and strain is not False:
         for i, f in enumerate(all_frames):
-            if id(f) in need:
+            if id(f) in need and f.strain is None:
                 f.strain = _strain_for(f.result, strain, i)
     first = keep[0].result
     s = next((f.strain for f in keep if f.strain is not None), None)
@@ -393,7 +404,17 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
             "strain": None if s is None else {"measure": s.measure, "method": s.method,
                                               "window": s.window, "vsg_px": s.vsg},
             "frames_all": ks}
-    return keep, units, info
+    return FrameSet(keep, units, info), units, info
+
+
+class FrameSet(list):
+    """Frames returned by :func:`collect_frames`, with their ``units`` and
+    ``info``; passing it to an export reuses the strain already computed."""
+
+    def __init__(self, frames=(), units: Units | None = None, info: dict | None = None):
+        super().__init__(frames)
+        self.units = units
+        self.info = info or {}
 
 
 # =================================================================== columns
@@ -778,7 +799,7 @@ _VTK_TYPES = {np.dtype(np.float64): "Float64", np.dtype(np.float32): "Float32",
 
 
 def _vtk_array(name: str | None, arr: np.ndarray, encoding: str, ncomp: int = 1,
-               indent: str = "        ") -> str:
+               indent: str = "        ", nan_value: float | None = None) -> str:
     arr = np.ascontiguousarray(arr)
     if arr.dtype == bool:
         arr = arr.astype(np.uint8)
@@ -788,10 +809,16 @@ def _vtk_array(name: str | None, arr: np.ndarray, encoding: str, ncomp: int = 1,
     attrs = f'type="{typ}"' + (f' Name="{name}"' if name else "")
     if ncomp > 1:
         attrs += f' NumberOfComponents="{ncomp}"'
+    if encoding == "ascii" and arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        # VTK's ASCII parser cannot read NaN: substitute, or keep this array exact in base64
+        if nan_value is None:
+            encoding = "binary"
+        else:
+            arr = np.where(np.isfinite(arr), arr, float(nan_value))
     if encoding == "ascii":
         flat = arr.ravel()
         if arr.dtype.kind == "f":
-            body = " ".join("nan" if not np.isfinite(v) else repr(float(v)) for v in flat)
+            body = " ".join(repr(float(v)) for v in flat)
         else:
             body = " ".join(str(int(v)) for v in flat)
         return f'{indent}<DataArray {attrs} format="ascii">{body}</DataArray>\n'
@@ -801,7 +828,8 @@ def _vtk_array(name: str | None, arr: np.ndarray, encoding: str, ncomp: int = 1,
     return f'{indent}<DataArray {attrs} format="binary">{body}</DataArray>\n'
 
 
-def _vtu_text(fr: Frame, units: Units, encoding: str, info: dict) -> str:
+def _vtu_text(fr: Frame, units: Units, encoding: str, info: dict,
+              nan_value: float | None = None) -> str:
     res = fr.result
     cols = frame_columns(fr, units)
     n = len(res)
@@ -828,17 +856,18 @@ def _vtu_text(fr: Frame, units: Units, encoding: str, info: dict) -> str:
     out.append("    </FieldData>\n")
     out.append(f'    <Piece NumberOfPoints="{n}" NumberOfCells="{len(cells)}">\n')
     out.append('      <PointData Scalars="u" Vectors="displacement">\n')
-    out.append(_vtk_array("displacement", disp, encoding, 3))
+    out.append(_vtk_array("displacement", disp, encoding, 3, nan_value=nan_value))
     if "vx" in cols:
         out.append(_vtk_array("velocity", np.column_stack([cols["vx"][0], cols["vy"][0],
-                                                           np.zeros(n)]), encoding, 3))
+                                                           np.zeros(n)]), encoding, 3,
+                              nan_value=nan_value))
     skip = {"node", "x", "y", "x_px", "y_px"}
     for name, (vals, _) in cols.items():
         if name in skip:
             continue
         if name == "reason":
             vals = vals.astype(np.int8)
-        out.append(_vtk_array(name, vals, encoding))
+        out.append(_vtk_array(name, vals, encoding, nan_value=nan_value))
     out.append("      </PointData>\n")
     out.append("      <Points>\n")
     out.append(_vtk_array("Points", pts, encoding, 3))
@@ -856,7 +885,7 @@ def _frame_path(path: Path, k: int) -> Path:
 
 
 def export_vtu(data, path, *, units=None, strain=True, frames=None,
-               encoding: str = "binary") -> list[Path]:
+               encoding: str = "binary", nan_value: float | None = None) -> list[Path]:
     """Write VTK XML UnstructuredGrid files (``.vtu``) of Q4 cells with point data.
 
     One result writes ``path``. Several frames write ``STEM_frame#####.vtu``
@@ -866,8 +895,10 @@ def export_vtu(data, path, *, units=None, strain=True, frames=None,
     ``velocity`` (with a frame interval), ``u``, ``v``, ``magnitude``,
     ``vx``, ``vy``, strains and rates (when computed), ``strain_valid``,
     ``valid``, ``reason``, ``zncc``. ``encoding``: ``"binary"`` (base64,
-    exact, default) or ``"ascii"``. Returns the paths written (the ``.pvd``
-    last).
+    exact, default) or ``"ascii"``. VTK cannot parse NaN in ASCII: with
+    ``"ascii"``, arrays holding NaN (untrusted nodes, no velocity at frame 0)
+    stay base64 unless ``nan_value`` gives a number to write instead. Returns
+    the paths written (the ``.pvd`` last).
     """
     if encoding not in ("binary", "ascii", "base64"):
         raise ValueError(f"encoding={encoding!r} must be 'binary' (base64) or 'ascii'")
@@ -880,7 +911,7 @@ def export_vtu(data, path, *, units=None, strain=True, frames=None,
     else:
         targets = [_frame_path(path, fr.index) for fr in fr_list]
     for fr, target in zip(fr_list, targets):
-        text = _vtu_text(fr, units, encoding, info)
+        text = _vtu_text(fr, units, encoding, info, nan_value)
         with atomic_write(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
             fh.write(text)
         written.append(target)
@@ -1322,7 +1353,7 @@ _BY_SUFFIX = {".mat": "mat", ".csv": "csv", ".png": "png", ".gif": "gif", ".mp4"
               ".pdf": "pdf", ".vtu": "vtu", ".txt": "davis"}
 
 
-def export(data, path, to: str | None = None, **options):
+def export_result(data, path, to: str | None = None, **options):
     """Export ``data`` in the format named by ``to`` or by the suffix of
     ``path``: ``mat``, ``csv``, ``png``, ``gif``, ``mp4``, ``pdf`` (report),
     ``vtu`` or ``davis`` (``.txt``). ``options`` go to the writer."""

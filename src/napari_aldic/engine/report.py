@@ -20,7 +20,6 @@ So a report has ``4 + len(frames)`` pages, plus one with a line.
 from __future__ import annotations
 
 import datetime as _dt
-import os
 from pathlib import Path
 
 import numpy as np

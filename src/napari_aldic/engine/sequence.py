@@ -113,6 +113,14 @@ class FrameSource:
     def __len__(self) -> int:
         return int(self.shape[0])
 
+    def frame_name(self, k: int) -> str:
+        """A readable name of frame ``k`` (file name, or stack path and page)."""
+        if self._files is not None:
+            return str(self._files[k])
+        if self._tiff is not None:
+            return f"{self._tiff}[page {k}]"
+        return f"frame {k}"
+
     def __getitem__(self, k: int) -> np.ndarray:
         if not -len(self) <= k < len(self):
             raise IndexError(f"frame {k} out of range for {len(self)} frames")
@@ -294,6 +302,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
           rois=None, frames=None, out_dir=None, params: DICParams | None = None,
           scheduler=None, workers: int | None = None,
           progress: Callable[[int, float, str], None] | None = None,
+          on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
     """Track a sequence of images; every result refers to frame 0.
 
@@ -321,6 +330,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     workers : int, optional
         Concurrent frames for ``scheduler="threads"`` (default: CPU count).
     progress : callable(frame, fraction, message), optional
+    on_frame : callable(frame, result), optional
+        Called with each frame's final (frame-0 referenced) result as soon as
+        it is computed, e.g. to save or display it.
     cancel : callable() -> bool, optional
         Polled before each frame; True stops the run (finished frames kept).
 
@@ -388,6 +400,8 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         results[i] = res
         if path_of(k) is not None:
             res.save(path_of(k))
+        if on_frame is not None:
+            on_frame(k, res)
         report(k, i / (len(idx) - 1), f"frame {k} done: {res.n_valid}/{len(res)} valid")
 
     todo = []
