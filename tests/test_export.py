@@ -356,7 +356,8 @@ def test_line_profile_follows_the_applied_field():
 # ------------------------------------------------------------------ run folders and dispatch
 def test_run_folder_and_cli_style_folders_load(tmp_path):
     seq = load_run(run_folder())
-    assert seq.frames[0] is None and len(seq) == N_FRAMES  # track does not write frame 0
+    assert len(seq) == N_FRAMES and seq.complete  # frame 0 (zero field) is written too
+    assert np.all(seq[0].u == 0)
     for k in range(1, N_FRAMES):
         np.testing.assert_array_equal(seq[k].u, sequence()[k].u)
     folder = tmp_path / "cli_run"
@@ -366,7 +367,7 @@ def test_run_folder_and_cli_style_folders_load(tmp_path):
     frames, _, _ = collect_frames(folder, strain=False)
     assert [f.index for f in frames] == [1, 2, 3]  # frame numbers stored in the results
     out = export_result(run_folder(), tmp_path / "x.csv", units=UM)
-    assert set(read_csv(out)["columns"]["frame"]) == {1, 2, 3}
+    assert set(read_csv(out)["columns"]["frame"]) == {0, 1, 2, 3}
     with pytest.raises(ValueError, match="export format"):
         export_result(seq, tmp_path / "x.xyz")
 

@@ -43,14 +43,14 @@ def test_export_run_folder_to_many_formats(folder, tmp_path):
     base = folder / "export"
     csv = read_csv(base.with_suffix(".csv"))
     assert csv["units"]["u"] == "um" and csv["units"]["vx"] == "um/s"
-    assert sorted(set(csv["columns"]["frame"])) == list(range(1, N_FRAMES))
+    assert sorted(set(csv["columns"]["frame"])) == list(range(N_FRAMES))
     d = sio.loadmat(base.with_suffix(".mat"))
-    assert str(d["unit"][0]) == "um" and d["frames"].shape == (1, N_FRAMES - 1)
+    assert str(d["unit"][0]) == "um" and d["frames"].shape == (1, N_FRAMES)
     assert base.with_suffix(".pvd").exists()
     v = read_vtu(folder / "export_frame00003.vtu")
     assert v["field_data"]["TimeValue"][0] == pytest.approx(0.3)
     with Image.open(folder / "export_u.gif") as im:
-        assert im.n_frames == N_FRAMES - 1
+        assert im.n_frames == N_FRAMES
     assert (folder / "export.pdf").stat().st_size > 10_000
 
 
@@ -89,7 +89,7 @@ def test_export_mp4_without_encoder_still_writes_gif(folder, tmp_path, monkeypat
     assert "imageio-ffmpeg" in err and "GIF" in err
     assert not (tmp_path / "anim_u.mp4").exists()
     with Image.open(tmp_path / "anim_u.gif") as im:
-        assert im.n_frames == N_FRAMES - 1
+        assert im.n_frames == N_FRAMES
 
 
 def test_params_command_run_params_out_and_units_in_results(tmp_path):

@@ -80,7 +80,8 @@ def test_cancel_keeps_finished_frames_and_resume(stack, tmp_path):
     seq = track(stack[:6], step=12, out_dir=out, cancel=cancel, progress=progress)
     assert seq.meta["cancelled"] and not seq.complete
     files = sorted(p.name for p in out.glob("frame_*.npz"))
-    assert files == ["frame_00001.npz", "frame_00002.npz", "frame_00003.npz"]
+    assert files == ["frame_00000.npz", "frame_00001.npz", "frame_00002.npz",
+                     "frame_00003.npz"]
     loaded = []
     seq2 = track(stack[:6], step=12, out_dir=out,
                  progress=lambda k, f, m: loaded.append(k) if "loaded" in m else None)

@@ -379,6 +379,8 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     ref_img = src[0]
     base = correlate(ref_img, ref_img, roi=roi_for(0), params=params)
     results[0] = _zero_result(base)
+    if out is not None and not (out / "frame_00000.npz").exists():
+        results[0].save(out / "frame_00000.npz")  # the reference: zero field, its nodes
 
     def ref_of(i: int) -> int:
         k = idx[i]
