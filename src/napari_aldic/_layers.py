@@ -104,12 +104,14 @@ class Display:
     fields: tuple = tuple(FIELDS)
     visible_field: str = "|u|"
     vectors: bool = True
-    vector_length: float = 10.0
+    vector_length: float = 0.0  # arrow length per unit displacement; 0 = automatic
     unreliable: bool = True
     mesh: bool = False
     deformed: bool = False
     length_scale: float = 1.0  # physical length of one pixel
     length_unit: str = "px"
+    frame_interval: float | None = None  # None: frame numbers only
+    time_unit: str = "s"
 
 
 # ----------------------------------------------------------------- helpers
@@ -204,11 +206,6 @@ def _lattice_elements(res: DICResult) -> np.ndarray:
     return quad[(quad >= 0).all(axis=1)]
 
 
-def _closed(el: np.ndarray) -> np.ndarray:
-    """Element corner indices with the first corner repeated (closed outline)."""
-    return np.concatenate([el, el[:, :1]], axis=1)
-
-
 def _frame_coords(t, y, x, with_time: bool) -> np.ndarray:
     if with_time:
         return np.column_stack([np.full(y.size, float(t)), y, x])
@@ -239,7 +236,8 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
     sy, sx = geo.scale[-2:]
     ty, tx = geo.translate[-2:]
     meta_common = {"frames": list(analysis.frames), "length_unit": unit,
-                   "pixel_size": L, "params": base.params.to_dict(),
+                   "pixel_size": L, "frame_interval": display.frame_interval,
+                   "time_unit": display.time_unit, "params": base.params.to_dict(),
                    "reference": analysis.reference, "cancelled": analysis.cancelled,
                    "strain": {"window": analysis.strain.window,
                               "method": analysis.strain.method,
@@ -335,11 +333,16 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
 
     if display.vectors:
         vdata = cat(vec_rows, (0, 2, ndim))
+        length = float(display.vector_length)
+        if length <= 0:  # automatic: the longest arrows (95th percentile) span ~one node step
+            mags = np.hypot(vdata[:, 1, -1], vdata[:, 1, -2]) if len(vdata) else np.zeros(0)
+            big = float(np.percentile(mags, 95)) if mags.size else 0.0
+            length = 0.9 * step / big if big > 1e-9 else 1.0
         keys = ("frame", "x_px", "y_px", "u", "v", "magnitude", "zncc", "exx", "eyy", "exy",
                 "von_mises")
         feats = cat_feats(vec_feats, keys)
         kw = {"name": layer_name(VECTORS), **node_geo, "features": feats,
-              "length": float(display.vector_length), "edge_width": max(1.0, step / 6.0),
+              "length": length, "edge_width": max(1.0, step / 6.0),
               "vector_style": "arrow", "projection_mode": "none", "opacity": 0.9,
               "metadata": {"napari_aldic": {**meta_common, "field": VECTORS,
                                             "value_unit": unit,
@@ -356,7 +359,7 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
         keys = ("frame", "x_px", "y_px", "reason", "reason_text", "zncc")
         feats = cat_feats(bad_feats, keys)
         colors = np.array([_REASON_COLORS.get(int(c), (1, 0, 0, 1)) for c in feats["reason"]]
-                          ).reshape(-1, 4)
+                          ).reshape(-1, 4) if len(pdata) else "red"
         layers.append((pdata, {
             "name": layer_name(UNRELIABLE), **node_geo, "features": feats,
             "size": max(2.0, 0.5 * step), "symbol": "x", "face_color": colors,
@@ -372,37 +375,70 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
     return layers
 
 
+def _edge_chains(res: DICResult) -> list[np.ndarray]:
+    """The element edges of ``res`` joined into polylines of node indices.
+
+    Edges are axis-aligned in the reference configuration; collinear edges
+    that share a node are chained, so a uniform mesh becomes one line per
+    lattice row and column segment (a few dozen Shapes instead of thousands).
+    """
+    el = _lattice_elements(res)
+    if el.size == 0:
+        return []
+    pairs = np.concatenate([el[:, [0, 1]], el[:, [1, 2]], el[:, [2, 3]], el[:, [3, 0]]])
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    x, y = res.x.astype(float), res.y.astype(float)
+    chains = []
+    for along, across in ((x, y), (y, x)):  # horizontal edges, then vertical ones
+        sel = pairs[across[pairs[:, 0]] == across[pairs[:, 1]]]
+        if sel.size == 0:
+            continue
+        # orient each edge in increasing coordinate, sort by line then start
+        swap = along[sel[:, 0]] > along[sel[:, 1]]
+        sel[swap] = sel[swap][:, ::-1]
+        order = np.lexsort((along[sel[:, 0]], across[sel[:, 0]]))
+        sel = sel[order]
+        current = [int(sel[0, 0]), int(sel[0, 1])]
+        for a, b in sel[1:]:
+            if a == current[-1]:
+                current.append(int(b))
+            else:
+                chains.append(np.asarray(current))
+                current = [int(a), int(b)]
+        chains.append(np.asarray(current))
+    return chains
+
+
 def _mesh_layer(analysis, geo: Geometry, display: Display, with_time: bool, meta: dict):
-    """Element outlines: one closed path per element.
+    """Element outlines as paths (edges chained into lines).
 
     Undeformed: the reference mesh, without a time axis (shown on every
     frame). Deformed: the mesh of each computed frame moved by its field, on
     that frame.
     """
-    polys = []
+    paths = []
     if not display.deformed:
         res = [r for r in analysis.results if r is not None][-1]
-        el = _lattice_elements(res)
-        xy = np.column_stack([res.y, res.x]).astype(float)
-        polys = list(xy[_closed(el)])
+        yx = np.column_stack([res.y, res.x]).astype(float)
+        paths = [yx[c] for c in _edge_chains(res)]
         kw_geo = geo.last(2).kwargs()
     else:
         for i, res in enumerate(analysis.results):
             if res is None:
                 continue
-            el = _lattice_elements(res)
             fin = np.isfinite(res.u) & np.isfinite(res.v)
-            el = el[fin[el].all(axis=1)]
-            y = res.y + np.nan_to_num(res.v)
-            x = res.x + np.nan_to_num(res.u)
-            if with_time:
-                xyz = np.column_stack([np.full(x.size, float(analysis.frames[i])), y, x])
-            else:
-                xyz = np.column_stack([y, x])
-            polys.extend(list(xyz[_closed(el)]))
+            y = res.y + np.where(fin, res.v, 0.0)
+            x = res.x + np.where(fin, res.u, 0.0)
+            pts = (np.column_stack([np.full(x.size, float(analysis.frames[i])), y, x])
+                   if with_time else np.column_stack([y, x]))
+            for c in _edge_chains(res):
+                # split a chain where a node has no displacement
+                ok = fin[c]
+                runs = np.split(c, np.nonzero(np.diff(ok.astype(np.int8)))[0] + 1)
+                paths.extend(pts[r] for r in runs if len(r) > 1 and fin[r].all())
         kw_geo = geo.kwargs()
-    return (polys, {"name": layer_name(MESH), **kw_geo, "shape_type": "path",
+    return (paths, {"name": layer_name(MESH), **kw_geo, "shape_type": "path",
                     "edge_color": "white", "edge_width": 0.5, "opacity": 0.6,
                     "metadata": {"napari_aldic": {**meta, "field": MESH,
                                                   "deformed": display.deformed,
-                                                  "elements": len(polys)}}}, "shapes")
+                                                  "lines": len(paths)}}}, "shapes")

@@ -215,6 +215,17 @@ def _load_analysis(paths: list[Path], folder: bool):
                     source=str(paths[0].parent if folder else paths[0]))
 
 
+def _axis_unit(name: str) -> str:
+    """``name`` if napari (pint) understands it as a unit, else ``"pixel"``."""
+    try:
+        import pint
+
+        pint.get_application_registry().Unit(name)
+        return name
+    except Exception:
+        return "pixel"
+
+
 def read_results(path):
     """Result file(s) or a folder of ``frame_#####.npz`` files as result layers."""
     from ._layers import Display, Geometry, analysis_layers
@@ -228,6 +239,28 @@ def read_results(path):
         paths = [q for _, q in _result_frames(p)] if folder else [p]
     if not paths:
         raise ValueError(f"no napari-aldic result files in {path}")
+    from .engine import Units
+
     analysis = _load_analysis(paths, folder)
-    geometry = Geometry((1.0, 1.0, 1.0), (0.0, 0.0, 0.0)) if analysis.n_frames else Geometry()
-    return analysis_layers(analysis, geometry, Display())
+    # physical units saved with the results (``meta["units"]``) set scale and values
+    units = None
+    for r in analysis.results:
+        try:
+            units = Units.from_meta(r.meta)
+        except ValueError:
+            units = None
+        if units is not None:
+            break
+    units = units or Units()
+    p = units.pixel_size
+    length = _axis_unit("pixel" if units.unit == "px" else units.unit)
+    dt = units.frame_interval
+    if analysis.n_frames:
+        geometry = Geometry((dt or 1.0, p, p), (0.0, 0.0, 0.0),
+                            (_axis_unit(units.time_unit) if dt else "pixel", length, length),
+                            ("t", "y", "x"))
+    else:
+        geometry = Geometry((p, p), (0.0, 0.0), (length, length), ("y", "x"))
+    display = Display(length_scale=p, length_unit=units.unit, frame_interval=dt,
+                      time_unit=units.time_unit)
+    return analysis_layers(analysis, geometry, display)

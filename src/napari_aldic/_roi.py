@@ -48,12 +48,19 @@ def shape_mask(shape_type: str, rc: np.ndarray, image_shape, width: float = 1.0)
         c = rc.mean(axis=0)
         a = (rc[1] - rc[0]) / 2.0  # half-axis vectors of the bounding box
         b = (rc[3] - rc[0]) / 2.0
-        rr, cc = np.mgrid[0:h, 0:w]
-        d = np.stack([rr - c[0], cc - c[1]], -1)
+        out = np.zeros((h, w), bool)
         na, nb = a @ a, b @ b
         if na <= 0 or nb <= 0:
-            return np.zeros((h, w), bool)
-        return (d @ a / na) ** 2 + (d @ b / nb) ** 2 <= 1.0
+            return out
+        # evaluate only inside the (clipped) bounding box of the corners
+        r0, c0 = np.maximum(np.floor(rc.min(axis=0)).astype(int), 0)
+        r1, c1 = np.minimum(np.ceil(rc.max(axis=0)).astype(int) + 1, (h, w))
+        if r1 <= r0 or c1 <= c0:
+            return out
+        rr, cc = np.mgrid[r0:r1, c0:c1]
+        d = np.stack([rr - c[0], cc - c[1]], -1)
+        out[r0:r1, c0:c1] = (d @ a / na) ** 2 + (d @ b / nb) ** 2 <= 1.0
+        return out
     if shape_type in CUT_TYPES:
         from skimage.draw import line
 

@@ -1,23 +1,21 @@
 """npe2 writers for result layers (napari is not imported here).
 
-* ``.npz``: the results behind a result layer (``DIC u``, ``DIC displacement``
-  ...), in the engine's result format. A single deformed frame is written to
+Any result layer (``DIC u``, ``DIC displacement`` ...) carries the analysis
+behind it; saving it writes that analysis, not the layer's pixels:
+
+* ``.npz``: the engine's result format. A single deformed frame is written to
   the given file; a sequence is written as a folder named after the file
   (``results.npz`` -> ``results/frame_00000.npz``, ``frame_00001.npz`` ...),
   which the reader opens again as result layers with a time axis.
-* ``.csv``: the per-node table (``features``) of the ``DIC displacement``
-  vectors layer: frame, node position, u, v, magnitude, ZNCC and strains, the
-  length unit written into the column names.
+* ``.csv`` / ``.mat``: the engine's exports (one row per node per frame with
+  strains; MATLAB structs), in the physical units set in the widget.
 """
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["write_results", "write_nodes_csv"]
+__all__ = ["write_results", "write_export", "units_of"]
 
 
 def _analysis_of(meta: dict):
@@ -28,13 +26,29 @@ def _analysis_of(meta: dict):
     return analysis
 
 
+def units_of(info: dict | None):
+    """The engine :class:`~napari_aldic.engine.Units` of a result layer's metadata."""
+    from .engine import Units
+
+    info = info or {}
+    unit = str(info.get("length_unit", "px"))
+    size = float(info.get("pixel_size", 1.0)) if unit != "px" else 1.0
+    try:
+        return Units(size, unit, info.get("frame_interval"), info.get("time_unit") or "s")
+    except ValueError:
+        return Units()
+
+
 def write_results(path: str, data, meta: dict) -> list[str]:
     """Write the results behind a result layer as ``.npz`` file(s)."""
     analysis = _analysis_of(meta)
+    units = units_of((meta.get("metadata") or {}).get("napari_aldic")).to_dict()
     path = Path(path)
     if path.suffix.lower() != ".npz":
         path = path.with_suffix(".npz")
     done = [(k, r) for k, r in zip(analysis.frames, analysis.results) if r is not None]
+    for _, r in done:
+        r.meta["units"] = units  # read back by the reader and the engine's exports
     deformed = done[1:] if len(done) > 1 else done
     if len(deformed) == 1:
         return [str(deformed[0][1].save(path))]
@@ -43,30 +57,14 @@ def write_results(path: str, data, meta: dict) -> list[str]:
     return [str(r.save(folder / f"frame_{k:05d}.npz")) for k, r in done]
 
 
-def write_nodes_csv(path: str, data, meta: dict) -> list[str]:
-    """Write the per-node table of the ``DIC displacement`` layer as CSV."""
-    info = (meta.get("metadata") or {}).get("napari_aldic")
-    feats = meta.get("features")
-    if info is None or feats is None:
-        raise ValueError("this layer holds no napari-aldic node table; choose the "
-                         "'DIC displacement' layer")
-    unit = info.get("length_unit", "px")
-    cols = list(feats.columns) if hasattr(feats, "columns") else list(feats)
-    header = []
-    for c in cols:
-        if c in ("u", "v", "magnitude"):
-            header.append(f"{c} [{unit}]")
-        elif c in ("x_px", "y_px"):
-            header.append(f"{c[0]} [px]")
-        else:
-            header.append(c)
-    values = [np.asarray(feats[c]) for c in cols]
-    path = Path(path)
-    if path.suffix.lower() != ".csv":
-        path = path.with_suffix(".csv")
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for row in zip(*values):
-            w.writerow([f"{v:.9g}" if isinstance(v, (float, np.floating)) else v for v in row])
-    return [str(path)]
+def write_export(path: str, data, meta: dict) -> list[str]:
+    """Export the results behind a result layer as ``.csv`` or ``.mat`` (engine exports)."""
+    from .engine import export_result
+
+    analysis = _analysis_of(meta)
+    info = (meta.get("metadata") or {}).get("napari_aldic") or {}
+    results = [r for r in analysis.results if r is not None]
+    s = analysis.strain
+    out = export_result(results, path, units=units_of(info),
+                        strain={"window": s.window, "method": s.method, "measure": s.measure})
+    return [str(p) for p in out] if isinstance(out, (list, tuple)) else [str(out)]

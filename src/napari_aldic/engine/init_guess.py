@@ -49,7 +49,7 @@ def _subpixel(c_m, c_0, c_p):
     return np.clip(np.nan_to_num(d), -0.5, 0.5)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _box_sums(a, S):
     """Sums of ``a`` and ``a**2`` (B, L, L) over every S x S window, float64."""
     B, L, _ = a.shape

@@ -72,7 +72,7 @@ def reference_gradients(spl: SplineImage) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _spline_gradients(c, value, deriv, gx, gy):
     # f'(i) = sum_k c_k B'(i - k): a separable value x derivative stencil
     h, w = gx.shape
@@ -156,7 +156,7 @@ def sample_quintic(coef, x, y):
     return acc
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _sample_many(coef, order, xs, ys, out):
     for k in nb.prange(xs.size):
         if order == 3:

@@ -92,7 +92,7 @@ def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: n
     return out
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _median_test(u, v, trusted, nbr, threshold, eps, min_nb, out):
     n, k = nbr.shape
     for i in nb.prange(n):

@@ -235,14 +235,14 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     return out
 
 
-def _pair_job(stack, ref_k: int, k: int, roi, params: DICParams) -> DICResult:
+def _pair_job(stack, ref_k: int, k: int, roi, params: DICParams, refine=None) -> DICResult:
     """One frame pair (runs in a worker thread or process)."""
     src = open_stack(stack)
-    return correlate(src[ref_k], src[k], roi=roi, params=params)
+    return correlate(src[ref_k], src[k], roi=roi, params=params, refine=refine)
 
 
 def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, workers,
-                  finish, results, cancel, report) -> bool:
+                  finish, results, cancel, report, refine=None) -> bool:
     """Run the pairs of ``todo`` concurrently; finish frames in order as their
     references become available. Returns True if cancelled."""
     spec = src.name if src.name is not None else stack
@@ -261,8 +261,8 @@ def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, wor
         n = workers or os.cpu_count() or 1
         one = params.replace(n_threads=1)  # frames are the parallel unit
         with ThreadPoolExecutor(max_workers=n) as ex:
-            futs = {ex.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), one): i
-                    for i in todo}
+            futs = {ex.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), one,
+                              refine): i for i in todo}
             pending = set(futs)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -281,7 +281,7 @@ def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, wor
         futs = {}
         for i in todo:
             fu = client.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), params,
-                               pure=False)
+                               refine, pure=False)
             futs[fu] = i
         ac = as_completed(list(futs))
         for fu in ac:
@@ -300,7 +300,7 @@ def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, wor
 def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
           reference: str = "accumulative", *, update_every: int | None = None,
           rois=None, frames=None, out_dir=None, params: DICParams | None = None,
-          scheduler=None, workers: int | None = None,
+          scheduler=None, workers: int | None = None, refine=None,
           progress: Callable[[int, float, str], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
@@ -329,6 +329,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         dask cluster; each frame then starts from its own FFT/seed guess.
     workers : int, optional
         Concurrent frames for ``scheduler="threads"`` (default: CPU count).
+    refine : preset name, Refinement or dict, optional
+        Quadtree refinement for every frame (as in ``correlate``), e.g. a
+        ``Refinement(brush=mask)`` painted region.
     progress : callable(frame, fraction, message), optional
     on_frame : callable(frame, result), optional
         Called with each frame's final (frame-0 referenced) result as soon as
@@ -377,7 +380,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     t0 = time.perf_counter()
     results: list = [None] * len(idx)
     ref_img = src[0]
-    base = correlate(ref_img, ref_img, roi=roi_for(0), params=params)
+    base = correlate(ref_img, ref_img, roi=roi_for(0), params=params, refine=refine)
     results[0] = _zero_result(base)
     if out is not None and not (out / "frame_00000.npz").exists():
         results[0].save(out / "frame_00000.npz")  # the reference: zero field, its nodes
@@ -427,12 +430,13 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
             if i - 1 not in todo and i > 1:
                 prev_inc = None  # previous frame came from disk: no increment at hand
             report(idx[i], (i - 1) / (len(idx) - 1), f"frame {idx[i]} against frame {r}")
-            inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params, guess=prev_inc)
+            inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params, guess=prev_inc,
+                            refine=refine)
             prev_inc = inc
             finish(i, inc)
     else:
         cancelled = _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler,
-                                  workers, finish, results, cancel, report)
+                                  workers, finish, results, cancel, report, refine)
     meta = {"seconds": time.perf_counter() - t0, "frames": idx, "cancelled": cancelled,
             "update_every": update_every, "source": src.name}
     return SequenceResult(results, params, reference, meta)

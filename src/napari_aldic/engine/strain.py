@@ -92,7 +92,7 @@ def strain_measures(dudx, dudy, dvdx, dvdy, measure: str = "green_lagrange"):
     return 0.5 * (1 - b11), 0.5 * (1 - b22), -0.5 * b12
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _plane_fit(x, y, u, v, use, nbrs, min_pts, out):
     n, k = nbrs.shape
     for i in nb.prange(n):

@@ -45,7 +45,7 @@ class SubsetMasks:
     reason: np.ndarray
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def integral_image(mask):
     """Summed-area table (H+1, W+1) int64 of a boolean/uint8 image."""
     h, w = mask.shape

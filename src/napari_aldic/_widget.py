@@ -1,0 +1,824 @@
+"""The main dock widget: choose layers and parameters, run DIC in a worker, show results.
+
+The widget stays thin: it turns layers into arrays and masks (:mod:`._roi`),
+runs :func:`napari_aldic._analysis.run_analysis` (the engine's ``track`` and
+``compute_strain``) in a napari worker thread, and turns the results into
+layers (:mod:`._layers`). Qt is reached only through magicgui and qtpy.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from magicgui.widgets import (
+    CheckBox,
+    ComboBox,
+    Container,
+    FloatSpinBox,
+    Label,
+    ProgressBar,
+    PushButton,
+    Select,
+    SpinBox,
+    TextEdit,
+)
+
+from ._analysis import Analysis, StrainSettings, run_analysis
+from ._layers import FIELDS, LAYER_NAMES, Display, Geometry, analysis_layers, layer_name
+from ._roi import build_roi, labels_mask, points_xy
+from .engine import DICParams
+
+if TYPE_CHECKING:  # pragma: no cover
+    import napari
+
+__all__ = ["DICWidget"]
+
+_SUBTRACT_WORDS = ("hole", "crack", "mask", "exclude", "subtract", "notch", "cut")
+_LENGTH_UNITS = {"px": "pixel", "nm": "nm", "µm": "µm", "mm": "mm", "cm": "cm", "m": "m"}
+_TIME_UNITS = {"frame": "pixel", "ms": "ms", "s": "s", "min": "min", "h": "h"}
+
+
+def _is_result_layer(layer) -> bool:
+    return layer.name in LAYER_NAMES or "napari_aldic_analysis" in getattr(layer, "metadata", {})
+
+
+def _fmt_seconds(s: float) -> str:
+    s = max(0, int(round(s)))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+@dataclass
+class _Job:
+    """Everything a run needs, collected on the main thread."""
+
+    stack: Any
+    roi: np.ndarray | None
+    params: DICParams
+    reference: str
+    start: int
+    stop: int
+    stride: int
+    brush: np.ndarray | None
+    strain: StrainSettings
+    source: str
+    summary: str
+
+
+class DICWidget(Container):
+    """Digital image correlation of an image stack (napari-aldic)."""
+
+    def __init__(self, napari_viewer: "napari.viewer.Viewer"):
+        super().__init__(labels=False)
+        self._viewer = napari_viewer
+        self._worker = None
+        self._cancel = threading.Event()
+        self._t0 = 0.0
+        self._analysis: Analysis | None = None
+        self._analysis_image = None
+        self._syncing = False
+        self._units_applied: tuple | None = None  # (pixel size, interval) last applied
+        self.running = False
+
+        def layers_of(kind: str, optional: bool = False):
+            def choices(_widget=None):
+                import napari.layers as nl
+
+                cls = getattr(nl, kind)
+                out = [(lay.name, lay) for lay in self._viewer.layers
+                       if isinstance(lay, cls) and not _is_result_layer(lay)]
+                return ([("(none)", None)] if optional else []) + out
+            return choices
+
+        # ---- inputs
+        self.image = ComboBox(label="Image stack", choices=layers_of("Image"), nullable=True,
+                              tooltip="Image layer with a time axis (frames, rows, cols); the "
+                                      "first frame of the range is the reference.")
+        self.roi_add = Select(label="ROI (shapes)", choices=layers_of("Shapes"),
+                              tooltip="Shapes layers whose rectangles, polygons and ellipses "
+                                      "are analysed (union). None selected: whole image.\n"
+                                      "Lines and paths in any chosen layer cut the ROI "
+                                      "(cracks).")
+        self.roi_subtract = Select(label="Holes (shapes)", choices=layers_of("Shapes"),
+                                   tooltip="Shapes layers whose shapes are removed from the "
+                                           "ROI (holes, notches, background). Layers named "
+                                           "like 'hole', 'crack', 'mask' are chosen here "
+                                           "automatically.")
+        self.roi_labels = ComboBox(label="ROI labels", choices=layers_of("Labels", True),
+                                   tooltip="Labels layer: nonzero pixels are analysed "
+                                           "(intersected with the ROI shapes).")
+        self.brush = ComboBox(label="Refine region", choices=layers_of("Labels", True),
+                              tooltip="Labels layer painted with the brush: the mesh is "
+                                      "refined where it is nonzero (quadtree).")
+        self.seeds = ComboBox(label="Seeds (points)", choices=layers_of("Points", True),
+                              tooltip="Points layer of seed points for the 'seed points' "
+                                      "initial guess: at least one per connected ROI "
+                                      "region, on well-textured material.")
+        # ---- parameters
+        self.method = ComboBox(label="Method", value="aldic",
+                               choices=[("AL-DIC", "aldic"), ("Local (IC-GN)", "local")],
+                               tooltip="AL-DIC couples the subsets to a compatible finite-"
+                                       "element field (smoother, robust); Local solves every "
+                                       "subset on its own (faster).")
+        self.subset = SpinBox(label="Subset (px)", value=31, min=7, max=2001, step=2,
+                              tooltip="Odd full width of the square correlation subset in "
+                                      "pixels (31 = 31 x 31). Larger: less noise, less "
+                                      "spatial resolution. It should hold ~3 speckles across.")
+        self.step = SpinBox(label="Step (px)", value=8, min=1, max=1000,
+                            tooltip="Node spacing in pixels.")
+        self.search = SpinBox(label="Search (px)", value=20, min=1, max=100000,
+                              tooltip="Initial half-range of the FFT cross-correlation "
+                                      "search; it widens by itself when the peak lies on "
+                                      "its border.")
+        self.refine = ComboBox(label="Refinement", value="none",
+                               choices=["none", "light", "medium", "strong"],
+                               tooltip="Adaptive quadtree preset: light = near holes/cracks; "
+                                       "medium = also the ROI outline; strong = also where "
+                                       "the correlation is poor (slower).")
+        self.init = ComboBox(label="Initial guess", value="fft",
+                             choices=[("FFT cross-correlation", "fft"),
+                                      ("Seed points", "seeds")],
+                             tooltip="FFT: automatic search. Seed points: propagate from the "
+                                     "points of the seeds layer (large or uneven motion).")
+        self.reference = ComboBox(label="Tracking", value="accumulative",
+                                  choices=["accumulative", "incremental"],
+                                  tooltip="accumulative: every frame against the first; "
+                                          "incremental: each frame against the previous one, "
+                                          "composed back to the first (large deformation).")
+        self.start = SpinBox(label="First frame", value=0, min=0, max=0,
+                             tooltip="Reference frame: the first frame analysed.")
+        self.stop = SpinBox(label="Last frame", value=0, min=0, max=0,
+                            tooltip="Last frame analysed (inclusive).")
+        self.stride = SpinBox(label="Every n-th frame", value=1, min=1, max=100000,
+                              tooltip="Analyse every n-th frame of the range.")
+        # ---- strain
+        self.strain_window = SpinBox(label="Strain window", value=5, min=3, max=101, step=2,
+                                     tooltip="Odd number of nodes across the plane fit; the "
+                                             "virtual strain gauge is (window - 1) * step + "
+                                             "subset pixels.")
+        self.strain_method = ComboBox(label="Strain method", value="plane_fit",
+                                      choices=[("plane fit", "plane_fit"),
+                                               ("FE gradients", "fem")],
+                                      tooltip="Local least-squares plane fit over the window, "
+                                              "or gradients of the bilinear element field.")
+        self.strain_measure = ComboBox(label="Strain measure", value="green_lagrange",
+                                       choices=[("Green-Lagrange", "green_lagrange"),
+                                                ("infinitesimal", "infinitesimal"),
+                                                ("Euler-Almansi", "euler_almansi")],
+                                       tooltip="Finite-strain measure of exx, eyy, exy.")
+        # ---- units
+        self.pixel_size = FloatSpinBox(label="Pixel size", value=1.0, min=0.0001, max=1e6,
+                                       step=0.0001,
+                                       tooltip="Physical size of one image pixel; sets the "
+                                               "scale of the image, its ROI layers and every "
+                                               "result layer, and the unit of u, v, |u|.")
+        self.unit = ComboBox(label="Length unit", value="px", choices=list(_LENGTH_UNITS),
+                             tooltip="Unit of the pixel size.")
+        self.frame_interval = FloatSpinBox(label="Frame interval", value=1.0, min=0.0001,
+                                           max=1e9, step=0.0001,
+                                           tooltip="Time between frames (time-axis scale).")
+        self.time_unit = ComboBox(label="Time unit", value="frame", choices=list(_TIME_UNITS),
+                                  tooltip="Unit of the frame interval.")
+        # ---- display
+        self.show_field = ComboBox(label="Show", value="|u|", choices=list(FIELDS),
+                                   tooltip="Result image layer made visible after a run "
+                                           "(the others are added hidden).")
+        self.vectors = CheckBox(text="displacement vectors", value=True,
+                                tooltip="Vectors layer of (u, v) at the trusted nodes; every "
+                                        "node value is in its features.")
+        self.vector_length = FloatSpinBox(label="Vector scale", value=0.0, min=0.0, max=1e6,
+                                          step=0.5,
+                                          tooltip="Arrow length per unit displacement; 0 = "
+                                                  "automatic (the longest arrows span about "
+                                                  "one node step).")
+        self.mesh = CheckBox(text="mesh", value=False,
+                             tooltip="Shapes layer of the element outlines.")
+        self.deformed = CheckBox(text="deformed configuration", value=False,
+                                 tooltip="Show fields, vectors, nodes and mesh where the "
+                                         "material is in each frame instead of in the "
+                                         "reference frame.")
+        # ---- run
+        self.run_button = PushButton(text="Run")
+        self.cancel_button = PushButton(text="Cancel", enabled=False)
+        self.status = Label(value="")
+        self.progress = ProgressBar(value=0, min=0, max=1000, label="")
+        self.eta = Label(value="", label="")
+        self.log = TextEdit(value="", label="")
+        self.log.read_only = True
+
+        def section(title: str) -> Label:
+            return Label(value=f"<b>{title}</b>", label="")
+
+        display = Container(widgets=[self.vectors, self.mesh, self.deformed],
+                            layout="vertical", labels=False)
+        # napari docks ``self.native``: the form scrolls, the run controls stay below it
+        self._body = Container(scrollable=True, labels=True)
+        self._body.extend([
+            section("Input"), self.image, self.roi_add, self.roi_subtract, self.roi_labels,
+            self.brush, self.seeds,
+            section("Correlation"), self.method, self.subset, self.step, self.search,
+            self.refine, self.init, self.reference, self.start, self.stop, self.stride,
+            section("Strain"), self.strain_window, self.strain_method, self.strain_measure,
+            section("Units"), self.pixel_size, self.unit, self.frame_interval, self.time_unit,
+            section("Display"), self.show_field, display, self.vector_length,
+        ])
+        buttons = Container(widgets=[self.run_button, self.cancel_button], layout="horizontal",
+                            labels=False)
+        self._footer = Container(widgets=[self.status, buttons, self.progress, self.eta,
+                                          self.log], labels=False)
+        for sel in (self.roi_add, self.roi_subtract):
+            sel.native.setMaximumHeight(64)
+        from qtpy.QtWidgets import QComboBox
+
+        for combo in (self.image, self.roi_labels, self.brush, self.seeds):
+            # long layer names must not widen the dock beyond the window
+            combo.native.setSizeAdjustPolicy(
+                QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
+            combo.native.setMinimumContentsLength(12)
+        self.status.native.setWordWrap(True)
+        self.eta.native.setWordWrap(True)
+        self.log.native.setMinimumHeight(90)
+        self.log.native.setMaximumHeight(170)
+        scroll = self._body.root_native_widget
+        scroll.setFrameShape(scroll.Shape.NoFrame)
+        self.native.layout().addWidget(scroll, 1)
+        self.native.layout().addWidget(self._footer.native, 0)
+        self.native.layout().setContentsMargins(0, 0, 0, 0)
+
+        # ---- connections
+        layers = self._viewer.layers
+        layers.events.inserted.connect(self._on_inserted)
+        layers.events.removed.connect(self._on_layers_changed)
+        layers.events.moved.connect(self._on_layers_changed)
+        for lay in list(layers):
+            self._watch(lay)
+        self.image.changed.connect(self._on_image_changed)
+        for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds,
+                  self.method, self.subset, self.step, self.search, self.refine, self.init,
+                  self.reference, self.start, self.stop, self.stride, self.strain_window):
+            w.changed.connect(self._validate)
+        for w in (self.pixel_size, self.unit, self.frame_interval, self.time_unit):
+            w.changed.connect(self._on_units_changed)
+        for w in (self.mesh, self.deformed, self.vectors):
+            w.changed.connect(self._refresh_results)
+        self.vector_length.changed.connect(self._on_vector_length)
+        # closing the widget stops a run after its frame and unhooks it from the viewer
+        self.native.destroyed.connect(lambda *_: self._close())
+        self.run_button.changed.connect(self.run)
+        self.cancel_button.changed.connect(self.cancel)
+        for lay in list(layers):
+            self._auto_assign(lay)
+        self._on_image_changed()
+
+    # ------------------------------------------------------------ layer list
+    def _close(self) -> None:
+        self._cancel.set()
+        layers = self._viewer.layers
+        for emitter, slot in ((layers.events.inserted, self._on_inserted),
+                              (layers.events.removed, self._on_layers_changed),
+                              (layers.events.moved, self._on_layers_changed)):
+            emitter.disconnect(slot)
+        for lay in list(layers):
+            lay.events.name.disconnect(self._on_layers_changed)
+            if hasattr(lay.events, "data"):
+                lay.events.data.disconnect(self._validate)
+
+    def _watch(self, layer) -> None:
+        layer.events.name.connect(self._on_layers_changed)
+        if layer.__class__.__name__ in ("Shapes", "Labels", "Points"):
+            layer.events.data.connect(self._validate)
+
+    def _on_inserted(self, event=None) -> None:
+        layer = getattr(event, "value", None)
+        if layer is not None:
+            self._watch(layer)
+            if _is_result_layer(layer):
+                return  # never an input: nothing to update
+        self._body.reset_choices()
+        if layer is not None:
+            self._auto_assign(layer)
+        if self.image.value is None:
+            self._on_image_changed()
+        self._validate()
+
+    def _on_layers_changed(self, event=None) -> None:
+        layer = getattr(event, "value", None)
+        if layer is not None and _is_result_layer(layer) and getattr(event, "type", "") == \
+                "removed":
+            return
+        self._body.reset_choices()
+        self._validate()
+
+    def _auto_assign(self, layer) -> None:
+        """Preselect inputs by layer name: Shapes named 'hole'/'crack'/... -> subtract,
+        other Shapes -> ROI; Labels 'roi' -> ROI labels, 'refine'/'brush' -> refinement
+        region; Points 'seed' -> seeds."""
+        kind = layer.__class__.__name__
+        name = layer.name.lower()
+        if kind == "Shapes":
+            # holes by name; every other Shapes layer (e.g. a new "Shapes") adds to the ROI
+            target = (self.roi_subtract if any(w in name for w in _SUBTRACT_WORDS)
+                      else self.roi_add)
+            if layer not in target.value:
+                target.value = [*target.value, layer]
+        elif kind == "Labels":
+            if ("refine" in name or "brush" in name) and self.brush.value is None:
+                self.brush.value = layer
+            elif "roi" in name and self.roi_labels.value is None:
+                self.roi_labels.value = layer
+        elif kind == "Points" and "seed" in name and self.seeds.value is None:
+            self.seeds.value = layer
+            self.init.value = "seeds"
+
+    # ------------------------------------------------------------ image, units
+    def _stack_shape(self):
+        img = self.image.value
+        if img is None:
+            return None
+        data = img.data[0] if img.multiscale else img.data
+        return tuple(data.shape)
+
+    def _on_image_changed(self, *_) -> None:
+        img = self.image.value
+        if img is None:
+            candidates = [c for c in self.image.choices if c is not None]
+            if candidates:
+                self.image.value = candidates[0]
+                return
+        shape = self._stack_shape()
+        if shape is not None and len(shape) == 3:
+            n = shape[0]
+            self.start.max = max(0, n - 2)
+            self.stop.max = n - 1
+            self.stop.value = n - 1
+            self.start.value = min(self.start.value, max(0, n - 2))
+        if img is not None and img.ndim >= 2:
+            self._syncing = True
+            try:
+                self.pixel_size.value = float(img.scale[-1])
+                unit = str(img.units[-1])
+                inv = {v: k for k, v in _LENGTH_UNITS.items()}
+                names = {"pixel": "px", "micrometer": "µm", "nanometer": "nm",
+                         "millimeter": "mm", "centimeter": "cm", "meter": "m"}
+                self.unit.value = inv.get(unit, names.get(unit, "px"))
+                if img.ndim == 3:
+                    self.frame_interval.value = float(img.scale[0])
+                    t_unit = str(img.units[0])
+                    t_names = {"pixel": "frame", "second": "s", "millisecond": "ms",
+                               "minute": "min", "hour": "h"}
+                    self.time_unit.value = t_names.get(t_unit, "frame")
+            finally:
+                self._syncing = False
+            self._units_applied = (self.pixel_size.value, self.frame_interval.value)
+        self._validate()
+
+    def _input_layers(self) -> list:
+        out = [self.image.value, *self.roi_add.value, *self.roi_subtract.value,
+               self.roi_labels.value, self.brush.value, self.seeds.value]
+        seen, uniq = set(), []
+        for lay in out:
+            if lay is not None and id(lay) not in seen:
+                seen.add(id(lay))
+                uniq.append(lay)
+        return uniq
+
+    def _on_units_changed(self, *_) -> None:
+        """Apply pixel size/interval and units to the image, its input layers and the
+        result layers (values of u, v, |u| are shown in the length unit)."""
+        if self._syncing or self.image.value is None:
+            return
+        p, dt = float(self.pixel_size.value), float(self.frame_interval.value)
+        old_p, old_dt = self._units_applied or (1.0, 1.0)
+        unit = _LENGTH_UNITS[self.unit.value]
+        t_unit = _TIME_UNITS[self.time_unit.value]
+        for lay in self._input_layers():
+            scale = np.array(lay.scale, float)
+            translate = np.array(lay.translate, float)
+            scale[-2:] = scale[-2:] * (p / old_p)
+            translate[-2:] = translate[-2:] * (p / old_p)
+            if lay.ndim >= 3:
+                scale[-3] = scale[-3] * (dt / old_dt)
+                translate[-3] = translate[-3] * (dt / old_dt)
+            units = [str(u) for u in lay.units]
+            units[-2:] = [unit, unit]
+            if lay.ndim >= 3:
+                units[-3] = t_unit
+            lay.scale = scale
+            lay.translate = translate
+            try:
+                lay.units = units
+            except Exception:  # unknown unit for pint: keep the scale only
+                pass
+        for lay in list(self._viewer.layers):  # results are rebuilt below; align units now
+            if _is_result_layer(lay):
+                units = [str(u) for u in lay.units]
+                units[-2:] = [unit, unit]
+                if lay.ndim >= 3:
+                    units[-3] = t_unit
+                try:
+                    lay.units = units
+                except Exception:
+                    pass
+        self._units_applied = (p, dt)
+        self._log(f"units: pixel size {p:g} {self.unit.value}, frame interval {dt:g} "
+                  f"{self.time_unit.value}")
+        self._refresh_results()
+
+    # ------------------------------------------------------------ validation
+    def _problems(self) -> tuple[list[str], list[str]]:
+        """(errors, warnings) of the current choices, in words."""
+        errors, warnings_ = [], []
+        img = self.image.value
+        if img is None:
+            return ["Choose an image stack (open a TIFF stack or a folder of images)."], []
+        if img.rgb:
+            errors.append(f"'{img.name}' is RGB; DIC needs grey images (open the stack with "
+                          "this plugin's reader, which converts RGB to grey).")
+            return errors, warnings_
+        shape = self._stack_shape()
+        if len(shape) != 3 or shape[0] < 2:
+            errors.append(f"'{img.name}' has shape {shape}; DIC needs a stack (frames, rows, "
+                          "cols) with at least two frames. Stack reference and deformed "
+                          "images into one layer (File > Open with the napari-aldic reader, "
+                          "or Layers > Stack).")
+            return errors, warnings_
+        n, rows, cols = shape
+        if self.subset.value % 2 == 0:
+            errors.append(f"Subset {self.subset.value} px must be odd (e.g. "
+                          f"{self.subset.value + 1}).")
+        if self.strain_window.value % 2 == 0:
+            errors.append(f"Strain window {self.strain_window.value} must be odd.")
+        if not self.start.value < self.stop.value:
+            errors.append(f"First frame ({self.start.value}) must come before the last frame "
+                          f"({self.stop.value}).")
+        elif (self.stop.value - self.start.value) < self.stride.value:
+            errors.append(f"Frames {self.start.value}..{self.stop.value} every "
+                          f"{self.stride.value} hold only the reference frame.")
+        try:
+            roi, _ = self._roi((rows, cols))
+        except Exception as exc:  # a layer that cannot be read as a region
+            errors.append(f"ROI: {exc}")
+            roi = None
+        else:
+            if roi is not None:
+                if not roi.any():
+                    errors.append("The ROI is empty: draw shapes on the material or choose "
+                                  "other ROI layers.")
+                else:
+                    ys, xs = np.nonzero(roi)
+                    bh, bw = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
+                    if self.subset.value > min(bh, bw):
+                        errors.append(f"Subset {self.subset.value} px is larger than the ROI "
+                                      f"bounding box ({bw} x {bh} px); reduce the subset or "
+                                      "enlarge the ROI.")
+        if self.subset.value + 2 > min(rows, cols):
+            errors.append(f"Subset {self.subset.value} px does not fit in the image "
+                          f"({cols} x {rows} px).")
+        if self.init.value == "seeds":
+            pts = self.seeds.value
+            if pts is None or len(pts.data) == 0:
+                errors.append("Initial guess 'seed points' needs a Points layer with at least "
+                              "one point (choose it under 'Seeds').")
+            else:
+                xy = points_xy(pts, img)
+                inside = [(0 <= x < cols and 0 <= y < rows
+                           and (roi is None or roi[int(round(y)), int(round(x))]))
+                          for x, y in xy]
+                if not all(inside):
+                    bad = [f"({x:.0f}, {y:.0f})" for (x, y), ok in zip(xy, inside) if not ok]
+                    errors.append(f"Seed point(s) {', '.join(bad)} (x, y) lie outside the ROI; "
+                                  "move them onto analysed material.")
+        if self.brush.value is not None:
+            try:
+                labels_mask(self.brush.value, (rows, cols), self.start.value)
+            except ValueError as exc:
+                errors.append(f"Refine region: {exc}")
+            if self.reference.value != "accumulative":
+                errors.append("A painted refine region needs 'accumulative' tracking.")
+        if self.step.value > self.subset.value:
+            warnings_.append(f"Step {self.step.value} px is larger than the subset: pixels "
+                             "between subsets are not used.")
+        return errors, warnings_
+
+    def _validate(self, *_) -> bool:
+        try:
+            errors, warns = self._problems()
+        except Exception as exc:  # never let a check break the widget
+            errors, warns = [f"Cannot check the inputs: {exc}"], []
+        lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
+        lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warns]
+        if not errors:
+            lines.insert(0, "<span style='color:#6bd66b'>Ready.</span>")
+        self.status.value = "<br>".join(lines)
+        self.run_button.enabled = not errors and not self.running
+        self._errors = errors
+        return not errors
+
+    # ------------------------------------------------------------ inputs -> arrays
+    def _roi(self, image_shape):
+        img = self.image.value
+        return build_roi(img, image_shape, add_shapes=list(self.roi_add.value),
+                         subtract_shapes=list(self.roi_subtract.value),
+                         labels=self.roi_labels.value, frame=self.start.value)
+
+    def _job(self) -> _Job:
+        img = self.image.value
+        data = img.data[0] if img.multiscale else img.data
+        n, rows, cols = data.shape
+        roi, notes = self._roi((rows, cols))
+        seeds = ()
+        if self.init.value == "seeds":
+            seeds = tuple(map(tuple, points_xy(self.seeds.value, img)))
+        refine = None if self.refine.value == "none" else self.refine.value
+        params = DICParams(subset=int(self.subset.value), step=int(self.step.value),
+                           method=self.method.value, init=self.init.value, seeds=seeds,
+                           search=int(self.search.value), refine=refine)
+        brush = None
+        if self.brush.value is not None:
+            brush = labels_mask(self.brush.value, (rows, cols), self.start.value)
+            if not brush.any():
+                brush = None
+        strain = StrainSettings(window=int(self.strain_window.value),
+                                method=self.strain_method.value,
+                                measure=self.strain_measure.value)
+        stop = int(self.stop.value)
+        n_roi = rows * cols if roi is None else int(roi.sum())
+        summary = (f"image '{img.name}' ({n} frames, {cols} x {rows} px, {data.dtype}); "
+                   f"frames {self.start.value}..{stop} every {self.stride.value}, "
+                   f"{self.reference.value}; ROI {n_roi} px"
+                   + (f" [{'; '.join(notes)}]" if notes else " (whole image)")
+                   + f"; method {params.method}, subset {params.subset} px, step "
+                   f"{params.step} px, search {params.search} px, init {params.init}"
+                   + (f" ({len(seeds)} seeds)" if seeds else "")
+                   + f", refinement {refine or 'none'}"
+                   + (f" + brush region ({int(brush.sum())} px)" if brush is not None else "")
+                   + f"; strain {strain.method}, window {strain.window}, {strain.measure}")
+        return _Job(stack=data, roi=roi, params=params, reference=self.reference.value,
+                    start=int(self.start.value), stop=stop, stride=int(self.stride.value),
+                    brush=brush, strain=strain, source=img.name, summary=summary)
+
+    # ------------------------------------------------------------ running
+    def run(self, *_) -> None:
+        """Start the analysis in a worker thread (no-op while one runs)."""
+        from napari.qt.threading import create_worker
+        from napari.utils.notifications import show_error, show_warning
+
+        if self.running:
+            return
+        if not self._validate():
+            show_warning("napari-aldic: " + " ".join(self._errors))
+            return
+        try:
+            job = self._job()
+        except Exception as exc:
+            show_error(f"napari-aldic: could not prepare the run: {exc}")
+            self._log(f"ERROR preparing the run: {exc}")
+            return
+        self._cancel.clear()
+        self._analysis_image = self.image.value
+        self._n_deformed = len(range(job.start, job.stop + 1, job.stride)) - 1
+        self._log(f"Run {time.strftime('%H:%M:%S')}: {job.summary}")
+        # superqt's plain worker: errors reach _on_errored only (one notification)
+        from superqt.utils import GeneratorWorker
+
+        worker = create_worker(_work, job, self._cancel, _worker_class=GeneratorWorker,
+                               _ignore_errors=True)
+        worker.yielded.connect(self._on_progress)
+        worker.returned.connect(self._on_returned)
+        worker.errored.connect(self._on_errored)
+        worker.finished.connect(self._on_finished)
+        self._worker = worker
+        self._set_running(True)
+        self._t0 = time.perf_counter()
+        self.progress.value = 0
+        self.eta.value = f"0/{self._n_deformed} frames"
+        worker.start()
+
+    def cancel(self, *_) -> None:
+        """Stop after the frame being computed; finished frames are kept."""
+        if self.running:
+            self._cancel.set()
+            self.cancel_button.enabled = False
+            self.eta.value = "cancelling after the current frame ..."
+            self._log("Cancel requested: stopping after the current frame.")
+
+    def _set_running(self, running: bool) -> None:
+        self.running = running
+        self.cancel_button.enabled = running
+        self._validate()
+
+    def _on_progress(self, item) -> None:
+        frame, frac, msg = item
+        frac = float(min(max(frac, 0.0), 1.0))
+        self.progress.value = int(round(1000 * frac))
+        done = int(round(frac * self._n_deformed))
+        elapsed = time.perf_counter() - self._t0
+        left = f" · about {_fmt_seconds(elapsed * (1 - frac) / frac)} left" if 0 < frac < 1 else ""
+        if not self._cancel.is_set():
+            self.eta.value = (f"{done}/{self._n_deformed} frames · "
+                              f"{_fmt_seconds(elapsed)} elapsed{left}")
+        if "done" in msg or "strain" in msg:
+            self._log(msg)
+
+    def _on_returned(self, analysis: Analysis) -> None:
+        from napari.utils.notifications import show_error, show_info
+
+        self._analysis = analysis
+        done = analysis.n_done - 1
+        state = "cancelled" if analysis.cancelled else "finished"
+        self._log(f"{state} in {analysis.seconds:.1f} s: {done}/{len(analysis.frames) - 1} "
+                  "frames computed")
+        last = next((r for r in reversed(analysis.results) if r is not None), None)
+        if last is not None and done > 0:
+            self._log(last.summary())
+        try:
+            self._show_results()
+            self._go_to_last_frame()
+        except Exception as exc:  # never crash the viewer on a display problem
+            show_error(f"napari-aldic: could not show the results: {exc}")
+            self._log(f"ERROR showing results: {exc}")
+            return
+        self.eta.value = (f"{done}/{len(analysis.frames) - 1} frames · {state} in "
+                          f"{_fmt_seconds(analysis.seconds)}")
+        if analysis.cancelled:
+            show_info(f"napari-aldic: cancelled; {done} finished frame(s) kept")
+
+    def _on_errored(self, exc: BaseException) -> None:
+        from napari.utils.notifications import show_error
+
+        msg = str(exc) or exc.__class__.__name__
+        self._log(f"ERROR: {msg}")
+        self.eta.value = "failed (see log)"
+        show_error(f"napari-aldic: {msg}")
+
+    def _on_finished(self) -> None:
+        self._worker = None
+        self._set_running(False)
+
+    # ------------------------------------------------------------ results -> layers
+    def _geometry(self) -> Geometry:
+        img = self._analysis_image if self._analysis_image is not None else self.image.value
+        return Geometry(scale=tuple(img.scale), translate=tuple(img.translate),
+                        units=tuple(str(u) for u in img.units),
+                        axis_labels=tuple(img.axis_labels))
+
+    def _display(self) -> Display:
+        return Display(visible_field=self.show_field.value, vectors=self.vectors.value,
+                       vector_length=float(self.vector_length.value), mesh=self.mesh.value,
+                       deformed=self.deformed.value,
+                       length_scale=float(self.pixel_size.value),
+                       length_unit=self.unit.value,
+                       frame_interval=(None if self.time_unit.value == "frame"
+                                       else float(self.frame_interval.value)),
+                       time_unit=self.time_unit.value)
+
+    def _show_results(self) -> None:
+        if self._analysis is None:
+            return
+        if self._analysis_image is not None and self._analysis_image not in self._viewer.layers:
+            self._analysis_image = None
+        if self._analysis_image is None and self.image.value is None:
+            return
+        tuples = analysis_layers(self._analysis, self._geometry(), self._display())
+        made = {kw["name"] for _, kw, _ in tuples}
+        layers = self._viewer.layers
+        # layers this display no longer makes (e.g. mesh switched off) go away
+        for key in ("displacement", "unreliable nodes", "mesh"):
+            name = layer_name(key)
+            if name not in made and name in layers:
+                layers.remove(name)
+        for data, kw, kind in tuples:
+            name = kw["name"]
+            if name in layers:
+                old = layers[name]
+                if _update_layer(old, data, kw, kind):
+                    continue
+                # a different kind or number of axes: replace it at the same place
+                kw["visible"] = old.visible
+                index = layers.index(old)
+                layers.remove(old)
+                new = getattr(self._viewer, f"add_{kind}")(data, **kw)
+                layers.move(layers.index(new), index)
+            else:
+                getattr(self._viewer, f"add_{kind}")(data, **kw)
+        vis = layer_name(self.show_field.value)
+        if vis in layers and hasattr(layers[vis], "colorbar"):
+            layers[vis].colorbar.visible = True
+
+    def _go_to_last_frame(self) -> None:
+        """Show the last computed frame (frame 0, the reference, is a zero field)."""
+        a, img = self._analysis, self._analysis_image
+        if a is None or img is None or a.n_frames is None or img not in self._viewer.layers:
+            return
+        done = [k for k, r in zip(a.frames, a.results) if r is not None]
+        if len(done) < 2:
+            return
+        axis = self._viewer.dims.ndim - img.ndim  # the image's time axis in world dims
+        world = float(img.translate[0]) + done[-1] * float(img.scale[0])
+        self._viewer.dims.set_point(axis, world)
+
+    def _refresh_results(self, *_) -> None:
+        if self._analysis is None or self.running:
+            return
+        try:
+            self._show_results()
+        except Exception as exc:
+            from napari.utils.notifications import show_error
+
+            show_error(f"napari-aldic: could not update the results: {exc}")
+
+    def _on_vector_length(self, *_) -> None:
+        name = layer_name("displacement")
+        if self.vector_length.value <= 0:
+            self._refresh_results()  # automatic length: computed from the field
+        elif name in self._viewer.layers:
+            self._viewer.layers[name].length = float(self.vector_length.value)
+
+    # ------------------------------------------------------------ log
+    def _log(self, text: str) -> None:
+        stamp = time.strftime("%H:%M:%S")
+        self.log.value = (self.log.value + "\n" if self.log.value else "") + f"[{stamp}] {text}"
+        bar = self.log.native.verticalScrollBar()
+        bar.setValue(bar.maximum())
+
+
+def _update_layer(layer, data, kw: dict, kind: str) -> bool:
+    """Update a result layer in place (cheaper than removing and adding it, and
+    the user's visibility and opacity stay). False if it must be replaced."""
+    ndim = len(kw["scale"])
+    if layer.__class__.__name__.lower() != kind or layer.ndim != ndim or kind == "shapes":
+        return False
+    common = ("scale", "translate", "units", "axis_labels")
+    if kind == "image":
+        layer.data = data
+        for key in common:
+            if key in kw:
+                setattr(layer, key, kw[key])
+        layer.colormap = kw["colormap"]
+        layer.contrast_limits_range = kw["contrast_limits"]
+        layer.contrast_limits = kw["contrast_limits"]
+    elif kind == "vectors":
+        layer.data = data
+        for key in common:
+            if key in kw:
+                setattr(layer, key, kw[key])
+        layer.features = kw["features"]
+        layer.length = kw["length"]
+        layer.edge_width = kw["edge_width"]
+        if kw.get("edge_color") == "magnitude":
+            layer.edge_colormap = kw["edge_colormap"]
+            layer.edge_color = "magnitude"
+    elif kind == "points":
+        layer.data = data
+        for key in common:
+            if key in kw:
+                setattr(layer, key, kw[key])
+        layer.features = kw["features"]
+        if len(data):
+            layer.face_color = kw["face_color"]
+            layer.size = kw["size"]
+    else:
+        return False
+    layer.metadata = kw["metadata"]
+    return True
+
+
+def _work(job: _Job, cancel: threading.Event):
+    """Worker body: run the analysis in a helper thread and yield its progress.
+
+    ``run_analysis`` reports through a callback; the callback queues the
+    reports and this generator yields them, so napari delivers each one to
+    the main thread (``yielded`` signal). The return value (an
+    :class:`Analysis`) arrives through ``returned``; an exception through
+    ``errored``.
+    """
+    reports: queue.Queue = queue.Queue()
+    box: dict = {}
+
+    def target():
+        try:
+            box["result"] = run_analysis(
+                job.stack, job.roi, job.params, reference=job.reference, start=job.start,
+                stop=job.stop, stride=job.stride, brush=job.brush, strain=job.strain,
+                progress=lambda k, frac, msg: reports.put((k, frac, msg)),
+                cancel=cancel.is_set, source=job.source)
+        except BaseException as exc:  # handed to the worker's errored signal
+            box["error"] = exc
+        finally:
+            reports.put(None)
+
+    thread = threading.Thread(target=target, name="napari-aldic-analysis", daemon=True)
+    thread.start()
+    while True:
+        item = reports.get()
+        if item is None:
+            break
+        yield item
+    thread.join()
+    if "error" in box:
+        raise box["error"]
+    return box["result"]
