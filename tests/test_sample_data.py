@@ -121,6 +121,7 @@ def test_manifest_is_valid_and_lists_the_samples():
     commands = {c.id: c.python_name for c in pm.contributions.commands}
     samples = {s.command for s in pm.contributions.sample_data}
     assert samples == {"napari-aldic.make_translation_pair", "napari-aldic.make_crack_pair",
+                       "napari-aldic.make_strain_sequence", "napari-aldic.make_plate_with_hole",
                        "napari-aldic.load_open_hole_pair"}
     assert samples <= set(commands)
     assert all(commands[c].startswith("napari_aldic._sample_data:") for c in samples)
@@ -137,3 +138,44 @@ def test_npe2_cli_validates_manifest():
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "valid" in proc.stdout
+
+
+def test_strain_sequence_sample_matches_its_truth():
+    from napari_aldic._sample_data import make_strain_sequence
+    from napari_aldic.engine import track
+
+    (stack, kw, kind), = make_strain_sequence(n_frames=3, size=160)
+    assert kind == "image" and stack.shape == (3, 160, 160) and stack.dtype == np.uint8
+    truth = kw["metadata"]["truth"]["frames"][2]
+    seq = track(stack, step=12)
+    res = seq[2]
+    X = res.x - truth["center"][0]
+    Y = res.y - truth["center"][1]
+    u_true = truth["t"][0] + truth["exx"] * X
+    v_true = truth["t"][1] + truth["eyy"] * Y
+    v = res.valid
+    assert v.mean() > 0.7
+    assert np.abs(res.u[v] - u_true[v]).max() < 0.02
+    assert np.abs(res.v[v] - v_true[v]).max() < 0.02
+
+
+def test_plate_with_hole_sample_and_kirsch_field():
+    from napari_aldic._sample_data import make_plate_with_hole
+    from napari_aldic.engine import correlate, synthetic
+
+    (stack, kw, _), (roi, _, kind) = make_plate_with_hole(size=256)
+    assert kind == "labels" and roi.shape == stack.shape[1:]
+    t = kw["metadata"]["truth"]
+    field = synthetic.PlateWithHole(center=tuple(t["center"]), radius=t["radius"],
+                                    amplitude=t["amplitude"], nu=t["nu"], t=tuple(t["t"]))
+    # far from the hole the Kirsch field is uniform uniaxial strain
+    kappa = (3 - field.nu) / (1 + field.nu)
+    g = field.gradient(np.array([5000.0]), np.array([4000.0]))
+    assert g[0][0] == pytest.approx(field.amplitude * (kappa + 1) / 2, rel=1e-3)
+    assert g[3][0] == pytest.approx(field.amplitude * (kappa - 3) / 2, rel=1e-3)
+    # the analysed field follows the Kirsch truth up to the hole
+    res = correlate(stack[0], stack[1], roi=roi > 0, step=8, method="aldic")
+    ut, vt = field.displacement(res.x, res.y)
+    v = res.valid
+    assert v.mean() > 0.85
+    assert np.sqrt(np.mean((res.u[v] - ut[v]) ** 2 + (res.v[v] - vt[v]) ** 2)) < 0.02

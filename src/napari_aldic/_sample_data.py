@@ -6,6 +6,8 @@ functions also work in scripts and tests.
 
 * :func:`make_translation_pair` - synthetic speckle pair, sub-pixel translation
 * :func:`make_crack_pair` - synthetic Mode-I crack, with the ROI as a Labels layer
+* :func:`make_strain_sequence` - 5 frames of uniform strain growing 0 -> 2 %
+* :func:`make_plate_with_hole` - Kirsch field around a hole, with its ROI
 * :func:`load_open_hole_pair` - real open-hole tension images (CFRP coupon)
 
 The synthetic pairs carry their exact displacement in the layer ``metadata``
@@ -18,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["make_translation_pair", "make_crack_pair", "load_open_hole_pair",
-           "sample_data_dir", "open_hole_roi"]
+__all__ = ["make_translation_pair", "make_crack_pair", "make_strain_sequence",
+           "make_plate_with_hole", "load_open_hole_pair", "sample_data_dir", "open_hole_roi"]
 
 #: translation of :func:`make_translation_pair`, pixels (u along x, v along y)
 TRANSLATION = (0.45, -0.3)
@@ -56,6 +58,49 @@ def make_crack_pair():
         (stack, {"name": "speckle Mode-I crack", "metadata": meta,
                  "contrast_limits": (0, 255)}, "image"),
         (labels, {"name": "ROI (crack excluded)", "opacity": 0.3}, "labels"),
+    ]
+
+
+def make_strain_sequence(n_frames: int = 5, size: int = 256):
+    """Synthetic ``(n_frames, size, size)`` uint8 sequence: uniform stretch
+    along x growing linearly from 0 to 2 % (``eyy = -0.3 exx``) about the
+    image centre, with a small drift."""
+    from .engine import synthetic
+
+    c = size / 2.0
+    pat = synthetic.make_pattern((size, size), seed=11, margin=48)
+    frames, truth = [], []
+    for k in range(n_frames):
+        e = 0.02 * k / max(1, n_frames - 1)
+        t = (0.25 * k, -0.15 * k)
+        field = synthetic.Affine.strain_rotation(exx=e, eyy=-0.3 * e, center=(c, c), t=t)
+        frames.append(synthetic.render(pat, (size, size), None if k == 0 else field,
+                                       n_quad=3, seed=20 + k))
+        truth.append({"exx": e, "eyy": -0.3 * e, "center": [c, c], "t": list(t)})
+    meta = {"truth": {"field": "uniform_strain", "frames": truth},
+            "description": "uniform strain growing 0 -> 2 % over the frames"}
+    return [(np.stack(frames), {"name": "speckle uniform strain sequence", "metadata": meta,
+                                "contrast_limits": (0, 255)}, "image")]
+
+
+def make_plate_with_hole(size: int = 320):
+    """Synthetic plate with a central hole under tension along x (Kirsch
+    field, far-field exx ~ 0.9 %): a ``(2, size, size)`` uint8 stack and the
+    ROI (outside the hole) as a Labels layer."""
+    from .engine import synthetic
+
+    c = size / 2.0
+    field = synthetic.PlateWithHole(center=(c, c), radius=size / 8.0, amplitude=0.004,
+                                    t=(0.3, -0.2))
+    ref, dfm = synthetic.speckle_pair((size, size), field, seed=13, n_quad=3)
+    meta = {"truth": {"field": "plate_with_hole", "center": [c, c], "radius": field.radius,
+                      "amplitude": field.amplitude, "nu": field.nu, "t": list(field.t)},
+            "description": "Kirsch field: plate with a hole under uniaxial tension (x)"}
+    return [
+        (np.stack([ref, dfm]), {"name": "speckle plate with hole", "metadata": meta,
+                                "contrast_limits": (0, 255)}, "image"),
+        (field.roi((size, size)).astype(np.uint8),
+         {"name": "ROI (hole excluded)", "opacity": 0.3}, "labels"),
     ]
 
 

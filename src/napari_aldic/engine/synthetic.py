@@ -34,6 +34,7 @@ __all__ = [
     "Rotation",
     "Sinusoid",
     "ModeICrack",
+    "PlateWithHole",
     "Sum",
 ]
 
@@ -219,6 +220,55 @@ class ModeICrack(DisplacementField):
         r = np.maximum(self.tip[0] - np.asarray(X, float), 0.0)
         kappa = (3 - self.nu) / (1 + self.nu)
         return 2 * self.amplitude * np.sqrt(r) * (kappa + 1)
+
+
+@dataclass
+class PlateWithHole(DisplacementField):
+    """Kirsch field: an infinite plate with a circular hole under uniaxial
+    tension along x (plane stress), plus an optional translation ``t``.
+
+    With polar coordinates ``(r, theta)`` about ``center``, hole radius ``a``
+    (pixels), ``A = S / (4 mu)`` (``amplitude``: remote stress over four times
+    the shear modulus) and ``kappa = (3 - nu) / (1 + nu)``:
+
+    ``u_r = A [r ((kappa - 1)/2 + cos 2t) + a^2/r (1 + (1 + kappa) cos 2t) - a^4/r^3 cos 2t]``
+    ``u_t = A [(1 - kappa) a^2/r - r - a^4/r^3] sin 2t``
+
+    Far from the hole this is uniform strain ``exx = A (kappa + 1) / 2``,
+    ``eyy = A (kappa - 3) / 2``. There is no material inside the hole: the
+    deformed image shows the background there.
+    """
+
+    center: tuple = (128.0, 128.0)
+    radius: float = 30.0
+    amplitude: float = 0.004
+    nu: float = 0.3
+    t: tuple = (0.0, 0.0)
+
+    def displacement(self, X, Y):
+        dX = np.asarray(X, float) - self.center[0]
+        dY = np.asarray(Y, float) - self.center[1]
+        r = np.maximum(np.hypot(dX, dY), 1e-9)
+        th = np.arctan2(dY, dX)
+        a, A = self.radius, self.amplitude
+        kappa = (3 - self.nu) / (1 + self.nu)
+        c2, s2 = np.cos(2 * th), np.sin(2 * th)
+        ur = A * (r * ((kappa - 1) / 2 + c2) + a**2 / r * (1 + (1 + kappa) * c2)
+                  - a**4 / r**3 * c2)
+        ut = A * ((1 - kappa) * a**2 / r - r - a**4 / r**3) * s2
+        u = ur * np.cos(th) - ut * np.sin(th)
+        v = ur * np.sin(th) + ut * np.cos(th)
+        return u + self.t[0], v + self.t[1]
+
+    def inverse(self, x, y, iters: int = 60, tol: float = 1e-10):
+        X, Y = super().inverse(x, y, iters, tol)
+        hole = np.hypot(X - self.center[0], Y - self.center[1]) < self.radius
+        return np.where(hole, np.nan, X), np.where(hole, np.nan, Y)
+
+    def roi(self, shape) -> np.ndarray:
+        """Reference-image ROI: True outside the hole."""
+        yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+        return np.hypot(xx - self.center[0], yy - self.center[1]) > self.radius
 
 
 @dataclass
