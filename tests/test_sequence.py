@@ -122,3 +122,32 @@ def test_incremental_in_parallel_matches_sequential(stack):
     v = par[4].valid & seq[4].valid
     assert v.mean() > 0.6
     np.testing.assert_allclose(par[4].u[v], seq[4].u[v], atol=2e-3)
+
+
+def test_cancel_inside_a_frame_is_prompt(stack):
+    from napari_aldic.engine import Cancelled, correlate
+
+    calls = []
+
+    def cancel():
+        calls.append(1)
+        return len(calls) > 3  # stop a few stages into the analysis
+
+    with pytest.raises(Cancelled):
+        correlate(stack[0], stack[1], method="aldic", cancel=cancel)
+    assert len(calls) == 4  # it stopped at the first check that said so
+
+    done = []
+    state = {"frame": 0}
+
+    def cancel_in_frame_3():
+        return state["frame"] == 3 and len(done) == 2
+
+    def progress(k, frac, msg):
+        state["frame"] = k
+        if "done" in msg:
+            done.append(k)
+
+    seq = track(stack[:6], step=12, cancel=cancel_in_frame_3, progress=progress)
+    assert seq.meta["cancelled"]
+    assert seq[1] is not None and seq[2] is not None and seq[3] is None

@@ -16,6 +16,7 @@ from .results import DICResult, load_result
 from .strain import StrainResult, compute_strain
 from .sequence import SequenceResult, open_stack, track
 from .units import Units
+from .progress import Cancelled
 from .export import (EncoderNotFoundError, ExportError, collect_frames, export_csv,
                      export_davis, export_gif, export_mat, export_mp4, export_png,
                      export_result, export_vtu, field_figure, load_mat, load_params,
@@ -42,6 +43,7 @@ __all__ = [
     "synthetic",
     "displacement_figure",
     "Units",
+    "Cancelled",
     "ExportError",
     "EncoderNotFoundError",
     "export_result",

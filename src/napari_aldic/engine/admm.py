@@ -55,7 +55,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
              mesh: Q4Mesh, u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray,
              trusted: np.ndarray, usable: np.ndarray, *, mu: float, beta: float,
              step: float, max_iter: int, tol: float, icgn_max_iter: int, icgn_tol: float,
-             solver: GlobalSolver | None = None) -> tuple[ADMMState, GlobalSolver]:
+             solver: GlobalSolver | None = None,
+             on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
     """Run AL-DIC ADMM from a Local DIC result.
 
     Parameters
@@ -65,6 +66,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     usable : nodes whose subset can be correlated at all (mask component OK).
     mu, beta : dimensionless penalties (see module docstring).
     solver : a :class:`GlobalSolver` to reuse (same mesh and weights).
+    on_iteration : callable(k), optional; called before ADMM iteration k
+        (a progress / cancellation point).
     """
     timing = {"global_factorise": 0.0, "global_solve": 0.0, "local": 0.0}
     t = time.perf_counter()
@@ -88,6 +91,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     active = usable.copy()
     grad = solver.gradients(uh, vh)
     for k in range(max_iter):
+        if on_iteration is not None:
+            on_iteration(k + 1)
         F = solver.gradients(uh, vh)
         # nodes outside every element keep their own local gradient
         F[~solver.covered] = grad0[~solver.covered]

@@ -17,6 +17,7 @@ from .images import validate_pair, validate_roi
 from .local import Images, correlation_floor, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .params import DICParams
+from .progress import CancelFn, check_cancel
 from .reasons import Reason
 from .results import DICResult
 from .subsets import SubsetMasks, split_subsets
@@ -51,7 +52,8 @@ def _versions() -> dict[str, str]:
 def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
               method: str = "local", *, params: DICParams | None = None,
               refine=None, guess: DICResult | None = None,
-              progress: ProgressFn | None = None, **kwargs) -> DICResult:
+              progress: ProgressFn | None = None, cancel: CancelFn | None = None,
+              **kwargs) -> DICResult:
     """Measure the displacement field between two images by subset DIC.
 
     Parameters
@@ -82,6 +84,9 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         usual. ``track`` passes the previous frame.
     progress : callable(fraction, message), optional
         Called as the analysis advances.
+    cancel : callable() -> bool, optional
+        Polled between stages (and between repair waves and ADMM
+        iterations); returning True raises :class:`~napari_aldic.engine.progress.Cancelled`.
     **kwargs
         Any other :class:`DICParams` field (``search``, ``tol``, ...).
 
@@ -101,7 +106,12 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     """
     t_start = time.perf_counter()
     params = _merge_params(params, subset, step, method, kwargs)
-    report = progress or (lambda frac, msg: None)
+    user_report = progress or (lambda frac, msg: None)
+
+    def report(frac: float, msg: str) -> None:
+        check_cancel(cancel)  # every progress point is a cancellation point
+        user_report(frac, msg)
+
     timing: dict[str, float] = {}
 
     t = time.perf_counter()
@@ -194,7 +204,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
         im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
         mesh, sol.u, sol.v, sol.grad, trusted, trusted,
         mu=params.mu, beta=params.beta, step=params.step, max_iter=params.admm_max_iter,
-        tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol)
+        tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol,
+        on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
+                                      f"ADMM iteration {k}"))
     for k, val in state.timing.items():
         timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
     zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)

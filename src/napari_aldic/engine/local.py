@@ -265,6 +265,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
         tries = np.zeros(n, np.int8)
         has = nbrs1 >= 0
         while True:
+            report(0.8, "repairing failed nodes")
             nb_good = np.zeros(nbrs1.shape, bool)
             nb_good[has] = good[nbrs1[has]]
             cand = np.nonzero(usable & ~good & (tries < 2) & nb_good.any(axis=1))[0]

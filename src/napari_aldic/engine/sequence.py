@@ -34,15 +34,12 @@ import numpy as np
 
 from .correlate import correlate
 from .params import DICParams
+from .progress import Cancelled
 from .results import DICResult, load_result
 
 __all__ = ["FrameSource", "open_stack", "SequenceResult", "track", "Cancelled"]
 
 _IMAGE_EXT = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
-
-
-class Cancelled(Exception):
-    """Raised inside ``track`` when the cancel hook asks to stop."""
 
 
 def _natural_key(name: str):
@@ -337,7 +334,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         Called with each frame's final (frame-0 referenced) result as soon as
         it is computed, e.g. to save or display it.
     cancel : callable() -> bool, optional
-        Polled before each frame; True stops the run (finished frames kept).
+        Polled before each frame and between the stages of a frame; True
+        stops the run promptly (finished frames kept, the frame in progress
+        dropped).
 
     Returns
     -------
@@ -430,8 +429,12 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
             if i - 1 not in todo and i > 1:
                 prev_inc = None  # previous frame came from disk: no increment at hand
             report(idx[i], (i - 1) / (len(idx) - 1), f"frame {idx[i]} against frame {r}")
-            inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params, guess=prev_inc,
-                            refine=refine)
+            try:  # cancel also stops promptly inside a frame
+                inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params,
+                                guess=prev_inc, refine=refine, cancel=cancel)
+            except Cancelled:
+                cancelled = True
+                break
             prev_inc = inc
             finish(i, inc)
     else:
