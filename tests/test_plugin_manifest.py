@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-npe2 = pytest.importorskip("npe2")
+import npe2  # noqa: E402  (testing extra)
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("napari")
-pytest.importorskip("pytestqt")
+import napari  # noqa: E402,F401  (testing extra: the GUI tests must run, not skip)
+import pytestqt  # noqa: E402,F401
 
 from napari_aldic._widget import DICWidget  # noqa: E402
 
@@ -27,6 +27,16 @@ def _run(widget, qtbot):
     widget.run_button.clicked()
     assert widget.running
     qtbot.waitUntil(lambda: not widget.running, timeout=TIMEOUT_MS)
+
+
+@pytest.fixture(autouse=True)
+def _fresh_notifications():
+    """Start every test with an empty notification log (other test files
+    raise errors on purpose, and napari's manager is process-wide)."""
+    from napari.utils.notifications import notification_manager
+
+    notification_manager.records.clear()
+    yield
 
 
 def _errors():

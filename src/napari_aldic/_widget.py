@@ -8,10 +8,13 @@ layers (:mod:`._layers`). Qt is reached only through magicgui and qtpy.
 
 from __future__ import annotations
 
+import math
+import os
 import queue
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,6 +35,7 @@ from ._analysis import Analysis, StrainSettings, run_analysis
 from ._layers import FIELDS, LAYER_NAMES, Display, Geometry, analysis_layers, layer_name
 from ._roi import build_roi, labels_mask, points_xy
 from .engine import DICParams
+from .engine.units import Units
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
@@ -41,6 +45,19 @@ __all__ = ["DICWidget"]
 _SUBTRACT_WORDS = ("hole", "crack", "mask", "exclude", "subtract", "notch", "cut")
 _LENGTH_UNITS = {"px": "pixel", "nm": "nm", "µm": "µm", "mm": "mm", "cm": "cm", "m": "m"}
 _TIME_UNITS = {"frame": "pixel", "ms": "ms", "s": "s", "min": "min", "h": "h"}
+# other spellings of the units accepted in a parameter file
+_LENGTH_ALIASES = {"pixel": "px", "pixels": "px", "um": "µm", "\u03bcm": "µm", "micron": "µm",
+                   "microns": "µm", "micrometer": "µm", "micrometre": "µm",
+                   "nanometer": "nm", "nanometre": "nm", "millimeter": "mm",
+                   "millimetre": "mm", "centimeter": "cm", "centimetre": "cm",
+                   "meter": "m", "metre": "m"}
+_TIME_ALIASES = {"frames": "frame", "sec": "s", "second": "s", "seconds": "s",
+                 "millisecond": "ms", "milliseconds": "ms", "minute": "min",
+                 "minutes": "min", "hour": "h", "hours": "h"}
+#: DICParams fields that the widget shows (the others are kept from a loaded file)
+_PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init")
+_STRAIN_KEYS = ("window", "method", "measure")
+_TRACKING_KEYS = ("reference", "start", "stop", "stride")
 
 
 def _is_result_layer(layer) -> bool:
@@ -82,6 +99,9 @@ class DICWidget(Container):
         self._analysis_image = None
         self._syncing = False
         self._units_applied: tuple | None = None  # (pixel size, interval) last applied
+        # DICParams fields not shown in the widget, kept from a loaded parameter file
+        self._extra_params: dict[str, Any] = {}
+        self._settings_dir: Path | None = None  # folder of the last parameter file
         self.running = False
 
         def layers_of(kind: str, optional: bool = False):
@@ -201,6 +221,16 @@ class DICWidget(Container):
                                  tooltip="Show fields, vectors, nodes and mesh where the "
                                          "material is in each frame instead of in the "
                                          "reference frame.")
+        # ---- parameter files
+        self.save_params_button = PushButton(
+            text="Save parameters…",
+            tooltip="Write the analysis settings (correlation, tracking and frame range, "
+                    "strain, units) to a readable JSON file; it also works with "
+                    "'napari-aldic run STACK --params FILE.json'.")
+        self.load_params_button = PushButton(
+            text="Load parameters…",
+            tooltip="Set every parameter from a JSON file saved here or written by "
+                    "'napari-aldic params' / 'run --params-out'.")
         # ---- run
         self.run_button = PushButton(text="Run")
         self.cancel_button = PushButton(text="Cancel", enabled=False)
@@ -228,8 +258,10 @@ class DICWidget(Container):
         ])
         buttons = Container(widgets=[self.run_button, self.cancel_button], layout="horizontal",
                             labels=False)
-        self._footer = Container(widgets=[self.status, buttons, self.progress, self.eta,
-                                          self.log], labels=False)
+        files = Container(widgets=[self.save_params_button, self.load_params_button],
+                          layout="horizontal", labels=False)
+        self._footer = Container(widgets=[self.status, files, buttons, self.progress,
+                                          self.eta, self.log], labels=False)
         for sel in (self.roi_add, self.roi_subtract):
             sel.native.setMaximumHeight(64)
         from qtpy.QtWidgets import QComboBox
@@ -270,6 +302,8 @@ class DICWidget(Container):
         self.native.destroyed.connect(lambda *_: self._close())
         self.run_button.changed.connect(self.run)
         self.cancel_button.changed.connect(self.cancel)
+        self.save_params_button.changed.connect(self._on_save_clicked)
+        self.load_params_button.changed.connect(self._on_load_clicked)
         for lay in list(layers):
             self._auto_assign(lay)
         self._on_image_changed()
@@ -530,13 +564,8 @@ class DICWidget(Container):
         data = img.data[0] if img.multiscale else img.data
         n, rows, cols = data.shape
         roi, notes = self._roi((rows, cols))
-        seeds = ()
-        if self.init.value == "seeds":
-            seeds = tuple(map(tuple, points_xy(self.seeds.value, img)))
-        refine = None if self.refine.value == "none" else self.refine.value
-        params = DICParams(subset=int(self.subset.value), step=int(self.step.value),
-                           method=self.method.value, init=self.init.value, seeds=seeds,
-                           search=int(self.search.value), refine=refine)
+        params = self._current_params()
+        seeds, refine = params.seeds, params.refine
         brush = None
         if self.brush.value is not None:
             brush = labels_mask(self.brush.value, (rows, cols), self.start.value)
@@ -556,10 +585,314 @@ class DICWidget(Container):
                    + (f" ({len(seeds)} seeds)" if seeds else "")
                    + f", refinement {refine or 'none'}"
                    + (f" + brush region ({int(brush.sum())} px)" if brush is not None else "")
-                   + f"; strain {strain.method}, window {strain.window}, {strain.measure}")
+                   + f"; strain {strain.method}, window {strain.window}, {strain.measure}"
+                   + (f"; from the parameter file: {_describe_extra(self._extra_params)}"
+                      if self._extra_params else ""))
         return _Job(stack=data, roi=roi, params=params, reference=self.reference.value,
                     start=int(self.start.value), stop=stop, stride=int(self.stride.value),
                     brush=brush, strain=strain, source=img.name, summary=summary)
+
+    # ------------------------------------------------------------ parameter files
+    def _current_params(self) -> DICParams:
+        """The DICParams of the controls (seed points from the seeds layer, in image
+        pixels), with the fields the widget does not show from the last loaded file."""
+        seeds: tuple = ()
+        if self.init.value == "seeds":
+            layer = self.seeds.value
+            if layer is None or len(layer.data) == 0:
+                raise ValueError("the initial guess 'Seed points' needs a Points layer with at "
+                                 "least one point (choose it under 'Seeds (points)')")
+            img = self.image.value
+            xy = (points_xy(layer, img) if img is not None
+                  else np.asarray(layer.data, float)[:, -2:][:, ::-1])
+            seeds = tuple((float(x), float(y)) for x, y in xy)
+        extra = dict(self._extra_params)
+        if extra.get("search_max") is not None and extra["search_max"] < self.search.value:
+            extra["search_max"] = int(self.search.value)  # the search cannot start wider
+        return DICParams.from_dict({
+            **extra, "method": self.method.value, "subset": int(self.subset.value),
+            "step": int(self.step.value), "search": int(self.search.value),
+            "refine": None if self.refine.value == "none" else self.refine.value,
+            "init": self.init.value, "seeds": seeds})
+
+    def _current_units(self) -> Units:
+        ps, unit = float(self.pixel_size.value), self.unit.value
+        if unit == "px" and ps != 1.0:
+            raise ValueError(f"the pixel size is {ps:g} with the length unit 'px': choose the "
+                             "physical unit of the pixel size (e.g. µm), or set the pixel size "
+                             "to 1")
+        if self.time_unit.value == "frame":  # no physical time: frame numbers only
+            return Units(ps, unit)
+        return Units(ps, unit, float(self.frame_interval.value), self.time_unit.value)
+
+    def current_settings(self) -> dict[str, Any]:
+        """The complete analysis settings of the controls, as
+        :func:`~napari_aldic.engine.export.save_params` takes them:
+        ``{"params": DICParams, "units": Units, "strain": dict, "tracking": dict}``.
+
+        Raises ``ValueError`` when the controls do not make valid settings (an
+        even subset, 'Seed points' without points, a pixel size in 'px' ...).
+        """
+        return {
+            "params": self._current_params(),
+            "units": self._current_units(),
+            "strain": {"window": int(self.strain_window.value),
+                       "method": self.strain_method.value,
+                       "measure": self.strain_measure.value},
+            "tracking": {"reference": self.reference.value, "start": int(self.start.value),
+                         "stop": int(self.stop.value), "stride": int(self.stride.value)},
+        }
+
+    def save_settings(self, path) -> Path | None:
+        """Write the current settings to the JSON file ``path`` (``.json`` is
+        appended when missing) with :func:`~napari_aldic.engine.export.save_params`.
+
+        Returns the path written, or ``None`` after an error notification and a
+        log line (nothing is written then). The file also works with
+        ``napari-aldic run STACK --params FILE.json``.
+        """
+        from napari.utils.notifications import show_error
+
+        from .engine.export import save_params
+
+        try:
+            s = self.current_settings()
+            written = save_params(path, s["params"], units=s["units"], strain=s["strain"],
+                                  tracking=s["tracking"])
+        except Exception as exc:  # invalid settings, unwritable file: explain, never crash
+            msg = _message(exc)
+            self._log(f"ERROR saving the parameters to {path}: {msg}")
+            show_error(f"napari-aldic: could not save the parameters: {msg}")
+            return None
+        self._settings_dir = written.parent
+        self._log(f"parameters saved to {written}: {self._settings_summary()}")
+        return written
+
+    def load_settings(self, path) -> bool:
+        """Set every control from a parameter file (see :meth:`save_settings`;
+        also files of ``napari-aldic params`` / ``run --params-out``, or a plain
+        JSON object of DICParams fields).
+
+        The whole file is checked first: an unreadable file or invalid content
+        gives an error notification and a log line, and leaves the widget
+        unchanged (returns ``False``). Sections missing from the file (units,
+        strain, tracking) leave their controls as they are. DICParams fields the
+        widget does not show (e.g. ``interpolation``, ``mu``) are kept for runs
+        and for saving. Seed points of the file are added as a Points layer when
+        no seeds layer with points is chosen. A frame range beyond the current
+        stack is clamped to it (noted in the log).
+        """
+        from napari.utils.notifications import show_error, show_warning
+
+        try:
+            plan, extra, seeds, notes = self._settings_plan(path)
+        except Exception as exc:  # unreadable or invalid file: nothing is changed
+            msg = _message(exc)
+            self._log(f"ERROR loading parameters from {path}: {msg}")
+            show_error(f"napari-aldic: could not load the parameters: {msg}")
+            return False
+        units_before = self._unit_values()
+        before = [(w, w.value) for w, _ in plan]
+        extra_before = self._extra_params
+        try:
+            self._apply_plan(plan)
+            self._extra_params = extra
+            if seeds:
+                self._restore_seeds(seeds, notes)
+        except Exception as exc:  # pragma: no cover - the plan was checked beforehand
+            try:
+                self._apply_plan(before)
+            except Exception:
+                pass
+            self._extra_params = extra_before
+            msg = _message(exc)
+            self._log(f"ERROR loading parameters from {path}: {msg}")
+            show_error(f"napari-aldic: could not load the parameters: {msg}")
+            self._validate()
+            return False
+        if self._unit_values() != units_before:
+            try:  # rescale the image and its layers once, for all unit controls
+                self._on_units_changed()
+            except Exception as exc:  # pragma: no cover - a layer refusing its scale
+                show_error(f"napari-aldic: could not apply the units: {_message(exc)}")
+                self._log(f"ERROR applying the units: {_message(exc)}")
+        self._settings_dir = Path(os.fspath(path)).expanduser().parent
+        self._log(f"parameters loaded from {path}: {self._settings_summary()}")
+        if extra:
+            self._log(f"kept from the file (not shown in the widget): "
+                      f"{_describe_extra(extra)}")
+        for note in notes:
+            self._log(note)
+        if any(n.startswith("frame range") for n in notes):
+            show_warning("napari-aldic: " + next(n for n in notes
+                                                 if n.startswith("frame range")))
+        self._validate()
+        return True
+
+    def _settings_plan(self, path):
+        """Read and check a parameter file: ``(plan, extra, seeds, notes)``, the
+        plan a list of ``(control, value)``; raises ``ValueError`` on any problem."""
+        from .engine.export import load_settings as read_settings
+
+        s = read_settings(path)
+        params: DICParams = s["params"]
+        plan: list[tuple[Any, Any]] = []
+        notes: list[str] = []
+
+        def put(widget, value, what: str) -> None:
+            _check_value(widget, value, what)
+            plan.append((widget, value))
+
+        put(self.method, params.method, "method")
+        put(self.subset, params.subset, "subset")
+        put(self.step, params.step, "step")
+        put(self.search, params.search, "search")
+        put(self.refine, params.refine or "none", "refinement")
+        put(self.init, params.init, "initial guess")
+        defaults = DICParams().to_dict()
+        extra = {k: v for k, v in params.to_dict().items()
+                 if k not in _PARAM_CONTROLS and k != "seeds" and v != defaults[k]}
+        seeds = params.seeds if params.init == "seeds" else ()
+
+        strain = _section(s["strain"], "strain", _STRAIN_KEYS)
+        if "window" in strain:
+            window = _as_int(strain["window"], "strain window")
+            if window % 2 == 0:
+                raise ValueError(f"strain window {window} must be odd")
+            put(self.strain_window, window, "strain window")
+        if "method" in strain:
+            put(self.strain_method, strain["method"], "strain method")
+        if "measure" in strain:
+            put(self.strain_measure, strain["measure"], "strain measure")
+
+        tracking = _section(s["tracking"], "tracking", _TRACKING_KEYS)
+        if "reference" in tracking:
+            put(self.reference, tracking["reference"], "tracking")
+        if "stride" in tracking:
+            put(self.stride, _as_int(tracking["stride"], "frame stride"), "frame stride")
+        start = stop = None
+        if tracking.get("start") is not None:
+            start = _as_int(tracking["start"], "first frame")
+            if start < 0:
+                raise ValueError(f"first frame {start} must be >= 0")
+        if tracking.get("stop") is not None:
+            stop = _as_int(tracking["stop"], "last frame")
+            if stop < 1:
+                raise ValueError(f"last frame {stop} must be >= 1")
+            if start is not None and not start < stop:
+                raise ValueError(f"the first frame ({start}) must come before the last "
+                                 f"frame ({stop})")
+        elif "stop" in tracking:  # null: the last frame of the stack
+            stop = int(self.stop.max)
+        shape = self._stack_shape()
+        n = shape[0] if shape is not None and len(shape) == 3 else None
+        stack = f"the stack has {n} frames" if n else "no image stack is chosen"
+        if start is not None:
+            if start > self.start.max:
+                notes.append(f"frame range: first frame {start} of the file is beyond the "
+                             f"stack ({stack}); using {self.start.max}")
+                start = int(self.start.max)
+            plan.append((self.start, start))
+        if stop is not None:
+            if stop > self.stop.max:
+                notes.append(f"frame range: last frame {stop} of the file is beyond the "
+                             f"stack ({stack}); using {self.stop.max}")
+                stop = int(self.stop.max)
+            plan.append((self.stop, stop))
+
+        units: Units | None = s["units"]
+        if units is not None:
+            unit = _unit_name(units.unit, _LENGTH_UNITS, _LENGTH_ALIASES, "length unit")
+            put(self.unit, unit, "length unit")
+            put(self.pixel_size, units.pixel_size, "pixel size")
+            if units.frame_interval is None:
+                put(self.time_unit, "frame", "time unit")
+                put(self.frame_interval, 1.0, "frame interval")
+            else:
+                t_unit = _unit_name(units.time_unit, _TIME_UNITS, _TIME_ALIASES, "time unit")
+                put(self.time_unit, t_unit, "time unit")
+                put(self.frame_interval, units.frame_interval, "frame interval")
+        return plan, extra, seeds, notes
+
+    def _apply_plan(self, plan) -> None:
+        self._syncing = True  # units are applied to the layers once, afterwards
+        try:
+            for widget, value in plan:
+                if isinstance(widget, FloatSpinBox):
+                    _fit_decimals(widget, float(value))
+                widget.value = value
+        finally:
+            self._syncing = False
+
+    def _unit_values(self) -> tuple:
+        return (self.pixel_size.value, self.unit.value, self.frame_interval.value,
+                self.time_unit.value)
+
+    def _restore_seeds(self, seeds, notes: list[str]) -> None:
+        """Seed points ``(x, y)`` in image pixels as a new Points layer, unless a
+        seeds layer with points is chosen already."""
+        layer = self.seeds.value
+        if layer is not None and len(layer.data):
+            notes.append(f"the file's {len(seeds)} seed point(s) were not added: the seeds "
+                         f"layer '{layer.name}' is used")
+            return
+        img = self.image.value
+        rc = np.array([(y, x) for x, y in seeds], float)
+        kwargs: dict[str, Any] = {}
+        if img is not None:  # the image's pixel grid (its current scale and offset)
+            kwargs = {"scale": tuple(img.scale)[-2:], "translate": tuple(img.translate)[-2:]}
+        new = self._viewer.add_points(rc, name="seeds (loaded)", size=6, face_color="cyan",
+                                      **kwargs)
+        if img is not None:
+            try:
+                new.units = [str(u) for u in img.units][-2:]
+            except Exception:  # units are cosmetic here; the scale is what counts
+                pass
+        self.seeds.value = new
+        notes.append(f"{len(seeds)} seed point(s) from the file added as the Points layer "
+                     f"'{new.name}'")
+
+    def _settings_summary(self) -> str:
+        refine = self.refine.value
+        t = ("frame numbers" if self.time_unit.value == "frame"
+             else f"frame interval {self.frame_interval.value:g} {self.time_unit.value}")
+        return (f"method {self.method.value}, subset {self.subset.value} px, step "
+                f"{self.step.value} px, search {self.search.value} px, refinement {refine}, "
+                f"init {self.init.value}; {self.reference.value}, frames "
+                f"{self.start.value}..{self.stop.value} every {self.stride.value}; strain "
+                f"{self.strain_method.value}, window {self.strain_window.value}, "
+                f"{self.strain_measure.value}; pixel size {self.pixel_size.value:g} "
+                f"{self.unit.value}, {t}")
+
+    def _settings_start(self, name: str = "") -> str:
+        """Where the file dialogs open: the last parameter file's folder, else the
+        image's folder, else the working folder."""
+        folder = self._settings_dir
+        if folder is None:
+            img = self.image.value
+            src = getattr(getattr(img, "source", None), "path", None) if img is not None else None
+            folder = Path(src).parent if src else Path.cwd()
+        return str(folder / name) if name else str(folder)
+
+    def _on_save_clicked(self, *_) -> None:
+        from qtpy.QtWidgets import QFileDialog
+
+        img = self.image.value
+        stem = "".join(c if c.isalnum() or c in "-_." else "_" for c in img.name) \
+            if img is not None else "dic"
+        path, _ = QFileDialog.getSaveFileName(self.native, "Save DIC parameters",
+                                              self._settings_start(f"{stem}_parameters.json"),
+                                              _JSON_FILTER)
+        if path:
+            self.save_settings(path)
+
+    def _on_load_clicked(self, *_) -> None:
+        from qtpy.QtWidgets import QFileDialog
+
+        path, _ = QFileDialog.getOpenFileName(self.native, "Load DIC parameters",
+                                              self._settings_start(), _JSON_FILTER)
+        if path:
+            self.load_settings(path)
 
     # ------------------------------------------------------------ running
     def run(self, *_) -> None:
@@ -609,6 +942,7 @@ class DICWidget(Container):
     def _set_running(self, running: bool) -> None:
         self.running = running
         self.cancel_button.enabled = running
+        self.load_params_button.enabled = not running  # a run keeps the settings it started with
         self._validate()
 
     def _on_progress(self, item) -> None:
@@ -744,6 +1078,81 @@ class DICWidget(Container):
         self.log.value = (self.log.value + "\n" if self.log.value else "") + f"[{stamp}] {text}"
         bar = self.log.native.verticalScrollBar()
         bar.setValue(bar.maximum())
+
+
+_JSON_FILTER = "DIC parameters (*.json);;All files (*)"
+
+
+def _message(exc: BaseException) -> str:
+    """One line describing an error."""
+    msg = str(exc) or exc.__class__.__name__
+    if isinstance(exc, FileNotFoundError) and not str(exc).strip():
+        msg = f"no such file: {exc.filename}"
+    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
+
+
+def _describe_extra(extra: dict) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in extra.items())
+
+
+def _section(value, name: str, keys: tuple[str, ...]) -> dict:
+    """A settings section as a dict (``{}`` when absent), unknown keys rejected."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ValueError(f"the '{name}' section must be a JSON object with "
+                         f"{', '.join(keys)}")
+    unknown = sorted(set(value) - set(keys))
+    if unknown:
+        raise ValueError(f"unknown {name} setting(s) {unknown}; valid names are {list(keys)}")
+    return value
+
+
+def _as_int(value, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            (isinstance(value, float) and not value.is_integer()):
+        raise ValueError(f"{what} {value!r} must be a whole number")
+    return int(value)
+
+
+def _unit_name(name, known: dict, aliases: dict, what: str) -> str:
+    """The widget's spelling of a unit name from a file."""
+    if isinstance(name, str):
+        if name in known:
+            return name
+        alias = aliases.get(name.strip().lower(), aliases.get(name.strip()))
+        if alias is not None:
+            return alias
+    raise ValueError(f"{what} {name!r} is not one the widget offers ({', '.join(known)})")
+
+
+def _check_value(widget, value, what: str) -> None:
+    """Raise ``ValueError`` unless ``widget`` can take ``value`` as it is."""
+    if isinstance(widget, ComboBox):
+        if value not in widget.choices:
+            raise ValueError(f"{what} {value!r} is not one of {list(widget.choices)}")
+        return
+    if isinstance(widget, FloatSpinBox):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not math.isfinite(value):
+            raise ValueError(f"{what} {value!r} must be a number")
+    elif isinstance(widget, SpinBox):
+        value = _as_int(value, what)
+    if not widget.min <= value <= widget.max:
+        raise ValueError(f"{what} {value:g} is outside the range {widget.min:g}..{widget.max:g} "
+                         "of the widget")
+
+
+def _fit_decimals(spin: FloatSpinBox, value: float) -> None:
+    """Show enough decimals in ``spin`` to hold ``value`` exactly (up to 10)."""
+    native = spin.native
+    if not hasattr(native, "decimals"):  # pragma: no cover - another backend
+        return
+    d = native.decimals()
+    while d < 10 and abs(round(value, d) - value) > 1e-12 * max(1.0, abs(value)):
+        d += 1
+    if d > native.decimals():
+        native.setDecimals(d)
 
 
 def _update_layer(layer, data, kw: dict, kind: str) -> bool:
