@@ -114,6 +114,14 @@ def _sample_cubic_many(c1, stride, xw, yw, out, m):
 
 
 @nb.njit(inline="always")
+def _buffers(npx):
+    """Per-task work arrays: subset offsets, reference gradients and values,
+    warped positions and sampled grey values."""
+    return (np.empty(npx), np.empty(npx), np.empty(npx), np.empty(npx), np.empty(npx),
+            np.empty(npx), np.empty(npx), np.empty(npx, np.float32))
+
+
+@nb.njit(inline="always")
 def _gather(f, fgx, fgy, masks, sl, x0, y0, h, dxs, dys, gx, gy, fs):
     """Copy the node's subset pixels (its mask component only) into buffers.
 
@@ -216,17 +224,10 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     S = 2 * h + 1
     npx_max = S * S
     nchunks = (n + _CHUNK - 1) // _CHUNK
-    xmax = cols - 1.0
+    xmax = cols - 1.0  # deformed samples must stay inside the image
     ymax = rows - 1.0
     for c in nb.prange(nchunks):
-        dxs = np.empty(npx_max)
-        dys = np.empty(npx_max)
-        gx = np.empty(npx_max)
-        gy = np.empty(npx_max)
-        fs = np.empty(npx_max)
-        xw = np.empty(npx_max)
-        yw = np.empty(npx_max)
-        gv = np.empty(npx_max, np.float32)
+        dxs, dys, gx, gy, fs, xw, yw, gv = _buffers(npx_max)
         H = np.empty((6, 6))
         L = np.zeros((6, 6))
         b = np.empty(6)
@@ -424,17 +425,10 @@ def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, a
     S = 2 * h + 1
     npx_max = S * S
     nchunks = (n + _CHUNK - 1) // _CHUNK
-    xmax = cols - 1.0
+    xmax = cols - 1.0  # deformed samples must stay inside the image
     ymax = rows - 1.0
     for c in nb.prange(nchunks):
-        dxs = np.empty(npx_max)
-        dys = np.empty(npx_max)
-        gx = np.empty(npx_max)
-        gy = np.empty(npx_max)
-        fs = np.empty(npx_max)
-        xw = np.empty(npx_max)
-        yw = np.empty(npx_max)
-        gv = np.empty(npx_max, np.float32)
+        dxs, dys, gx, gy, fs, xw, yw, gv = _buffers(npx_max)
         for k in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
             if not active[k]:
                 continue
