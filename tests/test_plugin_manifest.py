@@ -6,9 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
-import npe2  # noqa: E402  (testing extra)
+import npe2
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -131,7 +131,6 @@ def test_manifest_is_valid_and_lists_the_samples():
 
 
 def test_npe2_cli_validates_manifest():
-    import npe2  # noqa: F401
     exe = Path(sys.executable).parent / "npe2"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "npe2"]
     proc = subprocess.run(cmd + ["validate", str(REPO / "napari.yaml")],

@@ -29,7 +29,7 @@ correlation-error criterion, three levels). Element sizes never go below
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -172,7 +172,7 @@ def flag_elements(cells: np.ndarray, roi: np.ndarray, ref: Refinement, half: int
     return flags
 
 
-def _balance(cells: set, level_of: dict, base_size: int) -> set:
+def _balance(cells: set) -> set:
     """Split leaves until edge neighbours differ by at most one level (2:1)."""
     changed = True
     while changed:
@@ -209,7 +209,6 @@ def _balance(cells: set, level_of: dict, base_size: int) -> set:
 def refine_cells(base_cells: np.ndarray, flags_fn, ref: Refinement) -> np.ndarray:
     """Split flagged cells level by level, then 2:1-balance; returns leaves (x0, y0, size)."""
     cells = {tuple(int(v) for v in c) for c in base_cells}
-    base = int(base_cells[0, 2]) if len(base_cells) else 0
     min_size = max(2, int(ref.min_size))
     for _ in range(max(1, int(ref.levels))):
         arr = np.array(sorted(cells), dtype=np.int64)
@@ -222,7 +221,7 @@ def refine_cells(base_cells: np.ndarray, flags_fn, ref: Refinement) -> np.ndarra
             cells.discard((x0, y0, s))
             h = s // 2
             cells.update({(x0, y0, h), (x0 + h, y0, h), (x0, y0 + h, h), (x0 + h, y0 + h, h)})
-    cells = _balance(cells, {}, base)
+    cells = _balance(cells)
     return np.array(sorted(cells), dtype=np.int64)
 
 
@@ -326,8 +325,3 @@ def _mesh_from_cells(grid, roi: np.ndarray, leaves: np.ndarray) -> QuadMesh:
         if kept_cells.size else np.zeros(0, np.int64)
     mesh = Q4Mesh(x, y, e.astype(np.int64), hang, level)
     return QuadMesh(mesh, base_index, kept_cells)
-
-
-def with_levels(ref: Refinement, levels: int) -> Refinement:
-    """A copy of ``ref`` with a different number of levels."""
-    return replace(ref, levels=levels)
