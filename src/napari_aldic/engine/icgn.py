@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .interpolation import PAD, sample_quintic
+from .interpolation import PAD
 from .reasons import Reason
 
 # fast-math without the no-NaN/no-inf assumptions, so NaN checks survive
@@ -113,6 +113,49 @@ def _sample_cubic_many(c1, stride, xw, yw, out, m):
         out[q] = wy0 * r0 + wy1 * r1 + wy2 * r2 + wy3 * r3
 
 
+@nb.njit(inline="always", fastmath=_FM)
+def _quintic_weights(t):
+    """Quintic B-spline weights for taps at offsets -2..3 (0 <= t < 1), float32."""
+    one = np.float32(1.0)
+    c = np.float32(1.0 / 120.0)
+    s = one - t
+    a1 = one + t
+    b1 = np.float32(2.0) - t
+    b2 = np.float32(3.0) - t
+    s5 = s * s * s * s * s
+    t5 = t * t * t * t * t
+    w0 = s5 * c
+    w1 = (b1 * b1 * b1 * b1 * b1 - np.float32(6.0) * s5) * c
+    w2 = (b2 * b2 * b2 * b2 * b2 - np.float32(6.0) * b1 * b1 * b1 * b1 * b1
+          + np.float32(15.0) * s5) * c
+    w4 = (a1 * a1 * a1 * a1 * a1 - np.float32(6.0) * t5) * c
+    w5 = t5 * c
+    w3 = one - w0 - w1 - w2 - w4 - w5  # weights sum to one
+    return w0, w1, w2, w3, w4, w5
+
+
+@nb.njit(inline="always", fastmath=_FM)
+def _sample_quintic_many(c1, stride, xw, yw, out, m):
+    """Quintic B-spline samples at (xw, yw)[:m] (>= 0); see ``_sample_cubic_many``."""
+    for q in range(m):
+        x = xw[q]
+        y = yw[q]
+        xi = np.int64(x)
+        yi = np.int64(y)
+        wx0, wx1, wx2, wx3, wx4, wx5 = _quintic_weights(np.float32(x - xi))
+        wy0, wy1, wy2, wy3, wy4, wy5 = _quintic_weights(np.float32(y - yi))
+        b = (yi + PAD - 2) * stride + xi + PAD - 2
+        acc = np.float32(0.0)
+        for r in range(6):
+            wy = wy0 if r == 0 else wy1 if r == 1 else wy2 if r == 2 else \
+                wy3 if r == 3 else wy4 if r == 4 else wy5
+            row = (wx0 * c1[b] + wx1 * c1[b + 1] + wx2 * c1[b + 2] + wx3 * c1[b + 3]
+                   + wx4 * c1[b + 4] + wx5 * c1[b + 5])
+            acc += wy * row
+            b += stride
+        out[q] = acc
+
+
 @nb.njit(inline="always")
 def _buffers(npx):
     """Per-task work arrays: subset offsets, reference gradients and values,
@@ -176,8 +219,7 @@ def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
     if order == 3:
         _sample_cubic_many(c1, stride, xw, yw, gv, m)
     else:
-        for q in range(m):
-            gv[q] = sample_quintic(coef, xw[q], yw[q])
+        _sample_quintic_many(c1, stride, xw, yw, gv, m)
     for q in range(m):
         g = np.float64(gv[q])
         dx = dxs[q]
