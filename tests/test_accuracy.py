@@ -145,3 +145,30 @@ def test_sixteen_bit_and_float_inputs_agree_with_eight_bit():
     eu, ev, sel = _errors(a, field)
     assert np.sqrt(np.mean(eu**2 + ev**2)) <= 0.005
     np.testing.assert_allclose(a.u, b.u, atol=1e-4)
+
+
+def test_auto_interpolation_handles_fine_speckle():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    n = 192
+    base = ndimage.gaussian_filter(rng.random((n, n)), 0.8)
+    base = (base - base.min()) / (base.max() - base.min()) * 200 + 20
+    F = np.fft.fft2(base)
+    ky = np.fft.fftfreq(n)[:, None]
+    kx = np.fft.fftfreq(n)[None, :]
+    shift = 0.3
+    # an exact sub-pixel shift of a band-limited pattern (Fourier phase ramp)
+    dfm = np.real(np.fft.ifft2(F * np.exp(-2j * np.pi * (kx * shift + ky * shift))))
+    ref8, dfm8 = np.round(base).astype(np.uint8), np.round(dfm).astype(np.uint8)
+    auto = correlate(ref8, dfm8)
+    cubic = correlate(ref8, dfm8, interpolation="cubic")
+    assert auto.meta["interpolation"] == "quintic"
+    inner = lambda r: r.valid & (r.x > 30) & (r.x < 160) & (r.y > 30) & (r.y < 160)  # noqa: E731
+    bias_auto = abs(auto.u[inner(auto)].mean() - shift)
+    bias_cubic = abs(cubic.u[inner(cubic)].mean() - shift)
+    assert bias_auto <= 0.005
+    assert bias_auto < 0.6 * bias_cubic
+    # ordinary speckle keeps the faster cubic splines
+    ref, dfm = S.speckle_pair((128, 128), S.Translation(0.3, 0.1), seed=1)
+    assert correlate(ref, dfm).meta["interpolation"] == "cubic"

@@ -205,7 +205,7 @@ def test_file_from_cli_or_engine_loads_and_keeps_advanced_fields(make_napari_vie
     assert widget.load_settings(tmp_path / "plain.json")
     assert (widget.subset.value, widget.step.value, widget.method.value) == (33, 7, "local")
     assert widget.unit.value == "µm" and widget.reference.value == "incremental"
-    assert widget.current_settings()["params"].interpolation == "cubic"  # from this file
+    assert widget.current_settings()["params"].interpolation == "auto"  # default again
 
     # a frame range beyond a shorter stack is clamped, with a note
     (tmp_path / "long.json").write_text(json.dumps(

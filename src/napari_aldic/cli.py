@@ -162,7 +162,7 @@ def _add_param_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--search-max", type=int, dest="search_max",
                    help="largest search half-range in px (default: automatic)")
     p.add_argument("--method", choices=("local", "aldic"), help="solver (default local)")
-    p.add_argument("--interpolation", choices=("cubic", "quintic"),
+    p.add_argument("--interpolation", choices=("auto", "cubic", "quintic"),
                    help="B-spline order (default cubic)")
     p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
 

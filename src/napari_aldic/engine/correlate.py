@@ -127,7 +127,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     timing["prefilter"] = time.perf_counter() - t
     report(0.15, "interpolation ready")
 
-    meta = {"versions": _versions()}
+    meta = {"versions": _versions(),
+            "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
     with _numba_threads(params.n_threads):
         sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess)
         if ref_spec is not None and ref_spec.error:

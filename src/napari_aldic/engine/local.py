@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from .icgn import icgn_solve
 from .init_guess import ncc_search_widening
-from .interpolation import SplineImage, prefilter, reference_gradients
+from .interpolation import SplineImage, choose_order, prefilter, reference_gradients
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
 from .params import DICParams
@@ -47,8 +47,9 @@ class Images:
 
 
 def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
-    """Prefilter once: reference gradients and deformed-image coefficients."""
-    order = 3 if interpolation == "cubic" else 5
+    """Prefilter once: reference gradients and deformed-image coefficients
+    (``interpolation="auto"`` picks the order from the speckle size)."""
+    order = choose_order(interpolation, f)
     fgx, fgy = reference_gradients(prefilter(f, order))
     return Images(f, g, fgx, fgy, prefilter(g, order))
 
