@@ -66,7 +66,7 @@ def correlation_floor(zncc: np.ndarray, converged: np.ndarray, params: DICParams
 
 
 def _propagate_seeds(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
-                     run, accept, p, zncc, reason):
+                     run, store, p, zncc, iters, reason):
     """Seed-propagation initial guess.
 
     Each seed is solved by a cross-correlation search over the whole image
@@ -111,31 +111,55 @@ def _propagate_seeds(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: 
                                     accept=0.9)
     active = np.zeros(n, bool)
     active[seed_nodes] = True
-    accept(run(active, p_init), seed_nodes, only_better=False)
+    store(run(active, p_init), seed_nodes)
     solved = active & (reason == Reason.OK) & (zncc >= params.zncc_min)
     if not solved.any():
         raise ValueError("no seed could be matched in the deformed image; move the seeds to "
                          "well-textured material")
-    attempted = active.copy()
-    nbrs = lattice_neighbours(grid, roi, radius=1)
+    tries = _grow(grid, lattice_neighbours(grid, roi, radius=1), solved, usable, run,
+                  p, zncc, iters, reason, params.zncc_min, max_tries=1)
+    # unreachable from any seed through converged nodes
+    reason[usable & ~active & (tries == 0)] = Reason.NO_INITIAL_GUESS
+
+
+def _grow(grid: NodeGrid, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray, run,
+          p, zncc, iters, reason, zmin: float, max_tries: int, report=None) -> np.ndarray:
+    """Grow the ``good`` set into the other ``eligible`` nodes, wave by wave.
+
+    Each eligible node next to a good one restarts IC-GN from its best good
+    neighbour (highest ZNCC), extrapolated to first order with that
+    neighbour's gradient; converged nodes with ZNCC >= ``zmin`` join the good
+    set. A failed attempt only replaces a node's state when it had none yet
+    (so earlier results are never lost). Each node gets ``max_tries``
+    attempts. Used by seed propagation and by the repair stage. Updates
+    ``good`` and the state arrays in place; returns the attempts per node.
+    """
+    tries = np.zeros(grid.n, np.int8)
+    has = nbrs >= 0
+    active = np.zeros(grid.n, bool)
     while True:
-        has = nbrs >= 0
-        nb_solved = np.zeros(nbrs.shape, bool)
-        nb_solved[has] = solved[nbrs[has]]
-        cand = np.nonzero(usable & ~attempted & nb_solved.any(axis=1))[0]
+        if report is not None:
+            report(0.8, "growing trusted regions")
+        nb_good = np.zeros(nbrs.shape, bool)
+        nb_good[has] = good[nbrs[has]]
+        cand = np.nonzero(eligible & ~good & (tries < max_tries) & nb_good.any(axis=1))[0]
         if cand.size == 0:
-            break
-        score = np.where(nb_solved[cand], zncc[np.where(has[cand], nbrs[cand], 0)], -np.inf)
+            return tries
+        score = np.where(nb_good[cand], zncc[np.where(has[cand], nbrs[cand], 0)], -np.inf)
         src = nbrs[cand, np.argmax(score, axis=1)]
-        p_init[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
-                                    grid.y[cand] - grid.y[src])
+        p_try = p.copy()
+        p_try[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
+                                   grid.y[cand] - grid.y[src])
         active[:] = False
         active[cand] = True
-        accept(run(active, p_init), cand, only_better=False)
-        attempted[cand] = True
-        solved[cand] = (reason[cand] == Reason.OK) & (zncc[cand] >= params.zncc_min)
-    never = usable & ~attempted  # unreachable from any seed through converged nodes
-    reason[never] = Reason.NO_INITIAL_GUESS
+        rp, rz, ri, rr = run(active, p_try)
+        ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin)
+        take = cand[ok | ~np.isfinite(zncc[cand])]
+        p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+        tries[cand] += 1
+        if not ok.any():
+            return tries
+        good[cand[ok]] = True
 
 
 def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
@@ -165,14 +189,16 @@ def _ncc_guess(im: Images, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
 
 def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
                 timing: dict, report: ProgressFn, guess=None):
-    """Local IC-GN at every node with a coarse-to-fine initial guess.
+    """Local IC-GN at every node.
 
-    1. NCC at coarse nodes (every k-th lattice node), IC-GN there.
-    2. Every other node starts from its nearest converged coarse node,
-       extrapolated to first order with that node's gradient; IC-GN.
-    3. Nodes that fail (no convergence, low ZNCC, divergence) are retried
-       from their nearest converged neighbour, then from their own NCC search;
-       a retry is kept only if it converges with a higher ZNCC.
+    1. Initial guess: a previous result (``guess``), seed propagation, or NCC
+       at coarse nodes (every k-th lattice node) whose IC-GN solutions start
+       every other node (nearest converged coarse node, extrapolated to first
+       order with its gradient).
+    2. Repair: nodes that failed, correlate poorly or fail the median test
+       restart from trusted neighbours wave by wave (:func:`_grow`), then
+       from their own NCC search (FFT mode), and grow again.
+    3. What still fails is flagged (LOW_CORRELATION, OUTLIER, or its reason).
     """
     n = grid.n
     h = params.half
@@ -187,17 +213,10 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
         return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, p_init, active,
                           sub.slot, sub.masks, h, params.max_iter, params.tol, out=out)
 
-    def accept(res, nodes: np.ndarray, only_better: bool):
+    def store(res, nodes: np.ndarray):
         rp, rz, ri, rr = res
-        take = nodes
-        if only_better:
-            new_ok = (rr[nodes] == Reason.OK) & (rz[nodes] >= params.zncc_min)
-            old_ok = (reason[nodes] == Reason.OK) & (zncc[nodes] >= params.zncc_min)
-            take = nodes[new_ok & (~old_ok | (rz[nodes] > zncc[nodes]))]
-        p[take] = rp[take]
-        zncc[take] = rz[take]
-        iters[take] = ri[take]
-        reason[take] = rr[take]
+        p[nodes], zncc[nodes], iters[nodes], reason[nodes] = (rp[nodes], rz[nodes], ri[nodes],
+                                                              rr[nodes])
 
     p_init = np.zeros((n, 6))
     active = np.zeros(n, bool)
@@ -212,10 +231,10 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
         p_init[:] = _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
         timing["init"] = time.perf_counter() - t
         active[:] = usable
-        accept(run(active, p_init), np.nonzero(usable)[0], only_better=False)
+        store(run(active, p_init), np.nonzero(usable)[0])
     elif params.init == "seeds":
         t = time.perf_counter()
-        _propagate_seeds(im, roi, grid, sub, params, run, accept, p, zncc, reason)
+        _propagate_seeds(im, roi, grid, sub, params, run, store, p, zncc, iters, reason)
         timing["init"] = 0.0
     else:
         t = time.perf_counter()
@@ -230,7 +249,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
 
         t = time.perf_counter()
         active[coarse] = True
-        accept(run(active, p_init), coarse, only_better=False)
+        store(run(active, p_init), coarse)
         good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
         rest = np.nonzero(usable & ~active)[0]
         if rest.size:
@@ -244,7 +263,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
                 p_init[rest] = _ncc_guess(im, grid, sub, rest, params)
             active[:] = False
             active[rest] = True
-            accept(run(active, p_init), rest, only_better=False)
+            store(run(active, p_init), rest)
     timing["icgn"] = time.perf_counter() - t
     report(0.8, "IC-GN done")
 
@@ -259,41 +278,14 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
         return ok & ~median_test(p[:, 0], p[:, 3], ok, nbrs5)
 
     def repair_waves() -> None:
-        """Grow trusted regions into bad ones, as seed propagation does: each
-        bad node next to a trusted one restarts from it (first-order
-        extrapolation); converged nodes join the trusted set, wave by wave."""
-        good = good_nodes()
-        tries = np.zeros(n, np.int8)
-        has = nbrs1 >= 0
-        while True:
-            report(0.8, "repairing failed nodes")
-            nb_good = np.zeros(nbrs1.shape, bool)
-            nb_good[has] = good[nbrs1[has]]
-            cand = np.nonzero(usable & ~good & (tries < 2) & nb_good.any(axis=1))[0]
-            if cand.size == 0:
-                return
-            score = np.where(nb_good[cand], zncc[np.where(has[cand], nbrs1[cand], 0)], -np.inf)
-            src = nbrs1[cand, np.argmax(score, axis=1)]
-            p_try = p.copy()
-            p_try[cand] = _extrapolate(p[src], grid.x[cand] - grid.x[src],
-                                       grid.y[cand] - grid.y[src])
-            active[:] = False
-            active[cand] = True
-            rp, rz, ri, rr = run(active, p_try)
-            ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin)
-            take = cand[ok]
-            p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
-            # a failed attempt keeps the node's earlier result (and reason)
-            tries[cand] += 1
-            tries[take] = 2
-            if take.size == 0:
-                return
-            good[take] = True
+        """Grow trusted regions into failed, poor or inconsistent nodes."""
+        _grow(grid, nbrs1, good_nodes(), usable, run, p, zncc, iters, reason, zmin,
+              max_tries=2, report=report)
 
     repair_waves()
     bad = np.nonzero(usable & ~good_nodes() & (reason != Reason.OUT_OF_IMAGE))[0]
     if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
-        p_try = p_init.copy()
+        p_try = p.copy()
         p_try[bad] = _ncc_guess(im, grid, sub, bad, params)
         active[:] = False
         active[bad] = True
