@@ -151,3 +151,13 @@ def test_cancel_inside_a_frame_is_prompt(stack):
     seq = track(stack[:6], step=12, cancel=cancel_in_frame_3, progress=progress)
     assert seq.meta["cancelled"]
     assert seq[1] is not None and seq[2] is not None and seq[3] is None
+
+
+def test_results_name_their_input_frames(stack, tmp_path):
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for k in range(3):
+        tifffile.imwrite(folder / f"img_{k}.tif", stack[k])
+    seq = track(folder, step=16, reference="incremental")
+    assert seq[2].meta["inputs"]["reference"].endswith("img_1.tif")
+    assert seq[2].meta["inputs"]["deformed"].endswith("img_2.tif")

@@ -13,7 +13,7 @@ import numpy as np
 from .admm import run_admm
 from .global_solve import Q4Mesh, uniform_mesh
 from .quadtree import Refinement, build_quadtree, resolve_refinement
-from .images import validate_pair, validate_roi
+from .images import as_gray_float, validate_pair, validate_roi
 from .local import Images, correlation_floor, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .params import DICParams
@@ -22,7 +22,7 @@ from .reasons import Reason
 from .results import DICResult
 from .subsets import SubsetMasks, split_subsets
 
-__all__ = ["correlate"]
+__all__ = ["correlate", "reference_result"]
 
 ProgressFn = Callable[[float, str], None]
 
@@ -172,6 +172,28 @@ class _Solution:
     u_local: np.ndarray | None = None
     v_local: np.ndarray | None = None
     history: list | None = None
+
+
+def reference_result(image, roi=None, params: DICParams | None = None,
+                     refine=None) -> DICResult:
+    """The zero field at the nodes ``correlate`` would use for ``image`` as
+    reference (frame 0 of a sequence), without correlating anything: nodes
+    whose mask component is too small keep that reason, the rest are valid."""
+    params = params or DICParams()
+    img = as_gray_float(image, "reference image")
+    mask = validate_roi(roi, img.shape)
+    base = make_grid(mask, params.subset, params.step)
+    grid, qmesh = _nodes(base, mask, resolve_refinement(refine if refine is not None
+                                                        else params.refine), params)
+    sub = split_subsets(mask, grid, params.subset, params.min_component)
+    n = grid.n
+    mesh = qmesh.mesh if qmesh is not None else None
+    sol = _Solution(sub, np.zeros(n), np.zeros(n), np.zeros((n, 4)),
+                    np.where(sub.reason == Reason.OK, 1.0, np.nan), sub.reason.copy(),
+                    np.zeros(n, np.int32), mesh)
+    meta = {"versions": _versions(), "n_nodes": n, "frame": 0,
+            "n_valid": int(np.count_nonzero(sub.reason == Reason.OK))}
+    return _assemble(sol, grid, img.shape, params, meta, mask)
 
 
 def _merge_params(params, subset, step, method, kwargs) -> DICParams:

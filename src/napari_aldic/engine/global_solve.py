@@ -78,10 +78,6 @@ class Q4Mesh:
     def n_elements(self) -> int:
         return int(self.elements.shape[0])
 
-    def element_size(self) -> np.ndarray:
-        e = self.elements
-        return self.x[e[:, 1]] - self.x[e[:, 0]]
-
     def prolongation(self) -> tuple[sp.csr_matrix, np.ndarray]:
         """``(T, free)``: û = T @ û[free]; hanging nodes expressed by free ones."""
         n = self.n_nodes

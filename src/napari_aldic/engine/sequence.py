@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from .correlate import correlate
+from .correlate import correlate, reference_result
 from .params import DICParams
 from .progress import Cancelled
 from .results import DICResult, load_result
@@ -158,16 +158,6 @@ class SequenceResult:
     @property
     def complete(self) -> bool:
         return all(r is not None for r in self.frames)
-
-
-def _zero_result(res: DICResult) -> DICResult:
-    z = np.zeros_like(res.u)
-    out = DICResult(**{**res.__dict__})
-    for name in ("u", "v", "dudx", "dudy", "dvdx", "dvdy"):
-        setattr(out, name, z.copy())
-    out.zncc = np.ones_like(res.zncc)
-    out.meta = {**res.meta, "frame": 0}
-    return out
 
 
 def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
@@ -379,8 +369,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     t0 = time.perf_counter()
     results: list = [None] * len(idx)
     ref_img = src[0]
-    base = correlate(ref_img, ref_img, roi=roi_for(0), params=params, refine=refine)
-    results[0] = _zero_result(base)
+    results[0] = reference_result(ref_img, roi=roi_for(0), params=params, refine=refine)
     if out is not None and not (out / "frame_00000.npz").exists():
         results[0].save(out / "frame_00000.npz")  # the reference: zero field, its nodes
 
@@ -401,6 +390,8 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         res = inc if r == 0 else _compose(results[idx.index(r)], inc)
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
+        res.meta.setdefault("inputs", {"reference": src.frame_name(r),
+                                       "deformed": src.frame_name(k), "frame": k})
         results[i] = res
         if path_of(k) is not None:
             res.save(path_of(k))
@@ -418,7 +409,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
             todo.append(i)
     cancelled = False
     if scheduler is None:
-        ref_k, ref_img, prev_inc = 0, src[0], None
+        ref_k, prev_inc = 0, None  # ref_img is frame 0, read above
         for i in todo:
             if cancel is not None and cancel():
                 cancelled = True
