@@ -41,6 +41,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .subsets import integral_image, rect_sums
+
 __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
            "element_inside_roi"]
 
@@ -131,8 +133,6 @@ def uniform_mesh(grid, roi: np.ndarray) -> Q4Mesh:
 def element_inside_roi(x: np.ndarray, y: np.ndarray, elements: np.ndarray,
                        roi: np.ndarray) -> np.ndarray:
     """True for elements whose whole rectangle (pixels) lies in the ROI."""
-    from .subsets import integral_image
-
     if roi.all():
         return np.ones(elements.shape[0], bool)
     ii = integral_image((~roi).view(np.uint8))
@@ -140,8 +140,7 @@ def element_inside_roi(x: np.ndarray, y: np.ndarray, elements: np.ndarray,
     y0 = np.rint(y[elements[:, 0]]).astype(np.int64)
     x1 = np.rint(x[elements[:, 2]]).astype(np.int64)
     y1 = np.rint(y[elements[:, 2]]).astype(np.int64)
-    holes = ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]
-    return holes == 0
+    return rect_sums(ii, x0, y0, x1, y1) == 0
 
 
 def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:

@@ -14,15 +14,11 @@ import numba as nb
 import numpy as np
 
 from .mesh import NodeGrid
-from .subsets import integral_image
+from .subsets import integral_image, rect_sums
 
 __all__ = ["lattice_neighbours", "median_test"]
 
 _RADIUS = 2  # lattice neighbourhood: 5 x 5 nodes
-
-
-def _window_count(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:
-    return ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]
 
 
 def lattice_neighbours(grid: NodeGrid, roi: np.ndarray, radius: int = _RADIUS) -> np.ndarray:
@@ -61,7 +57,7 @@ def lattice_neighbours(grid: NodeGrid, roi: np.ndarray, radius: int = _RADIUS) -
         jj = j[has]
         xa, ya, xb, yb = grid.x[has], grid.y[has], grid.x[jj], grid.y[jj]
         # a segment whose bounding box is all ROI is certainly connected
-        holes = _window_count(ii, np.minimum(xa, xb), np.minimum(ya, yb),
+        holes = rect_sums(ii, np.minimum(xa, xb), np.minimum(ya, yb),
                               np.maximum(xa, xb), np.maximum(ya, yb))
         check = np.nonzero(holes > 0)[0]
         if check.size:

@@ -35,7 +35,7 @@ import numpy as np
 from scipy import ndimage
 
 from .global_solve import Q4Mesh, element_inside_roi
-from .subsets import integral_image
+from .subsets import integral_image, rect_sums
 
 __all__ = ["Refinement", "resolve_refinement", "QuadMesh", "build_quadtree", "PRESETS"]
 
@@ -134,7 +134,7 @@ def _rect_hits(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:
     y0 = np.clip(np.floor(y0).astype(np.int64), 0, h - 1)
     x1 = np.clip(np.ceil(x1).astype(np.int64), 0, w - 1)
     y1 = np.clip(np.ceil(y1).astype(np.int64), 0, h - 1)
-    return (ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]) > 0
+    return rect_sums(ii, x0, y0, x1, y1) > 0
 
 
 def flag_elements(cells: np.ndarray, roi: np.ndarray, ref: Refinement, half: int,

@@ -145,13 +145,11 @@ def _plane_fit(x, y, u, v, use, nbrs, min_pts, out):
         out[i, 3] = (cxx * cyv - cxy * cxv) / det
 
 
-def _neighbours(result: DICResult, radius: int, roi) -> np.ndarray:
+def _grid_of(result: DICResult):
     from .mesh import NodeGrid
-    from .outliers import lattice_neighbours
 
-    grid = NodeGrid(result.x.astype(np.int64), result.y.astype(np.int64), result.grid_ix,
+    return NodeGrid(result.x.astype(np.int64), result.y.astype(np.int64), result.grid_ix,
                     result.grid_iy, result.grid_xs, result.grid_ys)
-    return lattice_neighbours(grid, roi, radius=radius)
 
 
 def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit",
@@ -189,21 +187,20 @@ def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit"
     step = result.params.step
     use = np.asarray(result.valid, bool)
     if method == "plane_fit":
-        nbrs = _neighbours(result, (window - 1) // 2, roi)
+        from .outliers import lattice_neighbours
+
+        nbrs = lattice_neighbours(_grid_of(result), roi, radius=(window - 1) // 2)
         G = np.empty((len(result), 4))
         _plane_fit(result.x.astype(float), result.y.astype(float), result.u.astype(float),
                    result.v.astype(float), use, nbrs, 3, G)
         vsg = (window - 1) * step + result.params.subset
     else:
         from .global_solve import Q4Mesh, gradient_operator, uniform_mesh
-        from .mesh import NodeGrid
 
         if result.elements is not None:
             mesh = Q4Mesh(result.x, result.y, result.elements)
         else:
-            grid = NodeGrid(result.x.astype(np.int64), result.y.astype(np.int64),
-                            result.grid_ix, result.grid_iy, result.grid_xs, result.grid_ys)
-            mesh = uniform_mesh(grid, roi)
+            mesh = uniform_mesh(_grid_of(result), roi)
         e = mesh.elements
         ok_el = use[e].all(axis=1)  # only elements whose four corners are trusted
         mesh = Q4Mesh(mesh.x, mesh.y, e[ok_el])

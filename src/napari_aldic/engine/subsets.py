@@ -19,7 +19,7 @@ from scipy import ndimage
 
 from .reasons import Reason
 
-__all__ = ["SubsetMasks", "split_subsets", "integral_image"]
+__all__ = ["SubsetMasks", "split_subsets", "integral_image", "rect_sums"]
 
 
 @dataclass
@@ -58,10 +58,10 @@ def integral_image(mask):
     return ii
 
 
-def _window_sums(ii: np.ndarray, x: np.ndarray, y: np.ndarray, h: int) -> np.ndarray:
-    """Sums over the (2h+1)^2 windows centred at (x, y) from an integral image."""
-    y0, y1, x0, x1 = y - h, y + h + 1, x - h, x + h + 1
-    return ii[y1, x1] - ii[y0, x1] - ii[y1, x0] + ii[y0, x0]
+def rect_sums(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:
+    """Sums over the pixel rectangles [x0, x1] x [y0, y1] (inclusive) from an
+    integral image of :func:`integral_image`."""
+    return ii[y1 + 1, x1 + 1] - ii[y0, x1 + 1] - ii[y1 + 1, x0] + ii[y0, x0]
 
 
 def split_subsets(roi: np.ndarray, grid, subset: int,
@@ -79,7 +79,8 @@ def split_subsets(roi: np.ndarray, grid, subset: int,
     if roi.all():  # nothing cut: skip the integral image
         outside = np.zeros(grid.n, np.int64)
     else:
-        outside = _window_sums(integral_image((~roi).view(np.uint8)), grid.x, grid.y, h)
+        outside = rect_sums(integral_image((~roi).view(np.uint8)), grid.x - h, grid.y - h,
+                            grid.x + h, grid.y + h)
     slot = np.full(grid.n, -1, np.int32)
     fraction = np.ones(grid.n)
     reason = np.zeros(grid.n, np.int8)
