@@ -55,7 +55,7 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
              mesh: Q4Mesh, u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray,
              trusted: np.ndarray, usable: np.ndarray, *, mu: float, beta: float,
              step: float, max_iter: int, tol: float, icgn_max_iter: int, icgn_tol: float,
-             solver: GlobalSolver | None = None,
+             smooth: float = 0.0, second_order: bool = False, solver: GlobalSolver | None = None,
              on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
     """Run AL-DIC ADMM from a Local DIC result.
 
@@ -72,7 +72,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     timing = {"global_factorise": 0.0, "global_solve": 0.0, "local": 0.0}
     t = time.perf_counter()
     if solver is None:
-        solver = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted)
+        solver = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted,
+                              curvature=smooth**4 / (mu * step**2))
     timing["global_factorise"] = time.perf_counter() - t
     n = u0.size
     W = np.zeros((n, 4))
@@ -99,9 +100,15 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         target = np.column_stack([uh + vu, vh + vv])
         start = np.column_stack([u, v])
         t = time.perf_counter()
+        curv = None
+        if second_order:
+            curv = solver.second_gradients(uh, vh, 0.5 * half)
+            # subsets cut by a hole/crack/outline keep the affine warp: next to
+            # a discontinuity the smoothed curvature is one-sided and unreliable
+            curv[slot >= 0] = 0.0
         uv, zncc, iters, reason_k = icgn_solve_translation(
             f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F, target, mu, active,
-            slot, masks, half, icgn_max_iter, icgn_tol)
+            slot, masks, half, icgn_max_iter, icgn_tol, curvature=curv)
         timing["local"] += time.perf_counter() - t
         ok = active & (reason_k == Reason.OK)
         # failed local steps keep the previous value (no new information)

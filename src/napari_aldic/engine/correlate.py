@@ -13,6 +13,7 @@ import numpy as np
 from .admm import run_admm
 from .global_solve import Q4Mesh, uniform_mesh
 from .quadtree import Refinement, build_quadtree, resolve_refinement
+from .regularise import choose_smoothing, displacement_noise
 from .images import as_gray_float, validate_pair, validate_roi
 from .local import Images, correlation_floor, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
@@ -149,6 +150,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         meta["refine"] = _describe(ref_spec)
     if sol.history is not None:
         meta["admm_history"] = sol.history
+    if sol.regularisation is not None:
+        meta["regularisation"] = sol.regularisation
     timing["total"] = time.perf_counter() - t_start
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
@@ -172,6 +175,7 @@ class _Solution:
     u_local: np.ndarray | None = None
     v_local: np.ndarray | None = None
     history: list | None = None
+    regularisation: dict | None = None
 
 
 def reference_result(image, roi=None, params: DICParams | None = None,
@@ -223,10 +227,13 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
     trusted = reason == Reason.OK
+    smooth, table = _smoothing_length(im, grid, sub, mesh, sol, trusted, params)
+    timing["smoothing_choice"] = timing.get("smoothing_choice", 0.0) + table.pop("seconds")
     state, _ = run_admm(
         im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
         mesh, sol.u, sol.v, sol.grad, trusted, trusted,
-        mu=params.mu, beta=params.beta, step=params.step, max_iter=params.admm_max_iter,
+        mu=params.mu, beta=params.beta, step=params.step,
+        smooth=smooth, second_order=params.second_order_warp, max_iter=params.admm_max_iter,
         tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol,
         on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
                                       f"ADMM iteration {k}"))
@@ -238,7 +245,23 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     reason[conv & ~(zncc >= correlation_floor(zncc, conv, params))] = Reason.LOW_CORRELATION
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
-                     sol.u, sol.v, state.history)
+                     sol.u, sol.v, state.history, dict(table, smooth_px=smooth))
+
+
+def _smoothing_length(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
+                      sol: "_Solution", trusted: np.ndarray, params: DICParams):
+    """The AL-DIC smoothing length in pixels: the user's, or chosen by SURE."""
+    t = time.perf_counter()
+    if params.smooth != "auto":
+        return float(params.smooth), {"mode": "fixed", "seconds": 0.0}
+    var = displacement_noise(im.f, im.fgx, im.fgy, grid.x, grid.y, sub.slot, sub.masks,
+                             params.half, sol.zncc, im.g_spline.order)
+    ell, risks = choose_smoothing(mesh, sol.u, sol.v, trusted, var, params.step,
+                                  params.subset)
+    ok = trusted & np.isfinite(var).all(axis=1)
+    noise = float(np.sqrt(np.mean(var[ok].sum(axis=1)))) if ok.any() else float("nan")
+    return ell, {"mode": "auto", "predicted_local_noise_px": noise, "risk": risks,
+                 "seconds": time.perf_counter() - t}
 
 
 def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: dict,

@@ -187,6 +187,27 @@ def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.nd
     return Gx, Gy, count > 0
 
 
+def edge_difference(mesh: Q4Mesh) -> sp.csr_matrix:
+    """``B`` with one row per mesh edge: ``(B @ s)[e] = s[b] - s[a]``."""
+    e = mesh.elements
+    pairs = np.concatenate([e[:, [0, 1]], e[:, [1, 2]], e[:, [2, 3]], e[:, [3, 0]]])
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    m = pairs.shape[0]
+    rows = np.repeat(np.arange(m), 2)
+    vals = np.tile([-1.0, 1.0], m)
+    return sp.csr_matrix((vals, (rows, pairs.ravel())), shape=(m, mesh.n_nodes))
+
+
+def curvature_operator(mesh: Q4Mesh, Gx: sp.csr_matrix, Gy: sp.csr_matrix) -> sp.csr_matrix:
+    """``Kᵀ K`` with ``K = [B Gx; B Gy]``: the sum over mesh edges of the squared
+    change of the nodal gradient of a scalar field. Zero for any affine field
+    (uniform strain and rotation), so it smooths noise without biasing them."""
+    B = edge_difference(mesh)
+    BGx = B @ Gx
+    BGy = B @ Gy
+    return (BGx.T @ BGx + BGy.T @ BGy).tocsr()
+
+
 class GlobalSolver:
     """Solves ``(β GᵀG + μ diag(w)) û = β Gᵀ(F - W) + μ w (u - v)`` per component.
 
@@ -199,10 +220,11 @@ class GlobalSolver:
     """
 
     def __init__(self, mesh: Q4Mesh, beta: float, mu: float, weights: np.ndarray,
-                 direct: bool | None = None):
+                 direct: bool | None = None, curvature: float = 0.0):
         self.mesh = mesh
         self.beta = float(beta)
         self.mu = float(mu)
+        self.curvature = float(curvature)
         self.Gx, self.Gy, self.covered = gradient_operator(mesh)
         self.T, self.free = mesh.prolongation()
         self.w = np.where(weights, 1.0, UNTRUSTED_WEIGHT).astype(float)
@@ -213,6 +235,8 @@ class GlobalSolver:
         Wg = sp.diags(self.wg)
         L = (self.Gx.T @ Wg @ self.Gx + self.Gy.T @ Wg @ self.Gy)
         A = self.beta * L + self.mu * sp.diags(self.w)
+        if self.curvature > 0:
+            A = A + self.curvature * curvature_operator(mesh, self.Gx, self.Gy)
         self.A = (self.T.T @ A @ self.T).tocsc()
         n_free = self.A.shape[0]
         self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
@@ -222,10 +246,36 @@ class GlobalSolver:
             d = self.A.diagonal()
             self._M = sp.diags(1.0 / d)
         self._last = None
+        self._curv_lu = None
+        self._curv_len = None
+        self._step = float(np.median(np.diff(np.unique(mesh.x)))) if mesh.n_nodes > 1 else 1.0
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
         return np.column_stack([self.Gx @ uh, self.Gy @ uh, self.Gx @ vh, self.Gy @ vh])
+
+    def second_gradients(self, uh: np.ndarray, vh: np.ndarray, length: float) -> np.ndarray:
+        """Nodal second derivatives (N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy``
+        (1/px) of the field after smoothing it with the curvature smoother of
+        smoothing length ``length`` (pixels); zero at nodes in no element.
+
+        The smoothing keeps the estimate free of the high-wavenumber noise
+        that plain second differences would amplify, so feeding it back into
+        the local step stays a contraction."""
+        if self._curv_lu is None or self._curv_len != length:
+            K = self.T.T @ curvature_operator(self.mesh, self.Gx, self.Gy) @ self.T
+            A = (self.T.T @ self.T + (length**4 / self._step**2) * K).tocsc()
+            self._curv_lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+            self._curv_len = length
+        rhs = self.T.T @ np.column_stack([uh, vh])
+        sm = self.T @ self._curv_lu.solve(np.asfortranarray(rhs))
+        g = self.gradients(sm[:, 0], sm[:, 1])
+        Gx, Gy = self.Gx, self.Gy
+        ux, uy, vx, vy = g.T
+        out = np.column_stack([Gx @ ux, 0.5 * (Gy @ ux + Gx @ uy), Gy @ uy,
+                               Gx @ vx, 0.5 * (Gy @ vx + Gx @ vy), Gy @ vy])
+        out[~self.covered] = 0.0
+        return out
 
     def solve(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,
               vu: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

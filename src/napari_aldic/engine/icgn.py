@@ -192,12 +192,14 @@ def _gather(f, fgx, fgy, masks, sl, x0, y0, h, dxs, dys, gx, gy, fs):
 
 @nb.njit(inline="always", fastmath=_FM)
 def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-               dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax):
+               dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax, quad, qx, qy):
     """Warp the subset, sample the deformed image and return the sums of one
     Gauss-Newton step: ``(inside, sg, sgg, sfg, sum gx g, sum gx g dx,
     sum gx g dy, sum gy g, sum gy g dx, sum gy g dy)``.
 
-    The loops are split so that LLVM can vectorise the warp and the sums.
+    With ``quad`` the fixed per-pixel offsets ``qx, qy`` (second-order terms
+    of the warp) are added. The loops are split so that LLVM can vectorise
+    the warp and the sums.
     """
     xlo = ylo = 1e300
     xhi = yhi = -1e300
@@ -206,6 +208,9 @@ def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
         dy = dys[q]
         xv = x0 + dx + u + ux * dx + uy * dy
         yv = y0 + dy + v + vx * dx + vy * dy
+        if quad:
+            xv += qx[q]
+            yv += qy[q]
         xw[q] = xv
         yw[q] = yv
         xlo = min(xlo, xv)
@@ -240,12 +245,12 @@ def _warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
 
 @nb.njit(inline="always", fastmath=_FM)
 def _gn_step(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-             dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax):
+             dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, quad, qx, qy):
     """Sample the warped subset and return ``(status, zncc, df/dg, g mean,
     six gradient-weighted sums)``; status is OK, OUT_OF_IMAGE or NO_TEXTURE."""
     inside, sg, sgg, sfg, t0, t1, t2, t3, t4, t5 = _warp_sums(
         c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-        dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax)
+        dxs, dys, gx, gy, fs, m, xw, yw, gv, xmax, ymax, quad, qx, qy)
     if not inside:
         return _OUT, np.nan, 0.0, 0.0, t0, t1, t2, t3, t4, t5
     gm = sg / m
@@ -357,7 +362,7 @@ def _icgn_kernel(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                 it += 1
                 st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = _gn_step(
                     c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax)
+                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, False, xw, yw)
                 if st != _OK:
                     status = st
                     break
@@ -458,7 +463,7 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
 
 
 @nb.njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
-def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, active,
+def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, target, mu, active,
                   slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out, reason_out):
     n = nx.size
     rows, cols = f.shape
@@ -469,14 +474,26 @@ def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, a
     nchunks = (n + _CHUNK - 1) // _CHUNK
     xmax = cols - 1.0  # deformed samples must stay inside the image
     ymax = rows - 1.0
+    quad = curv.shape[0] == n
     for c in nb.prange(nchunks):
         dxs, dys, gx, gy, fs, xw, yw, gv = _buffers(npx_max)
+        qx = np.zeros(npx_max)
+        qy = np.zeros(npx_max)
         for k in range(c * _CHUNK, min(n, (c + 1) * _CHUNK)):
             if not active[k]:
                 continue
             x0 = nx[k]
             y0 = ny[k]
             m, fm, df2 = _gather(f, fgx, fgy, masks, slot[k], x0, y0, h, dxs, dys, gx, gy, fs)
+            if quad:
+                # fixed second-order part of the warp, from the global field
+                for q in range(m):
+                    dx = dxs[q]
+                    dy = dys[q]
+                    qx[q] = 0.5 * curv[k, 0] * dx * dx + curv[k, 1] * dx * dy \
+                        + 0.5 * curv[k, 2] * dy * dy
+                    qy[q] = 0.5 * curv[k, 3] * dx * dx + curv[k, 4] * dx * dy \
+                        + 0.5 * curv[k, 5] * dy * dy
             h00 = h01 = h11 = sj0 = sj3 = b0 = b3 = 0.0
             for q in range(m):
                 a1 = gx[q]
@@ -523,7 +540,7 @@ def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, a
                 it += 1
                 st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = _gn_step(
                     c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax)
+                    dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, quad, qx, qy)
                 if st != _OK:
                     status = st
                     break
@@ -555,7 +572,8 @@ def _icgn2_kernel(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, target, mu, a
 
 
 def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad, target,
-                           mu, active, slot, masks, half, max_iter=40, tol=1e-3):
+                           mu, active, slot, masks, half, max_iter=40, tol=1e-3,
+                           curvature=None):
     """AL-DIC local step: IC-GN on the displacement only, with the gradient fixed.
 
     Minimises, per node, ``SSD(u; F fixed) + mu' / 2 |u - target|^2`` where
@@ -569,11 +587,16 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     grad : (n, 4) fixed gradients (du/dx, du/dy, dv/dx, dv/dy).
     target : (n, 2) penalty targets ``û + v`` (scaled multiplier included).
     mu : float, dimensionless penalty weight.
+    curvature : (n, 6) or None
+        Fixed second derivatives ``(uxx, uxy, uyy, vxx, vxy, vyy)`` (1/px)
+        added to the warp as ``0.5 dXᵀ ∇∇u dX``; None keeps the warp affine.
 
     Returns
     -------
     uv, zncc, iters, reason
     """
+    curv = (np.zeros((0, 6)) if curvature is None
+            else np.ascontiguousarray(curvature, np.float64))
     n = nodes_x.size
     uv = np.array(uv_init, dtype=np.float64, copy=True)
     zn = np.full(n, np.nan)
@@ -581,6 +604,6 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     rs = np.full(n, _NOT_CONVERGED, np.int8)
     _icgn2_kernel(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
                   np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64),
-                  np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks,
+                  curv, np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks,
                   int(half), int(max_iter), float(tol), uv, zn, it, rs)
     return uv, zn, it, rs

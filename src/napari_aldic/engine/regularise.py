@@ -1,0 +1,214 @@
+"""Automatic strength of the AL-DIC curvature regulariser.
+
+Overlapping subsets make the errors of neighbouring Local DIC nodes strongly
+correlated (31 px subsets every 8 px share ~75 % of their pixels), so the
+compatibility constraints of Algorithm 1 alone cannot average noise away. The
+global step therefore may carry a third term, ``κ ‖K û‖²``, the squared change
+of the nodal displacement gradient along every mesh edge
+(:func:`~napari_aldic.engine.global_solve.curvature_operator`). It is zero for
+any affine field, so uniform strain and rigid motion are never biased; a
+displacement wave of wavenumber ``k`` is attenuated by about
+``1 / (1 + (k ℓ)^4)``, where ``ℓ`` (pixels) is the *smoothing length*.
+
+``ℓ`` is chosen per image pair by minimising Stein's unbiased risk estimate
+(SURE) of the linear smoother ``S_ℓ`` applied to the Local DIC field ``u_L``:
+
+    R(ℓ) = ‖S_ℓ u_L - u_L‖² + 2 tr(S_ℓ Σ) - tr(Σ),
+
+an unbiased estimate of ``E ‖S_ℓ u_L - u_true‖²`` for any noise covariance
+``Σ`` (C. M. Stein, Ann. Stat. 9, 1981). ``Σ`` is modelled from the images:
+
+* variance per node: ``2 σ_e² [H⁻¹]`` (noise in both images; ``H`` the 2x2
+  Gauss-Newton matrix of the subset), with the image noise ``σ_e²`` estimated
+  from the node's own ZNCC, ``σ_e² ≈ (1 - ZNCC) Σ(f - f̄)² / m``;
+* correlation between two nodes: the fraction of pixels their subsets share
+  (the product of the 1-D overlaps ``max(0, 1 - |Δ|/subset)``).
+
+The trace is evaluated with the Fourier symbols of ``S_ℓ`` and of the overlap
+correlation on the node lattice. Noise-free images give ``ℓ ≈ 0`` (plain
+Algorithm 1); noisy images of smooth fields get the smoothing that minimises
+the estimated error; fields with fine detail (crack tips, holes) raise the
+residual term and so get less smoothing.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .global_solve import Q4Mesh, curvature_operator, gradient_operator
+
+__all__ = ["displacement_noise", "choose_smoothing", "SMOOTH_CANDIDATES"]
+
+# candidate smoothing lengths, in units of the node spacing
+SMOOTH_CANDIDATES = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
+_SELECT_MAX_NODES = 40_000  # larger meshes: SURE on a central window of nodes
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _noise_kernel(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out):
+    n = xs.size
+    for i in nb.prange(n):
+        x0 = xs[i]
+        y0 = ys[i]
+        sl = slot[i]
+        m = 0
+        sf = 0.0
+        sff = 0.0
+        hxx = 0.0
+        hxy = 0.0
+        hyy = 0.0
+        for a in range(-h, h + 1):
+            for b in range(-h, h + 1):
+                if sl >= 0 and masks[sl, a + h, b + h] == 0:
+                    continue
+                fv = f[y0 + a, x0 + b]
+                gx = fgx[y0 + a, x0 + b]
+                gy = fgy[y0 + a, x0 + b]
+                sf += fv
+                sff += fv * fv
+                hxx += gx * gx
+                hxy += gx * gy
+                hyy += gy * gy
+                m += 1
+        if m == 0 or not one_minus_zncc[i] >= 0.0:
+            out[i, 0] = np.nan
+            out[i, 1] = np.nan
+            continue
+        var_e = one_minus_zncc[i] * (sff - sf * sf / m) / m
+        # the gradients of the noisy reference carry noise energy m var_e gain
+        # per direction; only the rest (the speckle's) makes the subset match
+        e = m * var_e * gain
+        sxx = max(hxx - e, 0.1 * hxx)
+        syy = max(hyy - e, 0.1 * hyy)
+        det = sxx * syy - hxy * hxy
+        if det <= 0.0:
+            out[i, 0] = np.nan
+            out[i, 1] = np.nan
+            continue
+        # covariance 2 var_e S^-1 H S^-1 (S: signal part of H)
+        a = syy / det
+        b = -hxy / det
+        c = sxx / det
+        out[i, 0] = 2.0 * var_e * (a * a * hxx + 2 * a * b * hxy + b * b * hyy)
+        out[i, 1] = 2.0 * var_e * (b * b * hxx + 2 * b * c * hxy + c * c * hyy)
+
+
+def gradient_noise_gain(order: int) -> float:
+    """Variance of the spline derivative of unit white noise at the pixel
+    centres (:func:`~napari_aldic.engine.interpolation.reference_gradients`)."""
+    w = np.linspace(0, np.pi, 4097)
+    if order == 3:
+        d = 6 * np.sin(w) / (4 + 2 * np.cos(w))
+    else:
+        d = (100 * np.sin(w) + 10 * np.sin(2 * w)) / (66 + 52 * np.cos(w) + 2 * np.cos(2 * w))
+    return float(np.mean(d**2))
+
+
+def displacement_noise(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int,
+                       zncc: np.ndarray, order: int = 3) -> np.ndarray:
+    """Predicted noise variance (px²) of the local displacement at each node.
+
+    Returns
+    -------
+    (n, 2) float64
+        Variances of ``u`` and ``v``; NaN where the node has no usable subset
+        or no ZNCC.
+    """
+    out = np.empty((nodes_x.size, 2))
+    omz = np.where(np.isfinite(zncc), 1.0 - zncc, np.nan)
+    _noise_kernel(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
+                  np.asarray(slot, np.int32), masks, int(half), omz,
+                  gradient_noise_gain(order), out)
+    return out
+
+
+def _lattice_trace_factor(ell: float, step: float, subset: int, n: int = 128) -> float:
+    """``(S_ℓ R)_ii`` on an infinite lattice: the mean over wavenumbers of the
+    smoother's symbol times the subset-overlap correlation's symbol."""
+    th = 2 * np.pi * np.arange(n) / n
+    # symbol of K^T K (edge differences of central-difference gradients)
+    edge = 4 * np.sin(th / 2) ** 2
+    grad = np.sin(th) ** 2 / step**2
+    cx, cy = np.meshgrid(edge, edge, indexing="ij")
+    gx, gy = np.meshgrid(grad, grad, indexing="ij")
+    kappa = ell**4 / step**2
+    s = 1.0 / (1.0 + kappa * (cx + cy) * (gx + gy))
+    lags = np.arange(-(subset // step) - 1, subset // step + 2)
+    tri = np.clip(1.0 - np.abs(lags) * step / subset, 0.0, None)
+    r1 = np.real(np.exp(1j * np.outer(th, lags)) @ tri)
+    r = np.outer(r1, r1)
+    return float(np.mean(s * r))
+
+
+def _central_window(mesh: Q4Mesh, keep: np.ndarray, max_nodes: int) -> np.ndarray:
+    """Nodes of a square window around the mesh centre holding about
+    ``max_nodes`` nodes (risk estimation on very large meshes)."""
+    cx, cy = np.median(mesh.x), np.median(mesh.y)
+    r = np.maximum(np.abs(mesh.x - cx), np.abs(mesh.y - cy))
+    lim = np.sort(r)[max_nodes - 1]
+    return keep & (r <= lim)
+
+
+def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
+                     noise_var: np.ndarray, step: float, subset: int,
+                     candidates=SMOOTH_CANDIDATES) -> tuple[float, list[dict]]:
+    """Smoothing length (pixels) that minimises the SURE risk.
+
+    Parameters
+    ----------
+    mesh : the Q4 mesh of the nodes.
+    u, v : local displacements; trusted : nodes whose local result is reliable.
+    noise_var : (n, 2) from :func:`displacement_noise`.
+    step, subset : node spacing and subset width (pixels).
+    candidates : lengths to try, in units of ``step``.
+
+    Returns
+    -------
+    (ell, table) : the chosen length in pixels and, per candidate, the risk
+    estimate (mean squared error per trusted node, px²).
+    """
+    keep = trusted & np.isfinite(noise_var).all(axis=1)
+    if mesh.n_elements == 0 or keep.sum() < 16:
+        return 0.0, []
+    if mesh.n_nodes > _SELECT_MAX_NODES:
+        sub_nodes = _central_window(mesh, np.ones(mesh.n_nodes, bool), _SELECT_MAX_NODES)
+        mesh, u, v, keep, noise_var = _restrict(mesh, sub_nodes, u, v, keep, noise_var)
+    T, free = mesh.prolongation()
+    Gx, Gy, _ = gradient_operator(mesh)
+    KtK = T.T @ curvature_operator(mesh, Gx, Gy) @ T
+    w = keep.astype(float)
+    Wd = T.T @ sp.diags(np.where(keep, 1.0, 1e-6)) @ T
+    rhs = T.T @ np.column_stack([w * u, w * v])
+    total_var = float(noise_var[keep].sum())
+    data = np.column_stack([u, v])[keep]
+    table = []
+    for c in candidates:
+        ell = float(c) * step
+        if ell == 0:
+            smooth = data
+        else:
+            A = (Wd + (ell**4 / step**2) * KtK).tocsc()
+            sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(np.asfortranarray(rhs))
+            smooth = (T @ sol)[keep]
+        resid = float(np.sum((smooth - data) ** 2))
+        rho = _lattice_trace_factor(ell, step, subset)
+        risk = (resid + (2 * rho - 1) * total_var) / keep.sum()
+        table.append({"smooth_px": ell, "risk_px2": risk})
+    best = min(table, key=lambda d: d["risk_px2"])
+    return best["smooth_px"], table
+
+
+def _restrict(mesh: Q4Mesh, nodes: np.ndarray, u, v, keep, noise_var):
+    """The sub-mesh of elements whose corners are all in ``nodes``."""
+    e = mesh.elements
+    e = e[nodes[e].all(axis=1)]
+    used = np.unique(e)
+    new = -np.ones(mesh.n_nodes, np.int64)
+    new[used] = np.arange(used.size)
+    h = mesh.hanging
+    h = h[np.isin(h, used).all(axis=1)] if h.size else h
+    sub = Q4Mesh(mesh.x[used], mesh.y[used], new[e], new[h] if h.size else h)
+    return sub, u[used], v[used], keep[used], noise_var[used]
