@@ -73,7 +73,7 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     t = time.perf_counter()
     if solver is None:
         solver = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted,
-                              curvature=smooth**4 / (mu * step**2))
+                              curvature=smooth**4 / mu)
     timing["global_factorise"] = time.perf_counter() - t
     n = u0.size
     W = np.zeros((n, 4))

@@ -187,25 +187,79 @@ def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.nd
     return Gx, Gy, count > 0
 
 
-def edge_difference(mesh: Q4Mesh) -> sp.csr_matrix:
-    """``B`` with one row per mesh edge: ``(B @ s)[e] = s[b] - s[a]``."""
+def _axis_neighbours(mesh: Q4Mesh) -> np.ndarray:
+    """(N, 4) nearest edge neighbour of every node towards -x, +x, -y, +y
+    (-1 where the node has none), from the element edges."""
     e = mesh.elements
-    pairs = np.concatenate([e[:, [0, 1]], e[:, [1, 2]], e[:, [2, 3]], e[:, [3, 0]]])
-    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
-    m = pairs.shape[0]
-    rows = np.repeat(np.arange(m), 2)
-    vals = np.tile([-1.0, 1.0], m)
-    return sp.csr_matrix((vals, (rows, pairs.ravel())), shape=(m, mesh.n_nodes))
+    n = mesh.n_nodes
+    pairs = np.concatenate([e[:, [0, 1]], e[:, [3, 2]], e[:, [0, 3]], e[:, [1, 2]]])
+    a, b = pairs[:, 0], pairs[:, 1]  # b lies to the +x or +y of a
+    horiz = mesh.y[a] == mesh.y[b]
+    d = np.where(horiz, mesh.x[b] - mesh.x[a], mesh.y[b] - mesh.y[a])
+    nb = -np.ones((n, 4), np.int64)
+    for node, direc, other in ((b, np.where(horiz, 0, 2), a), (a, np.where(horiz, 1, 3), b)):
+        key = node * 4 + direc
+        order = np.lexsort((d, key))  # by slot, nearest first
+        key, other = key[order], other[order]
+        first = np.r_[True, key[1:] != key[:-1]]
+        nb.ravel()[key[first]] = other[first]
+    return nb
 
 
-def curvature_operator(mesh: Q4Mesh, Gx: sp.csr_matrix, Gy: sp.csr_matrix) -> sp.csr_matrix:
-    """``Kᵀ K`` with ``K = [B Gx; B Gy]``: the sum over mesh edges of the squared
-    change of the nodal gradient of a scalar field. Zero for any affine field
-    (uniform strain and rotation), so it smooths noise without biasing them."""
-    B = edge_difference(mesh)
-    BGx = B @ Gx
-    BGy = B @ Gy
-    return (BGx.T @ BGx + BGy.T @ BGy).tocsr()
+def second_difference_operators(mesh: Q4Mesh):
+    """Sparse second-derivative operators of a scalar nodal field (1/px).
+
+    Returns ``(Dxx, Dyy, Dxy, has_xx, has_yy)``: ``Dxx``/``Dyy`` (N x N) are
+    three-point second differences along x/y at nodes with an edge neighbour
+    on both sides (zero rows elsewhere, ``has_xx``/``has_yy`` False);
+    ``Dxy`` (E x N) is the twist ``(s00 - s10 + s11 - s01) / (dx dy)`` of
+    each element. All vanish exactly for affine fields.
+    """
+    nb = _axis_neighbours(mesh)
+    n = mesh.n_nodes
+    ops, has = [], []
+    for lo, hi, coord in ((0, 1, mesh.x), (2, 3, mesh.y)):
+        ok = (nb[:, lo] >= 0) & (nb[:, hi] >= 0)
+        i = np.nonzero(ok)[0]
+        l_, r_ = nb[i, lo], nb[i, hi]
+        d1 = coord[i] - coord[l_]
+        d2 = coord[r_] - coord[i]
+        w = 2.0 / (d1 + d2)
+        rows = np.concatenate([i, i, i])
+        cols = np.concatenate([l_, i, r_])
+        vals = np.concatenate([w / d1, -w / d1 - w / d2, w / d2])
+        ops.append(sp.csr_matrix((vals, (rows, cols)), shape=(n, n)))
+        has.append(ok)
+    e = mesh.elements
+    E = e.shape[0]
+    area = (mesh.x[e[:, 1]] - mesh.x[e[:, 0]]) * (mesh.y[e[:, 3]] - mesh.y[e[:, 0]])
+    sign = np.array([1.0, -1.0, 1.0, -1.0])
+    Dxy = sp.csr_matrix(((sign[None, :] / area[:, None]).ravel(),
+                         (np.repeat(np.arange(E), 4), e.ravel())), shape=(E, n))
+    return ops[0], ops[1], Dxy, has[0], has[1]
+
+
+def curvature_operator(mesh: Q4Mesh) -> sp.csr_matrix:
+    """Thin-plate penalty ``Kᵀ K`` of a scalar nodal field: the sum over nodes of
+    ``u_xx² + u_yy²`` plus, per element, ``2 u_xy²`` (1/px⁴). Zero for any
+    affine field (uniform strain and rotation), so it smooths noise without
+    biasing them; with weight ``ℓ⁴`` against a unit data weight per node it
+    damps a displacement wave of wavenumber ``k`` by ``1/(1 + (kℓ)⁴)``."""
+    Dxx, Dyy, Dxy, _, _ = second_difference_operators(mesh)
+    return (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)).tocsr()
+
+
+def _fill_from_inside(D: sp.csr_matrix, has: np.ndarray, nb2: np.ndarray) -> sp.csr_matrix:
+    """Rows of ``D`` for nodes lacking one (``~has``) copied from their
+    neighbour (-side, else +side) that has one; left zero otherwise."""
+    src = np.arange(D.shape[0])
+    for k in (0, 1):
+        j = nb2[:, k]
+        take = (~has) & (src == np.arange(D.shape[0])) & (j >= 0)
+        take &= np.where(j >= 0, has[np.maximum(j, 0)], False)
+        src = np.where(take, j, src)
+    P = sp.csr_matrix((np.ones(src.size), (np.arange(src.size), src)), shape=(src.size,) * 2)
+    return (P @ D).tocsr()
 
 
 class GlobalSolver:
@@ -236,7 +290,7 @@ class GlobalSolver:
         L = (self.Gx.T @ Wg @ self.Gx + self.Gy.T @ Wg @ self.Gy)
         A = self.beta * L + self.mu * sp.diags(self.w)
         if self.curvature > 0:
-            A = A + self.curvature * curvature_operator(mesh, self.Gx, self.Gy)
+            A = A + self.curvature * curvature_operator(mesh)
         self.A = (self.T.T @ A @ self.T).tocsc()
         n_free = self.A.shape[0]
         self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
@@ -246,9 +300,7 @@ class GlobalSolver:
             d = self.A.diagonal()
             self._M = sp.diags(1.0 / d)
         self._last = None
-        self._curv_lu = None
-        self._curv_len = None
-        self._step = float(np.median(np.diff(np.unique(mesh.x)))) if mesh.n_nodes > 1 else 1.0
+        self._curv = None  # (length, factor, operators) of second_gradients
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
@@ -256,24 +308,32 @@ class GlobalSolver:
 
     def second_gradients(self, uh: np.ndarray, vh: np.ndarray, length: float) -> np.ndarray:
         """Nodal second derivatives (N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy``
-        (1/px) of the field after smoothing it with the curvature smoother of
-        smoothing length ``length`` (pixels); zero at nodes in no element.
+        (1/px) of the field after smoothing it with the thin-plate smoother
+        of length ``length`` (pixels).
 
-        The smoothing keeps the estimate free of the high-wavenumber noise
-        that plain second differences would amplify, so feeding it back into
-        the local step stays a contraction."""
-        if self._curv_lu is None or self._curv_len != length:
-            K = self.T.T @ curvature_operator(self.mesh, self.Gx, self.Gy) @ self.T
-            A = (self.T.T @ self.T + (length**4 / self._step**2) * K).tocsc()
-            self._curv_lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
-            self._curv_len = length
-        rhs = self.T.T @ np.column_stack([uh, vh])
-        sm = self.T @ self._curv_lu.solve(np.asfortranarray(rhs))
-        g = self.gradients(sm[:, 0], sm[:, 1])
-        Gx, Gy = self.Gx, self.Gy
-        ux, uy, vx, vy = g.T
-        out = np.column_stack([Gx @ ux, 0.5 * (Gy @ ux + Gx @ uy), Gy @ uy,
-                               Gx @ vx, 0.5 * (Gy @ vx + Gx @ vy), Gy @ vy])
+        The smoothing keeps high-wavenumber noise out of the estimate, so
+        feeding it back into the local step stays a contraction. Nodes
+        without neighbours on both sides along an axis take that second
+        derivative from the neighbour inwards; twists are the mean over the
+        node's elements; nodes in no element get zeros."""
+        if self._curv is None or self._curv[0] != length:
+            Dxx, Dyy, Dxy, hx, hy = second_difference_operators(self.mesh)
+            K = self.T.T @ (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)) @ self.T
+            lu = spla.splu((self.T.T @ self.T + length**4 * K).tocsc(),
+                           permc_spec="MMD_AT_PLUS_A")
+            nb = _axis_neighbours(self.mesh)
+            e = self.mesh.elements
+            cnt = np.bincount(e.ravel(), minlength=self.mesh.n_nodes).astype(float)
+            # node <- mean of its elements' twists
+            avg = sp.csr_matrix((np.repeat(1.0 / np.maximum(cnt[e], 1), 1).ravel(),
+                                 (e.ravel(), np.repeat(np.arange(e.shape[0]), 4))),
+                                shape=(self.mesh.n_nodes, e.shape[0]))
+            self._curv = (length, lu, _fill_from_inside(Dxx, hx, nb[:, :2]),
+                          _fill_from_inside(Dyy, hy, nb[:, 2:]), avg @ Dxy)
+        _, lu, Dxx, Dyy, Dxy = self._curv
+        sm = self.T @ lu.solve(np.asfortranarray(self.T.T @ np.column_stack([uh, vh])))
+        out = np.column_stack([Dxx @ sm[:, 0], Dxy @ sm[:, 0], Dyy @ sm[:, 0],
+                               Dxx @ sm[:, 1], Dxy @ sm[:, 1], Dyy @ sm[:, 1]])
         out[~self.covered] = 0.0
         return out
 
