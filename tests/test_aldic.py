@@ -48,28 +48,72 @@ def test_admm_stops_within_cap_and_converges(strain_pair):
     assert hist[-1]["primal_residual_px"] < 0.01
 
 
+SMOOTH_FIELDS = {
+    # uniform strain + long sinusoid (noise-dominated Local DIC error)
+    "long_wave": S.Sum([S.Affine.strain_rotation(exx=0.005, eyy=-0.002, center=(128, 128)),
+                        S.Sinusoid(0.4, 0.3, wavelength=320.0)]),
+    # uniform strain + shorter sinusoid (the affine subsets' undermatching bias
+    # is a large part of Local DIC's error)
+    "short_wave": S.Sum([S.Affine.strain_rotation(exx=0.01, eyy=-0.004, center=(128, 128)),
+                         S.Sinusoid(0.5, 0.5, wavelength=128.0)]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SMOOTH_FIELDS))
 @pytest.mark.parametrize("noise", [5.0, 10.0])
-def test_aldic_not_worse_than_local_on_noisy_smooth_field(noise):
-    field = S.Sum([S.Affine.strain_rotation(exx=0.005, eyy=-0.002, center=(128, 128)),
-                   S.Sinusoid(0.4, 0.3, wavelength=320.0)])
+def test_aldic_at_least_20_percent_better_than_local_on_noisy_smooth_field(noise, name):
+    field = SMOOTH_FIELDS[name]
     ref, dfm = S.speckle_pair((256, 256), field, noise=noise, seed=31)
     loc = correlate(ref, dfm, method="local")
     al = correlate(ref, dfm, method="aldic")
     both = loc.valid & al.valid
+    assert both.mean() > 0.95
     e_loc = _rmse(loc, field, both)
     e_al = _rmse(al, field, both)
-    # measured: AL-DIC 1.5-2.5 % below Local DIC here (see benchmarks/RESULTS.md)
-    assert e_al <= e_loc
-    assert e_al < 0.06
-    # the compatible field's gradients D û are much less noisy than the
-    # per-subset affine gradients (measured ~0.58x at 10 grey levels)
+    # measured (3 seeds): long wave -42 % / -49 %, short wave -52 % / -35 %
+    # at 5 / 10 grey levels (benchmarks/RESULTS.md)
+    assert e_al <= 0.8 * e_loc, (e_al, e_loc)
+    assert np.abs(al.u - al.u_local).max() > 1e-3  # the ADMM really changed the field
+    reg = al.meta["regularisation"]
+    assert reg["mode"] == "auto" and reg["smooth_px"] > 0
+
+
+def test_plain_algorithm_1_is_still_available():
+    """smooth=0 and the affine warp give the paper's Algorithm 1: compatible,
+    but (with overlapping subsets) hardly more accurate than Local DIC."""
+    field = SMOOTH_FIELDS["long_wave"]
+    ref, dfm = S.speckle_pair((256, 256), field, noise=10.0, seed=31)
+    loc = correlate(ref, dfm, method="local")
+    plain = correlate(ref, dfm, method="aldic", smooth=0, second_order_warp=False)
+    both = loc.valid & plain.valid
+    e_loc, e_plain = _rmse(loc, field, both), _rmse(plain, field, both)
+    assert 0.9 * e_loc < e_plain <= 1.02 * e_loc
+    assert plain.meta["regularisation"] == {"mode": "fixed", "smooth_px": 0.0}
+
     def grad_rmse(res):
         g = field.gradient(res.x, res.y)
         return np.sqrt(np.mean((res.dudx[both] - g[0][both]) ** 2
                                + (res.dvdy[both] - g[3][both]) ** 2))
 
-    assert grad_rmse(al) < 0.75 * grad_rmse(loc)
-    assert np.abs(al.u - al.u_local).max() > 1e-3  # the ADMM really changed the field
+    # its compatible gradients D û are still much less noisy than the
+    # per-subset affine gradients (measured ~0.58x)
+    assert grad_rmse(plain) < 0.75 * grad_rmse(loc)
+
+
+def test_second_order_warp_removes_undermatching_bias():
+    """Noise-free: an affine subset averages a 128 px displacement wave away
+    (Local DIC and plain AL-DIC ~0.05 px); the second-order warp does not."""
+    field = SMOOTH_FIELDS["short_wave"]
+    ref, dfm = S.speckle_pair((256, 256), field, seed=31)
+    loc = correlate(ref, dfm, method="local")
+    affine = correlate(ref, dfm, method="aldic", second_order_warp=False)
+    quad = correlate(ref, dfm, method="aldic")
+    both = loc.valid & affine.valid & quad.valid
+    e_loc, e_aff, e_quad = (_rmse(r, field, both) for r in (loc, affine, quad))
+    assert e_loc > 0.03 and e_aff > 0.03  # the bias is real (measured 0.048, 0.050)
+    assert e_quad < 0.35 * e_loc  # measured 0.012
+    # noise-free images get (almost) no smoothing
+    assert quad.meta["regularisation"]["smooth_px"] <= 0.2 * 31
 
 
 def test_aldic_keeps_crack_faces_apart():
