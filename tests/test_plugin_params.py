@@ -18,16 +18,17 @@ from napari_aldic.engine.units import Units  # noqa: E402
 from _plugin_helpers import add_inputs, speckle_stack  # noqa: E402
 
 #: every control a parameter file sets
-CONTROLS = ("method", "subset", "step", "search", "refine", "init", "reference", "start",
+CONTROLS = ("method", "subset", "step", "search", "refine", "smooth", "smooth_px", "init",
+            "reference", "start",
             "stop", "stride", "strain_window", "strain_method", "strain_measure", "unit",
             "pixel_size", "time_unit", "frame_interval")
 #: non-default values (the length unit before the pixel size: 'px' needs a size of 1)
 CUSTOM = {"method": "local", "subset": 41, "step": 6, "search": 30, "refine": "medium",
-          "init": "fft", "reference": "incremental", "start": 1, "stop": 3, "stride": 2,
+          "smooth": "fixed", "smooth_px": 7.5, "init": "fft", "reference": "incremental", "start": 1, "stop": 3, "stride": 2,
           "strain_window": 7, "strain_method": "fem", "strain_measure": "infinitesimal",
           "unit": "µm", "pixel_size": 0.25, "time_unit": "ms", "frame_interval": 2.5}
 OTHER = {"method": "aldic", "subset": 21, "step": 10, "search": 12, "refine": "strong",
-         "init": "fft", "reference": "accumulative", "start": 0, "stop": 4, "stride": 1,
+         "smooth": "off", "smooth_px": 10.0, "init": "fft", "reference": "accumulative", "start": 0, "stop": 4, "stride": 1,
          "strain_window": 3, "strain_method": "plane_fit", "strain_measure": "euler_almansi",
          "unit": "mm", "pixel_size": 0.01, "time_unit": "s", "frame_interval": 0.5}
 
@@ -79,6 +80,7 @@ def test_save_change_load_restores_every_control(make_napari_viewer_proxy, qtbot
     doc = json.loads(path.read_text(encoding="utf-8"))  # readable, plain JSON
     assert doc["format"] == "napari-aldic-settings"
     assert doc["params"]["subset"] == 41 and doc["params"]["method"] == "local"
+    assert doc["params"]["smooth"] == 7.5
     assert doc["units"] == {"pixel_size": 0.25, "unit": "µm", "frame_interval": 2.5,
                             "time_unit": "ms"}
     assert "parameters saved" in widget.log.value
@@ -102,7 +104,7 @@ def test_saved_file_reads_with_the_engine(make_napari_viewer_proxy, qtbot, tmp_p
 
     s = load_settings(path)
     assert s["params"] == DICParams(method="local", subset=41, step=6, search=30,
-                                    refine="medium", init="fft")
+                                    refine="medium", init="fft", smooth=7.5)
     assert s["units"] == Units(0.25, "µm", 2.5, "ms")
     assert s["strain"] == {"window": 7, "method": "fem", "measure": "infinitesimal"}
     assert s["tracking"] == {"reference": "incremental", "start": 1, "stop": 3, "stride": 2}
@@ -304,3 +306,17 @@ def test_saved_file_runs_with_the_cli(make_napari_viewer_proxy, qtbot, tmp_path)
         ("local", 21, 8, 10)
     assert res.meta["units"] == Units(0.5, "µm", 2.0, "s").to_dict()
     assert res.n_valid > 0.8 * len(res)
+
+
+def test_smoothing_controls_map_to_the_parameter(make_napari_viewer_proxy, qtbot):
+    viewer = make_napari_viewer_proxy()
+    widget, _ = _stack_widget(viewer)
+    widget.method.value = "aldic"
+    assert widget._current_params().smooth == "auto" and not widget.smooth_px.enabled
+    widget.smooth.value = "fixed"
+    widget.smooth_px.value = 12.5
+    assert widget.smooth_px.enabled and widget._current_params().smooth == 12.5
+    widget.smooth.value = "off"
+    assert widget._current_params().smooth == 0.0 and not widget.smooth_px.enabled
+    widget.method.value = "local"  # no AL-DIC, nothing to smooth
+    assert not widget.smooth.enabled and not widget.smooth_px.enabled

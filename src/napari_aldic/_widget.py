@@ -55,7 +55,7 @@ _TIME_ALIASES = {"frames": "frame", "sec": "s", "second": "s", "seconds": "s",
                  "millisecond": "ms", "milliseconds": "ms", "minute": "min",
                  "minutes": "min", "hour": "h", "hours": "h"}
 #: DICParams fields that the widget shows (the others are kept from a loaded file)
-_PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init")
+_PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth")
 _STRAIN_KEYS = ("window", "method", "measure")
 _TRACKING_KEYS = ("reference", "start", "stop", "stride")
 
@@ -159,6 +159,19 @@ class DICWidget(Container):
                                tooltip="Adaptive quadtree preset: light = near holes/cracks; "
                                        "medium = also the ROI outline; strong = also where "
                                        "the correlation is poor (slower).")
+        self.smooth = ComboBox(label="AL-DIC smoothing", value="auto",
+                               choices=[("auto (from the noise)", "auto"),
+                                        ("off (plain Algorithm 1)", "off"),
+                                        ("fixed length", "fixed")],
+                               tooltip="Curvature regulariser of the AL-DIC global step "
+                                       "(never biases uniform strain). auto: the length "
+                                       "that minimises the estimated error for these "
+                                       "images (~0 for clean images); off: none; fixed: "
+                                       "the length below.")
+        self.smooth_px = FloatSpinBox(label="Smoothing length (px)", value=10.0, min=0.5,
+                                      max=10000.0, step=0.5, enabled=False,
+                                      tooltip="Displacement waves shorter than ~2 pi x this "
+                                              "length are damped (fixed smoothing only).")
         self.init = ComboBox(label="Initial guess", value="fft",
                              choices=[("FFT cross-correlation", "fft"),
                                       ("Seed points", "seeds")],
@@ -251,7 +264,7 @@ class DICWidget(Container):
             section("Input"), self.image, self.roi_add, self.roi_subtract, self.roi_labels,
             self.brush, self.seeds,
             section("Correlation"), self.method, self.subset, self.step, self.search,
-            self.refine, self.init, self.reference, self.start, self.stop, self.stride,
+            self.refine, self.smooth, self.smooth_px, self.init, self.reference, self.start, self.stop, self.stride,
             section("Strain"), self.strain_window, self.strain_method, self.strain_measure,
             section("Units"), self.pixel_size, self.unit, self.frame_interval, self.time_unit,
             section("Display"), self.show_field, display, self.vector_length,
@@ -291,13 +304,15 @@ class DICWidget(Container):
         self.image.changed.connect(self._on_image_changed)
         for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds,
                   self.method, self.subset, self.step, self.search, self.refine, self.init,
-                  self.reference, self.start, self.stop, self.stride, self.strain_window):
+                  self.smooth, self.smooth_px, self.reference, self.start, self.stop, self.stride, self.strain_window):
             w.changed.connect(self._validate)
         for w in (self.pixel_size, self.unit, self.frame_interval, self.time_unit):
             w.changed.connect(self._on_units_changed)
         for w in (self.mesh, self.deformed, self.vectors):
             w.changed.connect(self._refresh_results)
         self.vector_length.changed.connect(self._on_vector_length)
+        self.smooth.changed.connect(self._on_smooth_mode)
+        self.method.changed.connect(self._on_smooth_mode)
         # closing the widget stops a run after its frame and unhooks it from the viewer
         self.native.destroyed.connect(lambda *_: self._close())
         self.run_button.changed.connect(self.run)
@@ -585,6 +600,7 @@ class DICWidget(Container):
                    + (f" ({len(seeds)} seeds)" if seeds else "")
                    + f", refinement {refine or 'none'}"
                    + (f" + brush region ({int(brush.sum())} px)" if brush is not None else "")
+                   + (f", smoothing {params.smooth}" if params.method == "aldic" else "")
                    + f"; strain {strain.method}, window {strain.window}, {strain.measure}"
                    + (f"; from the parameter file: {_describe_extra(self._extra_params)}"
                       if self._extra_params else ""))
@@ -613,7 +629,16 @@ class DICWidget(Container):
             **extra, "method": self.method.value, "subset": int(self.subset.value),
             "step": int(self.step.value), "search": int(self.search.value),
             "refine": None if self.refine.value == "none" else self.refine.value,
-            "init": self.init.value, "seeds": seeds})
+            "smooth": self._smooth_value(), "init": self.init.value, "seeds": seeds})
+
+    def _on_smooth_mode(self, *_) -> None:
+        aldic = self.method.value == "aldic"
+        self.smooth.enabled = aldic
+        self.smooth_px.enabled = aldic and self.smooth.value == "fixed"
+
+    def _smooth_value(self) -> float | str:
+        mode = self.smooth.value
+        return "auto" if mode == "auto" else 0.0 if mode == "off" else float(self.smooth_px.value)
 
     def _current_units(self) -> Units:
         ps, unit = float(self.pixel_size.value), self.unit.value
@@ -749,6 +774,13 @@ class DICWidget(Container):
         put(self.search, params.search, "search")
         put(self.refine, params.refine or "none", "refinement")
         put(self.init, params.init, "initial guess")
+        if params.smooth == "auto":
+            put(self.smooth, "auto", "AL-DIC smoothing")
+        elif params.smooth == 0:
+            put(self.smooth, "off", "AL-DIC smoothing")
+        else:
+            put(self.smooth, "fixed", "AL-DIC smoothing")
+            put(self.smooth_px, float(params.smooth), "smoothing length")
         defaults = DICParams().to_dict()
         extra = {k: v for k, v in params.to_dict().items()
                  if k not in _PARAM_CONTROLS and k != "seeds" and v != defaults[k]}
@@ -858,6 +890,7 @@ class DICWidget(Container):
              else f"frame interval {self.frame_interval.value:g} {self.time_unit.value}")
         return (f"method {self.method.value}, subset {self.subset.value} px, step "
                 f"{self.step.value} px, search {self.search.value} px, refinement {refine}, "
+                f"smoothing {self._smooth_value()}, "
                 f"init {self.init.value}; {self.reference.value}, frames "
                 f"{self.start.value}..{self.stop.value} every {self.stride.value}; strain "
                 f"{self.strain_method.value}, window {self.strain_window.value}, "

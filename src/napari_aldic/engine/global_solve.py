@@ -187,6 +187,15 @@ def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.nd
     return Gx, Gy, count > 0
 
 
+def _cached(mesh: Q4Mesh, key: str, build):
+    """Mesh-derived operators, built once per mesh object (the SURE choice, the
+    global solver and the curvature estimate of one analysis share them)."""
+    store = mesh.__dict__.setdefault("_operators", {})
+    if key not in store:
+        store[key] = build(mesh)
+    return store[key]
+
+
 def _axis_neighbours(mesh: Q4Mesh) -> np.ndarray:
     """(N, 4) nearest edge neighbour of every node towards -x, +x, -y, +y
     (-1 where the node has none), from the element edges."""
@@ -215,7 +224,11 @@ def second_difference_operators(mesh: Q4Mesh):
     ``Dxy`` (E x N) is the twist ``(s00 - s10 + s11 - s01) / (dx dy)`` of
     each element. All vanish exactly for affine fields.
     """
-    nb = _axis_neighbours(mesh)
+    return _cached(mesh, "second_differences", _second_differences)
+
+
+def _second_differences(mesh: Q4Mesh):
+    nb = _cached(mesh, "axis_neighbours", _axis_neighbours)
     n = mesh.n_nodes
     ops, has = [], []
     for lo, hi, coord in ((0, 1, mesh.x), (2, 3, mesh.y)):
@@ -245,8 +258,11 @@ def curvature_operator(mesh: Q4Mesh) -> sp.csr_matrix:
     affine field (uniform strain and rotation), so it smooths noise without
     biasing them; with weight ``ℓ⁴`` against a unit data weight per node it
     damps a displacement wave of wavenumber ``k`` by ``1/(1 + (kℓ)⁴)``."""
-    Dxx, Dyy, Dxy, _, _ = second_difference_operators(mesh)
-    return (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)).tocsr()
+    def build(m):
+        Dxx, Dyy, Dxy, _, _ = second_difference_operators(m)
+        return (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)).tocsr()
+
+    return _cached(mesh, "curvature", build)
 
 
 def _fill_from_inside(D: sp.csr_matrix, has: np.ndarray, nb2: np.ndarray) -> sp.csr_matrix:
@@ -260,6 +276,34 @@ def _fill_from_inside(D: sp.csr_matrix, has: np.ndarray, nb2: np.ndarray) -> sp.
         src = np.where(take, j, src)
     P = sp.csr_matrix((np.ones(src.size), (np.arange(src.size), src)), shape=(src.size,) * 2)
     return (P @ D).tocsr()
+
+
+class _SPDSolver:
+    """Repeated solves with one sparse SPD matrix: a SuperLU factor, or (for
+    very large meshes, where a factor would need more than a gigabyte)
+    Jacobi-preconditioned conjugate gradients warm-started from the previous
+    solution (or from a given guess on the first call)."""
+
+    def __init__(self, A: sp.csc_matrix, direct: bool, rtol: float):
+        self.A = A
+        self.rtol = rtol
+        self._last = None
+        if direct:
+            self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+        else:
+            self._lu = None
+            self._M = sp.diags(1.0 / A.diagonal())
+
+    def solve(self, rhs: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        if self._lu is not None:
+            return self._lu.solve(np.asfortranarray(rhs))
+        start = guess if self._last is None else self._last
+        sol = np.empty_like(rhs)
+        for c in range(rhs.shape[1]):
+            sol[:, c], _ = spla.cg(self.A, rhs[:, c], x0=start[:, c], M=self._M,
+                                   rtol=self.rtol, maxiter=5000)
+        self._last = sol
+        return sol
 
 
 class GlobalSolver:
@@ -294,13 +338,8 @@ class GlobalSolver:
         self.A = (self.T.T @ A @ self.T).tocsc()
         n_free = self.A.shape[0]
         self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
-        if self.direct:
-            self._lu = spla.splu(self.A, permc_spec="MMD_AT_PLUS_A")
-        else:
-            d = self.A.diagonal()
-            self._M = sp.diags(1.0 / d)
-        self._last = None
-        self._curv = None  # (length, factor, operators) of second_gradients
+        self._system = _SPDSolver(self.A, self.direct, rtol=1e-7)
+        self._curv = None  # (length, smoother, operators) of second_gradients
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
@@ -318,10 +357,10 @@ class GlobalSolver:
         node's elements; nodes in no element get zeros."""
         if self._curv is None or self._curv[0] != length:
             Dxx, Dyy, Dxy, hx, hy = second_difference_operators(self.mesh)
-            K = self.T.T @ (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)) @ self.T
-            lu = spla.splu((self.T.T @ self.T + length**4 * K).tocsc(),
-                           permc_spec="MMD_AT_PLUS_A")
-            nb = _axis_neighbours(self.mesh)
+            K = self.T.T @ curvature_operator(self.mesh) @ self.T
+            lu = _SPDSolver((self.T.T @ self.T + length**4 * K).tocsc(), self.direct,
+                            rtol=1e-6)
+            nb = _cached(self.mesh, "axis_neighbours", _axis_neighbours)
             e = self.mesh.elements
             cnt = np.bincount(e.ravel(), minlength=self.mesh.n_nodes).astype(float)
             # node <- mean of its elements' twists
@@ -331,7 +370,8 @@ class GlobalSolver:
             self._curv = (length, lu, _fill_from_inside(Dxx, hx, nb[:, :2]),
                           _fill_from_inside(Dyy, hy, nb[:, 2:]), avg @ Dxy)
         _, lu, Dxx, Dyy, Dxy = self._curv
-        sm = self.T @ lu.solve(np.asfortranarray(self.T.T @ np.column_stack([uh, vh])))
+        uv = np.column_stack([uh, vh])
+        sm = self.T @ lu.solve(self.T.T @ uv, uv[self.free])
         out = np.column_stack([Dxx @ sm[:, 0], Dxy @ sm[:, 0], Dyy @ sm[:, 0],
                                Dxx @ sm[:, 1], Dxy @ sm[:, 1], Dyy @ sm[:, 1]])
         out[~self.covered] = 0.0
@@ -351,14 +391,6 @@ class GlobalSolver:
         rhs_u = b * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mu * w * (u - vu)
         rhs_v = b * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mu * w * (v - vv)
         rhs = self.T.T @ np.column_stack([rhs_u, rhs_v])
-        if self.direct:
-            sol = self._lu.solve(np.asfortranarray(rhs))
-        else:
-            sol = np.empty_like(rhs)
-            for c in range(2):
-                x0 = None if self._last is None else self._last[:, c]
-                sol[:, c], info = spla.cg(self.A, rhs[:, c], x0=x0, M=self._M, rtol=1e-10,
-                                          maxiter=2000)
-            self._last = sol
+        sol = self._system.solve(rhs, np.column_stack([u - vu, v - vv])[self.free])
         full = self.T @ sol
         return full[:, 0], full[:, 1]

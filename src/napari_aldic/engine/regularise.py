@@ -43,8 +43,10 @@ from .global_solve import Q4Mesh, curvature_operator
 __all__ = ["displacement_noise", "choose_smoothing", "SMOOTH_CANDIDATES"]
 
 # candidate smoothing lengths, in units of the subset width (ratio ~sqrt 2):
-# the local errors are correlated over about one subset width
-SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5, 0.7, 1.0)
+# the local errors are correlated over about one subset width. At most half
+# a subset: the field keeps (about) the spatial resolution of the subsets,
+# and even a perfectly smooth field gains little beyond that.
+SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
 # larger meshes: the risk is estimated on a central window of this many nodes
 # (a mean over thousands of nodes; keeps the trial factorisations cheap)
 _SELECT_MAX_NODES = 6_000

@@ -140,6 +140,12 @@ class DICResult:
                 f"v: mean {self.v[v].mean():+.4f} px [{self.v[v].min():+.3f}, {self.v[v].max():+.3f}]; "
                 f"median ZNCC {np.median(self.zncc[v]):.4f}"
             )
+        reg = self.meta.get("regularisation")
+        if reg:
+            hist = self.meta.get("admm_history") or []
+            how = ("chosen from the noise" if reg.get("mode") == "auto" else "fixed")
+            lines.append(f"AL-DIC: smoothing length {reg['smooth_px']:.1f} px ({how}), "
+                         f"{len(hist)} ADMM iterations")
         t = self.meta.get("timing", {})
         if "total" in t:
             lines.append(f"time {t['total']:.3f} s ({len(self) / max(t['total'], 1e-9):,.0f} POI/s)")
