@@ -358,7 +358,8 @@ class GlobalSolver:
         if self._curv is None or self._curv[0] != length:
             Dxx, Dyy, Dxy, hx, hy = second_difference_operators(self.mesh)
             K = self.T.T @ curvature_operator(self.mesh) @ self.T
-            lu = _SPDSolver((self.T.T @ self.T + length**4 * K).tocsc(), self.direct,
+            # well conditioned (length ~ step): warm-started CG beats a factor
+            lu = _SPDSolver((self.T.T @ self.T + length**4 * K).tocsc(), direct=False,
                             rtol=1e-6)
             nb = _cached(self.mesh, "axis_neighbours", _axis_neighbours)
             e = self.mesh.elements

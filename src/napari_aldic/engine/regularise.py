@@ -49,7 +49,7 @@ __all__ = ["displacement_noise", "choose_smoothing", "SMOOTH_CANDIDATES"]
 SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
 # larger meshes: the risk is estimated on a central window of this many nodes
 # (a mean over thousands of nodes; keeps the trial factorisations cheap)
-_SELECT_MAX_NODES = 6_000
+_SELECT_MAX_NODES = 3_000
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
