@@ -88,7 +88,8 @@ def test_plain_algorithm_1_is_still_available():
     both = loc.valid & plain.valid
     e_loc, e_plain = _rmse(loc, field, both), _rmse(plain, field, both)
     assert 0.9 * e_loc < e_plain <= 1.02 * e_loc
-    assert plain.meta["regularisation"] == {"mode": "fixed", "smooth_px": 0.0}
+    assert plain.meta["regularisation"] == {"mode": "fixed", "smooth_px": 0.0,
+                                            "second_order_warp": False}
 
     def grad_rmse(res):
         g = field.gradient(res.x, res.y)

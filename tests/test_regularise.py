@@ -121,7 +121,9 @@ def test_sure_picks_no_smoothing_without_noise_and_more_with_noise():
     for noise in (0.0, 4.0, 10.0):
         _, loc, grid, roi, var = _noise_case(noise, S.Sinusoid(0.4, 0.3, wavelength=200.0))
         mesh = uniform_mesh(grid, roi)
-        ell, table = choose_smoothing(mesh, loc.u, loc.v, loc.valid, var, 8, 31)
+        choice = choose_smoothing(mesh, loc.u, loc.v, loc.valid, var, 8, 31)
+        ell, table = choice.smooth_px, choice.table
+        assert not choice.second_order  # not offered: plain SURE
         assert min(t["risk_px2"] for t in table) == pytest.approx(
             next(t["risk_px2"] for t in table if t["smooth_px"] == ell))
         lengths.append(ell)
@@ -133,7 +135,8 @@ def test_sure_picks_no_smoothing_without_noise_and_more_with_noise():
 def test_fixed_smoothing_length_and_validation():
     ref, dfm = S.speckle_pair((160, 160), S.Translation(0.2, 0.1), noise=3.0, seed=2)
     res = correlate(ref, dfm, method="aldic", smooth=9.5)
-    assert res.meta["regularisation"] == {"mode": "fixed", "smooth_px": 9.5}
+    assert res.meta["regularisation"] == {"mode": "fixed", "smooth_px": 9.5,
+                                          "second_order_warp": True}
     for bad in ("big", -1.0, True):
         with pytest.raises(ValueError, match="smooth"):
             DICParams(smooth=bad)
@@ -142,3 +145,43 @@ def test_fixed_smoothing_length_and_validation():
     p = DICParams(method="aldic", smooth=4, second_order_warp=False)
     assert DICParams.from_dict(p.to_dict()) == p
     assert DICParams.from_dict(DICParams().to_dict()).smooth == "auto"
+
+
+def test_noise_factor_reduces_to_sure_and_counts_the_warp_amplification():
+    from napari_aldic.engine.regularise import _lattice_noise_factor
+
+    for ell in (0.0, 5.0, 12.0):
+        assert _lattice_noise_factor(ell, 8, 31) == pytest.approx(
+            2 * _lattice_trace_factor(ell, 8, 31) - 1, abs=1e-12)
+    # deconvolving the subset average amplifies noise, smoothing tames it
+    assert _lattice_noise_factor(0.0, 8, 31, 7.5) > 1.3
+    assert _lattice_noise_factor(15.0, 8, 31, 7.5) < 0.0
+
+
+def test_warp_is_chosen_only_where_it_pays():
+    """Noise-free 128 px wave: large undermatching bias, estimated close to the
+    analytic ||gamma lap u||, the warp is used; noisy uniform strain: no
+    curvature to correct, the warp (which amplifies noise) is not used."""
+    wave = S.Sinusoid(0.5, 0.5, wavelength=128.0)
+    _, loc, grid, roi, var = _noise_case(0.0, wave)
+    mesh = uniform_mesh(grid, roi)
+    choice = choose_smoothing(mesh, loc.u, loc.v, loc.valid, var, 8, 31, curv_length=7.5)
+    k, gamma = 2 * np.pi / 128, 15 * 16 / 6
+    analytic = gamma * k**2 * 0.5  # rms of gamma lap u over both components
+    assert choice.second_order
+    assert np.sqrt(choice.deconvolution_gain_px2) == pytest.approx(analytic, rel=0.2)
+    strain = S.Affine.strain_rotation(exx=0.004, eyy=-0.002, center=(128, 128))
+    _, loc, grid, roi, var = _noise_case(8.0, strain)
+    choice = choose_smoothing(mesh, loc.u, loc.v, loc.valid, var, 8, 31, curv_length=7.5)
+    assert not choice.second_order and choice.smooth_px >= 10
+
+
+def test_shrinkage_keeps_strong_curvature_and_drops_noise():
+    from napari_aldic.engine.regularise import shrink_curvature
+
+    curv = np.zeros((2, 6))
+    curv[0] = 1e-3  # far above its noise
+    curv[1] = 1e-5  # far below
+    out = shrink_curvature(curv, np.full((2, 2), 1e-4), (1e-4, 1e-4))  # sd 1e-4
+    np.testing.assert_allclose(out[0], 1e-3, rtol=0.02)
+    assert np.abs(out[1]).max() < 0.02 * 1e-5

@@ -31,6 +31,11 @@ import numpy as np
 from .global_solve import GlobalSolver, Q4Mesh
 from .icgn import icgn_solve_translation
 from .reasons import Reason
+from .regularise import curvature_noise_gains, shrink_curvature
+
+# the curvature of the second-order warp is taken from û smoothed over this
+# fraction of the subset half-width (keeps the feedback a contraction)
+CURVATURE_SMOOTHING = 0.5
 
 __all__ = ["ADMMState", "run_admm"]
 
@@ -55,7 +60,9 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
              mesh: Q4Mesh, u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray,
              trusted: np.ndarray, usable: np.ndarray, *, mu: float, beta: float,
              step: float, max_iter: int, tol: float, icgn_max_iter: int, icgn_tol: float,
-             smooth: float = 0.0, second_order: bool = False, solver: GlobalSolver | None = None,
+             smooth: float = 0.0, second_order: bool = False,
+             noise_var: np.ndarray | None = None, subset: int | None = None,
+             solver: GlobalSolver | None = None,
              on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
     """Run AL-DIC ADMM from a Local DIC result.
 
@@ -65,6 +72,11 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     trusted : nodes whose local result is reliable (data weight 1).
     usable : nodes whose subset can be correlated at all (mask component OK).
     mu, beta : dimensionless penalties (see module docstring).
+    smooth : thin-plate smoothing length of the global step, pixels (0: none).
+    second_order : bend each subset by the global field's second derivatives.
+    noise_var : (n, 2) predicted local displacement variances; with
+        ``subset``, used to shrink noisy curvature estimates (see
+        :func:`~napari_aldic.engine.regularise.shrink_curvature`).
     solver : a :class:`GlobalSolver` to reuse (same mesh and weights).
     on_iteration : callable(k), optional; called before ADMM iteration k
         (a progress / cancellation point).
@@ -90,6 +102,9 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     iters = np.zeros(n, np.int32)
     history = []
     active = usable.copy()
+    gains = None
+    if second_order and noise_var is not None and subset is not None:
+        gains = curvature_noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
     grad = solver.gradients(uh, vh)
     for k in range(max_iter):
         if on_iteration is not None:
@@ -102,7 +117,9 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         t = time.perf_counter()
         curv = None
         if second_order:
-            curv = solver.second_gradients(uh, vh, 0.5 * half)
+            curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half)
+            if gains is not None:
+                curv = shrink_curvature(curv, noise_var, gains)
             # subsets cut by a hole/crack/outline keep the affine warp: next to
             # a discontinuity the smoothed curvature is one-sided and unreliable
             curv[slot >= 0] = 0.0

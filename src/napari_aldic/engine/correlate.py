@@ -10,7 +10,7 @@ from typing import Callable
 import numba
 import numpy as np
 
-from .admm import run_admm
+from .admm import CURVATURE_SMOOTHING, run_admm
 from .global_solve import Q4Mesh, uniform_mesh
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .regularise import choose_smoothing, displacement_noise
@@ -227,13 +227,15 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
     trusted = reason == Reason.OK
-    smooth, table = _smoothing_length(im, grid, sub, mesh, sol, trusted, params)
+    smooth, second_order, table, noise_var = _smoothing_length(im, grid, sub, mesh, sol,
+                                                                trusted, params)
     timing["smoothing_choice"] = timing.get("smoothing_choice", 0.0) + table.pop("seconds")
     state, _ = run_admm(
         im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
         mesh, sol.u, sol.v, sol.grad, trusted, trusted,
         mu=params.mu, beta=params.beta, step=params.step,
-        smooth=smooth, second_order=params.second_order_warp, max_iter=params.admm_max_iter,
+        smooth=smooth, second_order=second_order, noise_var=noise_var,
+        subset=params.subset, max_iter=params.admm_max_iter,
         tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol,
         on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
                                       f"ADMM iteration {k}"))
@@ -250,18 +252,26 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
 
 def _smoothing_length(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
                       sol: "_Solution", trusted: np.ndarray, params: DICParams):
-    """The AL-DIC smoothing length in pixels: the user's, or chosen by SURE."""
+    """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
+    predicted local noise variances (n, 2))``; the user's smoothing length,
+    or the length (and use of the second-order warp) chosen by risk."""
     t = time.perf_counter()
-    if params.smooth != "auto":
-        return float(params.smooth), {"mode": "fixed", "seconds": 0.0}
     var = displacement_noise(im.f, im.fgx, im.fgy, grid.x, grid.y, sub.slot, sub.masks,
                              params.half, sol.zncc, im.g_spline.order)
-    ell, risks = choose_smoothing(mesh, sol.u, sol.v, trusted, var, params.step,
-                                  params.subset)
+    if params.smooth != "auto":
+        return (float(params.smooth), params.second_order_warp,
+                {"mode": "fixed", "second_order_warp": params.second_order_warp,
+                 "seconds": time.perf_counter() - t}, var)
+    curv = CURVATURE_SMOOTHING * params.half if params.second_order_warp else None
+    choice = choose_smoothing(mesh, sol.u, sol.v, trusted, var, params.step,
+                              params.subset, curv_length=curv)
     ok = trusted & np.isfinite(var).all(axis=1)
     noise = float(np.sqrt(np.mean(var[ok].sum(axis=1)))) if ok.any() else float("nan")
-    return ell, {"mode": "auto", "predicted_local_noise_px": noise, "risk": risks,
-                 "seconds": time.perf_counter() - t}
+    return choice.smooth_px, choice.second_order, {
+        "mode": "auto", "second_order_warp": choice.second_order,
+        "predicted_local_noise_px": noise,
+        "undermatching_bias_px": float(np.sqrt(choice.deconvolution_gain_px2)),
+        "risk": choice.table, "seconds": time.perf_counter() - t}, var
 
 
 def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: dict,

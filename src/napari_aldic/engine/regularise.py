@@ -33,14 +33,17 @@ residual term and so get less smoothing.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numba as nb
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .global_solve import Q4Mesh, curvature_operator
+from .global_solve import Q4Mesh, curvature_operator, second_difference_operators
 
-__all__ = ["displacement_noise", "choose_smoothing", "SMOOTH_CANDIDATES"]
+__all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
+           "shrink_curvature", "SMOOTH_CANDIDATES"]
 
 # candidate smoothing lengths, in units of the subset width (ratio ~sqrt 2):
 # the local errors are correlated over about one subset width. At most half
@@ -133,16 +136,87 @@ def displacement_noise(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int,
 def _lattice_trace_factor(ell: float, step: float, subset: int, n: int = 256) -> float:
     """``(S_ℓ R)_ii`` on an infinite lattice: the mean over wavenumbers of the
     smoother's symbol times the subset-overlap correlation's symbol."""
+    qx, qy, r = _lattice_symbols(step, subset, n)
+    return float(np.mean(_thin_plate_symbol(ell, step, qx, qy) * r))
+
+
+def _thin_plate_symbol(ell, step, qx, qy):
+    # K^T K has the symbol 16 (sin²(θx/2) + sin²(θy/2))² / step⁴
+    return 1.0 / (1.0 + (ell / step) ** 4 * 16 * (qx + qy) ** 2)
+
+
+def _lattice_noise_factor(ell: float, step: float, subset: int,
+                          curv_length: float | None = None, n: int = 256) -> float:
+    """Noise part of the risk per unit local variance, so that
+    ``risk = (‖S_ℓ u_L - u_L‖² + factor · tr Σ) / n``.
+
+    Without the second-order warp the estimator is ``S = S_ℓ`` and the factor
+    is SURE's ``2 (S R)_ii - 1``. With it (``curv_length`` given) the fixed
+    point is ``H u_L`` with ``H = S / (1 - S g)``: the curvature correction
+    feeds ``g = γ (-∇²) S_c`` of the global field back into the local
+    displacements (``γ = h(h+1)/6``, the subset mean of ``dx²/2``). That
+    deconvolves the subset average (restoring the signal, so the signal error
+    stays that of ``S``, estimated by ``‖S u_L - u_L‖² - tr((S-1)Σ(S-1))``)
+    but amplifies noise: ``tr(H Σ H)``. Factor ``(H² R)_ii - ((S-1)² R)_ii``;
+    both reduce to SURE when ``g = 0``."""
+    qx, qy, r = _lattice_symbols(step, subset, n)
+    s = _thin_plate_symbol(ell, step, qx, qy)
+    H = s
+    if curv_length is not None:
+        h = subset // 2
+        g = (h * (h + 1) / 6) * 4 * (qx + qy) / step**2 * _thin_plate_symbol(
+            curv_length, step, qx, qy)
+        H = s / (1 - s * g)
+    return float(np.mean(H * H * r) - np.mean((s - 1) ** 2 * r))
+
+
+def _lattice_symbols(step: float, subset: int, n: int = 256):
+    """``(q_x, q_y, R)`` on an n x n wavenumber grid: ``q = sin²(θ/2)`` and the
+    symbol of the subset-overlap correlation (1 at zero lag)."""
     th = 2 * np.pi * np.arange(n) / n
-    # symbol of the thin-plate K^T K: 16 (sin²(θx/2) + sin²(θy/2))² / step⁴
     q = np.sin(th / 2) ** 2
     qx, qy = np.meshgrid(q, q, indexing="ij")
-    s = 1.0 / (1.0 + (ell / step) ** 4 * 16 * (qx + qy) ** 2)
     lags = np.arange(-(subset // step) - 1, subset // step + 2)
     tri = np.clip(1.0 - np.abs(lags) * step / subset, 0.0, None)
     r1 = np.real(np.exp(1j * np.outer(th, lags)) @ tri)
-    r = np.outer(r1, r1)
-    return float(np.mean(s * r))
+    return qx, qy, np.outer(r1, r1)
+
+
+def curvature_noise_gains(smooth: float, curv_length: float, step: float,
+                          subset: int) -> tuple[float, float]:
+    """Noise variance of the second-order warp's curvature estimate, per unit
+    variance of the local displacement: ``(g_xx, g_xy)`` (1/px⁴) for the
+    second differences and the node-averaged twists of the field smoothed by
+    the global step (length ``smooth``) and by the curvature smoother
+    (``curv_length``), with subset-overlap-correlated local noise."""
+    qx, qy, r = _lattice_symbols(step, subset)
+    thin = 16 * (qx + qy) ** 2
+    filt = 1.0 / ((1 + (smooth / step) ** 4 * thin) * (1 + (curv_length / step) ** 4 * thin))
+    dxx2 = (4 * qx / step**2) ** 2
+    dxy2 = 16 * qx * qy * (1 - qx) * (1 - qy) / step**4
+    return float(np.mean(dxx2 * filt**2 * r)), float(np.mean(dxy2 * filt**2 * r))
+
+
+def shrink_curvature(curv: np.ndarray, noise_var: np.ndarray, gains) -> np.ndarray:
+    """Scale each curvature component by ``c² / (c² + var_c)`` (a Wiener-type
+    shrinkage): the second-order warp is applied where the curvature stands
+    out of its own noise, and fades where it does not (uniform-strain regions
+    of noisy images), so it corrects bias without feeding noise back.
+
+    ``curv`` (N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy``; ``noise_var`` (N, 2)
+    local displacement variances (NaN: the median is used)."""
+    var = np.array(noise_var, dtype=float)
+    for c in range(2):
+        bad = ~np.isfinite(var[:, c])
+        var[bad, c] = np.nanmedian(var[:, c]) if (~bad).any() else 0.0
+    g_xx, g_xy = gains
+    vc = np.empty_like(curv)
+    for c in range(2):
+        vc[:, 3 * c] = var[:, c] * g_xx
+        vc[:, 3 * c + 1] = var[:, c] * g_xy
+        vc[:, 3 * c + 2] = var[:, c] * g_xx
+    c2 = curv**2
+    return curv * np.divide(c2, c2 + vc, out=np.ones_like(c2), where=(c2 + vc) > 0)
 
 
 def _central_window(mesh: Q4Mesh, keep: np.ndarray, max_nodes: int) -> np.ndarray:
@@ -154,10 +228,21 @@ def _central_window(mesh: Q4Mesh, keep: np.ndarray, max_nodes: int) -> np.ndarra
     return keep & (r <= lim)
 
 
+@dataclass
+class SmoothingChoice:
+    """Outcome of :func:`choose_smoothing`."""
+
+    smooth_px: float  # thin-plate smoothing length, pixels
+    second_order: bool  # whether the second-order warp pays off
+    table: list = field(default_factory=list)  # risk per candidate (px²)
+    deconvolution_gain_px2: float = 0.0  # estimated bias² the warp removes, per node
+
+
 def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
                      noise_var: np.ndarray, step: float, subset: int,
-                     candidates=SMOOTH_CANDIDATES) -> tuple[float, list[dict]]:
-    """Smoothing length (pixels) that minimises the SURE risk.
+                     candidates=SMOOTH_CANDIDATES,
+                     curv_length: float | None = None) -> SmoothingChoice:
+    """Smoothing length (and use of the second-order warp) of least estimated risk.
 
     Parameters
     ----------
@@ -166,15 +251,20 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     noise_var : (n, 2) from :func:`displacement_noise`.
     step, subset : node spacing and subset width (pixels).
     candidates : lengths to try, in units of ``subset``.
+    curv_length : if the second-order warp may be used, the smoothing length
+        (pixels) of its curvature estimate. Each length is then scored twice:
+        with the warp (noise term of the whole fixed point, see
+        :func:`_lattice_noise_factor`) and without it (plain SURE plus the
+        undermatching bias the warp would remove, ``‖γ ∇² u‖²``, estimated
+        from the smoothed local field minus its noise share).
 
     Returns
     -------
-    (ell, table) : the chosen length in pixels and, per candidate, the risk
-    estimate (mean squared error per trusted node, px²).
+    SmoothingChoice
     """
     keep = trusted & np.isfinite(noise_var).all(axis=1)
     if mesh.n_elements == 0 or keep.sum() < 16:
-        return 0.0, []
+        return SmoothingChoice(0.0, curv_length is not None)
     if mesh.n_nodes > _SELECT_MAX_NODES:
         sub_nodes = _central_window(mesh, np.ones(mesh.n_nodes, bool), _SELECT_MAX_NODES)
         mesh, u, v, keep, noise_var = _restrict(mesh, sub_nodes, u, v, keep, noise_var)
@@ -185,9 +275,13 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     rhs = T.T @ np.column_stack([w * u, w * v])
     total_var = float(noise_var[keep].sum())
     data = np.column_stack([u, v])[keep]
-    n_keep = keep.sum()
+    n_keep = int(keep.sum())
+    gain = 0.0
+    if curv_length is not None:
+        gain = _deconvolution_gain(mesh, T, KtK, u, v, keep, noise_var, step, subset,
+                                   curv_length)
 
-    def risk(c: float) -> float:
+    def risks(c: float) -> tuple[float, float]:
         ell = float(c) * subset
         if ell == 0:
             smooth = data
@@ -195,18 +289,21 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
             A = (Wd + ell**4 * KtK).tocsc()
             sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(np.asfortranarray(rhs))
             smooth = (T @ sol)[keep]
-        resid = float(np.sum((smooth - data) ** 2))
-        rho = _lattice_trace_factor(ell, step, subset)
-        return (resid + (2 * rho - 1) * total_var) / n_keep
+        resid = float(np.sum((smooth - data) ** 2)) / n_keep
+        plain = resid + _lattice_noise_factor(ell, step, subset) * total_var / n_keep
+        if curv_length is None:
+            return plain, np.inf
+        warp = resid + _lattice_noise_factor(ell, step, subset, curv_length) * total_var / n_keep
+        return plain + gain, warp
 
     # the risk is unimodal in log(ell) in practice: walk downhill from the
     # middle candidate, factorising only the candidates visited
-    cache: dict[int, float] = {}
+    cache: dict[int, tuple[float, float]] = {}
 
     def at(i: int) -> float:
         if i not in cache:
-            cache[i] = risk(candidates[i])
-        return cache[i]
+            cache[i] = risks(candidates[i])
+        return min(cache[i])
 
     i = len(candidates) // 2
     while True:
@@ -217,9 +314,32 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
             i += 1
         else:
             break
-    table = [{"smooth_px": float(candidates[k]) * subset, "risk_px2": cache[k]}
+    table = [{"smooth_px": float(candidates[k]) * subset, "risk_px2": cache[k][0],
+              **({"risk_second_order_px2": cache[k][1]} if curv_length is not None else {})}
              for k in sorted(cache)]
-    return float(candidates[i]) * subset, table
+    plain, warp = cache[i]
+    return SmoothingChoice(float(candidates[i]) * subset, bool(warp < plain), table, gain)
+
+
+def _deconvolution_gain(mesh, T, KtK, u, v, keep, noise_var, step, subset, curv_length):
+    """Mean per node of ``‖γ ∇² u‖²``: the squared undermatching bias of an
+    affine subset (``γ = h(h+1)/6``), from the local field smoothed as the
+    curvature estimate is, minus the noise share of that estimate."""
+    Dxx, Dyy, _, hx, hy = second_difference_operators(mesh)
+    h = subset // 2
+    lu = spla.splu((T.T @ T + curv_length**4 * KtK).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    uv = np.column_stack([u, v])
+    sm = T @ lu.solve(np.asfortranarray(T.T @ uv))
+    lap = (h * (h + 1) / 6) * ((Dxx + Dyy) @ sm)
+    inner = keep & hx & hy
+    if not inner.any():
+        return 0.0
+    raw = float(np.mean(np.sum(lap[inner] ** 2, axis=1)))
+    qx, qy, r = _lattice_symbols(step, subset)
+    g = (h * (h + 1) / 6) * 4 * (qx + qy) / step**2 * _thin_plate_symbol(curv_length, step,
+                                                                          qx, qy)
+    noise = float(np.mean(g * g * r)) * float(np.mean(noise_var[inner].sum(axis=1)))
+    return max(raw - noise, 0.0)
 
 
 def _restrict(mesh: Q4Mesh, nodes: np.ndarray, u, v, keep, noise_var):
