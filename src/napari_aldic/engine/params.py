@@ -95,12 +95,15 @@ class DICParams:
         smooth fields up to ~2 steps); ``0`` runs plain Algorithm 1. See
         :mod:`napari_aldic.engine.regularise`.
     second_order_warp : bool, default True
-        AL-DIC local step: warp each subset with the global field's second
-        derivatives too (held fixed, taken from ``û`` smoothed over half the
-        subset half-width), not only its gradient. An affine subset averages
-        curvature away (a displacement wave loses about ``(k h)^2 / 6`` of its
-        amplitude); with the second-order warp the ADMM converges to a field
-        without that bias. ``False`` keeps the affine warp of the paper.
+        Allow the AL-DIC local step to bend each subset with the global
+        field's second derivatives too (held fixed, from ``û`` smoothed over
+        half the subset half-width), not only its gradient. An affine subset
+        averages curvature away (a displacement wave loses about
+        ``(k h)^2 / 6`` of its amplitude); the second-order warp removes that
+        bias but, being a deconvolution, amplifies noise. With
+        ``smooth="auto"`` it is used only where the risk estimate says it
+        pays (``meta["regularisation"]["second_order_warp"]``); with a fixed
+        ``smooth`` it is used as set. ``False`` keeps the paper's affine warp.
     admm_max_iter : int, default 8
         Cap on ADMM iterations.
     admm_tol : float, default 1e-3
