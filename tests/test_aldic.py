@@ -297,3 +297,16 @@ def test_refine_presets_and_bad_values():
     res = correlate(ref, dfm, method="aldic", refine="light")
     assert res.meta["refine"]["mask_boundary"] is True
     assert set(np.unique(res.reason)) <= {int(Reason.OK), int(Reason.OUT_OF_IMAGE)}
+
+
+def test_global_factor_is_reused_across_calls_with_the_same_mesh(strain_pair):
+    field, (ref, dfm) = strain_pair
+    cache: dict = {}
+    first = correlate(ref, dfm, method="aldic", solver_cache=cache)
+    assert first.meta["timing"]["admm_factor_reused"] == 0.0 and len(cache) == 1
+    again = correlate(ref, dfm, method="aldic", solver_cache=cache)
+    assert again.meta["timing"]["admm_factor_reused"] == 1.0
+    np.testing.assert_allclose(again.u, first.u, atol=1e-9)
+    # a different mesh replaces the stored factor
+    other = correlate(ref, dfm, method="aldic", step=6, solver_cache=cache)
+    assert other.meta["timing"]["admm_factor_reused"] == 0.0 and len(cache) == 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -54,7 +55,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
               method: str = "local", *, params: DICParams | None = None,
               refine=None, guess: DICResult | None = None,
               progress: ProgressFn | None = None, cancel: CancelFn | None = None,
-              **kwargs) -> DICResult:
+              solver_cache: dict | None = None, **kwargs) -> DICResult:
     """Measure the displacement field between two images by subset DIC.
 
     Parameters
@@ -88,6 +89,10 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.progress.Cancelled`.
+    solver_cache : dict, optional
+        AL-DIC: a dictionary kept between calls (``track`` passes one per
+        sequence). The factorised global system is stored there and reused
+        by later calls with the same mesh, trusted nodes and penalties.
     **kwargs
         Any other :class:`DICParams` field (``search``, ``tol``, ...).
 
@@ -131,7 +136,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     meta = {"versions": _versions(),
             "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
     with _numba_threads(params.n_threads):
-        sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess)
+        sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
         if ref_spec is not None and ref_spec.error:
             # a-posteriori criterion: refine around poorly correlated nodes, resolve
             bad = _poorly_correlated(sol.zncc, sol.reason, sol.sub.reason == Reason.OK)
@@ -145,7 +150,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
                                      cells=qmesh.cells if qmesh else None,
                                      bad_xy=np.column_stack([grid.x[bad], grid.y[bad]]))
                 timing["setup"] += time.perf_counter() - t
-                sol = _analyse(im, mask, grid, qmesh, params, timing, report, None)
+                sol = _analyse(im, mask, grid, qmesh, params, timing, report, None,
+                               solver_cache)
     if ref_spec is not None:
         meta["refine"] = _describe(ref_spec)
     if sol.history is not None:
@@ -213,7 +219,7 @@ def _merge_params(params, subset, step, method, kwargs) -> DICParams:
 
 
 def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: dict,
-             report: ProgressFn, guess) -> _Solution:
+             report: ProgressFn, guess, solver_cache: dict | None = None) -> _Solution:
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
     sub = split_subsets(roi, grid, params.subset, params.min_component)
     p, zncc, iters, reason = solve_local(im, roi, grid, sub, params, timing, report,
@@ -229,16 +235,24 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     trusted = reason == Reason.OK
     smooth, second_order, table, noise_var = _smoothing_length(im, grid, sub, mesh, sol,
                                                                 trusted, params)
+    key = cached = None
+    if solver_cache is not None:
+        key = _solver_key(mesh, trusted, params, smooth)
+        cached = solver_cache.get(key)
+        timing["admm_factor_reused"] = float(cached is not None)
     timing["smoothing_choice"] = timing.get("smoothing_choice", 0.0) + table.pop("seconds")
-    state, _ = run_admm(
+    state, solver = run_admm(
         im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
         mesh, sol.u, sol.v, sol.grad, trusted, trusted,
         mu=params.mu, beta=params.beta, step=params.step,
         smooth=smooth, second_order=second_order, noise_var=noise_var,
-        subset=params.subset, max_iter=params.admm_max_iter,
+        subset=params.subset, solver=cached, max_iter=params.admm_max_iter,
         tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol,
         on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
                                       f"ADMM iteration {k}"))
+    if solver_cache is not None and cached is None:
+        solver_cache.clear()  # keep one factor: the mesh of the current frames
+        solver_cache[key] = solver
     for k, val in state.timing.items():
         timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
     zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)
@@ -248,6 +262,15 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
                      sol.u, sol.v, state.history, dict(table, smooth_px=smooth))
+
+
+def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: float) -> str:
+    """What the global system matrix depends on, hashed."""
+    h = hashlib.sha1()
+    for a in (mesh.x, mesh.y, mesh.elements, mesh.hanging, trusted):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(repr((params.mu, params.beta, params.step, float(smooth))).encode())
+    return h.hexdigest()
 
 
 def _smoothing_length(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,

@@ -1,11 +1,11 @@
-"""Automatic strength of the AL-DIC curvature regulariser.
+"""Automatic strength of the AL-DIC regularisation.
 
 Overlapping subsets make the errors of neighbouring Local DIC nodes strongly
 correlated (31 px subsets every 8 px share ~75 % of their pixels), so the
 compatibility constraints of Algorithm 1 alone cannot average noise away. The
-global step therefore may carry a third term, ``κ ‖K û‖²``, the squared change
-of the nodal displacement gradient along every mesh edge
-(:func:`~napari_aldic.engine.global_solve.curvature_operator`). It is zero for
+global step therefore may carry a thin-plate term ``κ ‖K û‖²`` (squared second
+differences and element twists of ``û``,
+:func:`~napari_aldic.engine.global_solve.curvature_operator`). It is zero for
 any affine field, so uniform strain and rigid motion are never biased; a
 displacement wave of wavenumber ``k`` is attenuated by about
 ``1 / (1 + (k ℓ)^4)``, where ``ℓ`` (pixels) is the *smoothing length*.
@@ -15,20 +15,24 @@ displacement wave of wavenumber ``k`` is attenuated by about
 
     R(ℓ) = ‖S_ℓ u_L - u_L‖² + 2 tr(S_ℓ Σ) - tr(Σ),
 
-an unbiased estimate of ``E ‖S_ℓ u_L - u_true‖²`` for any noise covariance
+an unbiased estimate of ``E ‖S_ℓ u_L - E u_L‖²`` for any noise covariance
 ``Σ`` (C. M. Stein, Ann. Stat. 9, 1981). ``Σ`` is modelled from the images:
 
-* variance per node: ``2 σ_e² [H⁻¹]`` (noise in both images; ``H`` the 2x2
-  Gauss-Newton matrix of the subset), with the image noise ``σ_e²`` estimated
-  from the node's own ZNCC, ``σ_e² ≈ (1 - ZNCC) Σ(f - f̄)² / m``;
+* variance per node: ``2 σ_e² S⁻¹ H S⁻¹`` (noise in both images; ``H`` the
+  2x2 Gauss-Newton matrix of the subset, ``S`` its speckle part), with the
+  image noise ``σ_e²`` estimated from the node's own ZNCC,
+  ``σ_e² ≈ (1 - ZNCC) Σ(f - f̄)² / m``;
 * correlation between two nodes: the fraction of pixels their subsets share
   (the product of the 1-D overlaps ``max(0, 1 - |Δ|/subset)``).
 
 The trace is evaluated with the Fourier symbols of ``S_ℓ`` and of the overlap
-correlation on the node lattice. Noise-free images give ``ℓ ≈ 0`` (plain
-Algorithm 1); noisy images of smooth fields get the smoothing that minimises
-the estimated error; fields with fine detail (crack tips, holes) raise the
-residual term and so get less smoothing.
+correlation on the node lattice. When the second-order warp is allowed, each
+length is also scored with the warp: its deconvolution of the subset average
+removes the undermatching bias (estimated here) but amplifies noise (a
+larger trace term); the cheaper risk wins. Noise-free images get ``ℓ ≈ 0``;
+noisy images of smooth fields the smoothing that minimises the estimated
+error; fields with fine detail (crack tips, holes) raise the residual term
+and so get less smoothing.
 """
 
 from __future__ import annotations

@@ -410,6 +410,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     cancelled = False
     if scheduler is None:
         ref_k, prev_inc = 0, None  # ref_img is frame 0, read above
+        solvers: dict = {}  # AL-DIC global factor, reused while the mesh stays
         for i in todo:
             if cancel is not None and cancel():
                 cancelled = True
@@ -422,7 +423,8 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
             report(idx[i], (i - 1) / (len(idx) - 1), f"frame {idx[i]} against frame {r}")
             try:  # cancel also stops promptly inside a frame
                 inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params,
-                                guess=prev_inc, refine=refine, cancel=cancel)
+                                guess=prev_inc, refine=refine, cancel=cancel,
+                                solver_cache=solvers)
             except Cancelled:
                 cancelled = True
                 break
