@@ -184,6 +184,21 @@ def test_method_option_reaches_the_engine(demo, tmp_path):
     field, _ = make_field("strain", (DEMO_SIZE, DEMO_SIZE))
     ut, _ = field.displacement(res.x, res.y)
     assert np.sqrt(np.mean((res.u - ut)[res.valid] ** 2)) < 0.02
+    assert "AL-DIC: smoothing length" in text  # the choice is reported
+
+
+def test_smoothing_options_reach_the_engine(demo, tmp_path):
+    folder, _ = demo
+    out = tmp_path / "r.npz"
+    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+                       "--method", "aldic", "--smooth", "6.5", "--affine-warp", "-o", out])
+    assert rc == 0, err
+    res = load_result(out)
+    assert res.params.smooth == 6.5 and res.params.second_order_warp is False
+    assert res.meta["regularisation"]["smooth_px"] == 6.5
+    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+                       "--smooth", "lots", "-o", out])
+    assert rc != 0 and "--smooth 'lots'" in err
 
 
 @pytest.mark.parametrize("kind", ["npy", "tif"])

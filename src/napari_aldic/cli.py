@@ -32,7 +32,8 @@ PROG = "napari-aldic"
 TIFF_SUFFIXES = {".tif", ".tiff"}
 IMAGE_SUFFIXES = TIFF_SUFFIXES | {".png", ".bmp", ".jpg", ".jpeg", ".jp2", ".pgm"}
 #: run options that override fields of the parameter file (dest -> DICParams field)
-OVERRIDES = ("subset", "step", "search", "search_max", "method", "interpolation", "n_threads")
+OVERRIDES = ("subset", "step", "search", "search_max", "method", "interpolation", "n_threads",
+             "smooth", "second_order_warp")
 EXPORT_FORMATS = ("mat", "csv", "vtu", "davis", "png", "gif", "mp4", "pdf")
 
 
@@ -165,6 +166,25 @@ def _add_param_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interpolation", choices=("auto", "cubic", "quintic"),
                    help="B-spline order (default cubic)")
     p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
+    p.add_argument("--smooth", type=_smooth_arg, metavar="auto|PX",
+                   help="AL-DIC thin-plate smoothing length in px; 'auto' (default) picks it "
+                        "from the image noise, 0 = the paper's plain Algorithm 1")
+    p.add_argument("--affine-warp", action="store_const", const=False,
+                   dest="second_order_warp",
+                   help="AL-DIC: never bend subsets with the global field's curvature")
+
+
+def _smooth_arg(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--smooth {text!r}: give 'auto' or a length in "
+                                         "pixels (e.g. 8)") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"--smooth {text!r}: the length must be >= 0 px")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -500,6 +520,8 @@ def frame_summary(res) -> list[str]:
                      f"{res.u[v].max():+.3f}]; v mean {res.v[v].mean():+.4f} px "
                      f"[{res.v[v].min():+.3f}, {res.v[v].max():+.3f}]; "
                      f"median ZNCC {np.median(res.zncc[v]):.4f}")
+    if res.aldic_summary():
+        lines.append(res.aldic_summary())
     flagged = {k: c for k, c in res.reason_counts().items() if k != "converged"}
     if flagged:
         lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))

@@ -127,6 +127,17 @@ class DICResult:
         codes, counts = np.unique(self.reason, return_counts=True)
         return {Reason.describe(c): int(k) for c, k in zip(codes, counts)}
 
+    def aldic_summary(self) -> str | None:
+        """One line on the AL-DIC regularisation and iterations (None for Local DIC)."""
+        reg = self.meta.get("regularisation")
+        if not reg:
+            return None
+        hist = self.meta.get("admm_history") or []
+        how = "chosen from the noise" if reg.get("mode") == "auto" else "fixed"
+        warp = "second-order" if reg.get("second_order_warp") else "affine"
+        return (f"AL-DIC: smoothing length {reg['smooth_px']:.1f} px ({how}), {warp} "
+                f"subset warp, {len(hist)} ADMM iterations")
+
     def summary(self) -> str:
         """A short text summary."""
         v = self.valid
@@ -140,12 +151,8 @@ class DICResult:
                 f"v: mean {self.v[v].mean():+.4f} px [{self.v[v].min():+.3f}, {self.v[v].max():+.3f}]; "
                 f"median ZNCC {np.median(self.zncc[v]):.4f}"
             )
-        reg = self.meta.get("regularisation")
-        if reg:
-            hist = self.meta.get("admm_history") or []
-            how = ("chosen from the noise" if reg.get("mode") == "auto" else "fixed")
-            lines.append(f"AL-DIC: smoothing length {reg['smooth_px']:.1f} px ({how}), "
-                         f"{len(hist)} ADMM iterations")
+        if self.aldic_summary():
+            lines.append(self.aldic_summary())
         t = self.meta.get("timing", {})
         if "total" in t:
             lines.append(f"time {t['total']:.3f} s ({len(self) / max(t['total'], 1e-9):,.0f} POI/s)")
