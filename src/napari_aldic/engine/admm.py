@@ -12,6 +12,13 @@ with scaled dual variables ``W`` (gradients) and ``v`` (displacements):
 
 until ``rms(û^{k+1} - û^k) < tol`` or the iteration cap.
 
+Two additions, both off with ``smooth=0, second_order=False`` (plain
+Algorithm 1; see ``docs/method.md`` section 7 for why and what they buy):
+the global matrix gains a thin-plate term ``(ℓ⁴/mu) KᵀK`` (zero on affine
+fields), and the local step may bend each subset by the smoothed second
+derivatives of ``û`` (held fixed like ``F``), which removes the affine
+subsets' undermatching bias on curved fields.
+
 Scaling of the penalties (so that one default works for any image contrast,
 subset and step): the local penalty is ``mu * tr(H_i) / 2`` with ``H_i`` the
 2x2 Gauss-Newton matrix of subset i (``mu`` is dimensionless: 1 means the

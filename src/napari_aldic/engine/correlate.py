@@ -13,14 +13,14 @@ import numpy as np
 
 from .admm import CURVATURE_SMOOTHING, run_admm
 from .global_solve import Q4Mesh, uniform_mesh
-from .quadtree import Refinement, build_quadtree, resolve_refinement
-from .regularise import choose_smoothing, displacement_noise
 from .images import as_gray_float, validate_pair, validate_roi
 from .local import Images, correlation_floor, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .params import DICParams
 from .progress import CancelFn, check_cancel
+from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .reasons import Reason
+from .regularise import choose_smoothing, displacement_noise
 from .results import DICResult
 from .subsets import SubsetMasks, split_subsets
 
@@ -233,7 +233,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
     trusted = reason == Reason.OK
-    smooth, second_order, table, noise_var = _smoothing_length(im, grid, sub, mesh, sol,
+    smooth, second_order, table, noise_var = _regularisation(im, grid, sub, mesh, sol,
                                                                 trusted, params)
     key = cached = None
     if solver_cache is not None:
@@ -273,7 +273,7 @@ def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: fl
     return h.hexdigest()
 
 
-def _smoothing_length(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
+def _regularisation(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
                       sol: "_Solution", trusted: np.ndarray, params: DICParams):
     """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
     predicted local noise variances (n, 2))``; the user's smoothing length,

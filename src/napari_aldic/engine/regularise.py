@@ -45,6 +45,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .global_solve import Q4Mesh, curvature_operator, second_difference_operators
+from .icgn import _buffers, _gather
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES"]
@@ -62,34 +63,22 @@ _SELECT_MAX_NODES = 3_000
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _noise_kernel(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out):
     n = xs.size
+    npx = (2 * h + 1) ** 2
     for i in nb.prange(n):
-        x0 = xs[i]
-        y0 = ys[i]
-        sl = slot[i]
-        m = 0
-        sf = 0.0
-        sff = 0.0
-        hxx = 0.0
-        hxy = 0.0
-        hyy = 0.0
-        for a in range(-h, h + 1):
-            for b in range(-h, h + 1):
-                if sl >= 0 and masks[sl, a + h, b + h] == 0:
-                    continue
-                fv = f[y0 + a, x0 + b]
-                gx = fgx[y0 + a, x0 + b]
-                gy = fgy[y0 + a, x0 + b]
-                sf += fv
-                sff += fv * fv
-                hxx += gx * gx
-                hxy += gx * gy
-                hyy += gy * gy
-                m += 1
+        dxs, dys, gx, gy, fs, _, _, _ = _buffers(npx)
+        # the subset's pixels exactly as IC-GN gathers them (mask component only)
+        m, fm, df2 = _gather(f, fgx, fgy, masks, slot[i], xs[i], ys[i], h,
+                             dxs, dys, gx, gy, fs)
+        hxx = hxy = hyy = 0.0
+        for q in range(m):
+            hxx += gx[q] * gx[q]
+            hxy += gx[q] * gy[q]
+            hyy += gy[q] * gy[q]
         if m == 0 or not one_minus_zncc[i] >= 0.0:
             out[i, 0] = np.nan
             out[i, 1] = np.nan
             continue
-        var_e = one_minus_zncc[i] * (sff - sf * sf / m) / m
+        var_e = one_minus_zncc[i] * df2 / m
         # the gradients of the noisy reference carry noise energy m var_e gain
         # per direction; only the rest (the speckle's) makes the subset match
         e = m * var_e * gain
