@@ -185,3 +185,26 @@ def test_shrinkage_keeps_strong_curvature_and_drops_noise():
     out = shrink_curvature(curv, np.full((2, 2), 1e-4), (1e-4, 1e-4))  # sd 1e-4
     np.testing.assert_allclose(out[0], 1e-3, rtol=0.02)
     assert np.abs(out[1]).max() < 0.02 * 1e-5
+
+
+def test_curvature_is_not_estimated_across_level_transitions():
+    """Hanging nodes make the FE field linear along their edge: second
+    differences there are artefacts, so those nodes (and their neighbours)
+    get no curvature; elsewhere a quadratic field's curvature is exact."""
+    from napari_aldic.engine.global_solve import level_transition_nodes
+
+    mesh = _hole_quadtree()
+    trans = level_transition_nodes(mesh)
+    assert trans[mesh.hanging[:, 0]].all()
+    assert 0 < trans.mean() < 0.5
+    solver = GlobalSolver(mesh, beta=6.4, mu=1.0, weights=np.ones(mesh.n_nodes, bool))
+    u = 1e-3 * (mesh.x - 96.0) ** 2 + 2e-3 * (mesh.y - 90.0) ** 2
+    # T maps free nodes to all: impose the hanging constraint on the test field
+    T, free = mesh.prolongation()
+    u = T @ u[free]
+    curv = solver.second_gradients(u, np.zeros_like(u), 1e-6)
+    assert np.all(curv[trans] == 0.0)
+    Dxx, Dyy, _, hx, hy = second_difference_operators(mesh)
+    ok = ~trans & hx & hy & solver.covered
+    np.testing.assert_allclose(curv[ok, 0], 2e-3, rtol=1e-3)
+    np.testing.assert_allclose(curv[ok, 2], 4e-3, rtol=1e-3)

@@ -124,7 +124,10 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         t = time.perf_counter()
         curv = None
         if second_order:
-            curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half)
+            # cut subsets (next to holes, cracks, the outline) are often poorly
+            # matched: the curvature smoother interpolates over them instead
+            curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half,
+                                           data=slot < 0)
             if gains is not None:
                 curv = shrink_curvature(curv, noise_var, gains)
             # subsets cut by a hole/crack/outline keep the affine warp: next to

@@ -252,6 +252,27 @@ def _second_differences(mesh: Q4Mesh):
     return ops[0], ops[1], Dxy, has[0], has[1]
 
 
+def level_transition_nodes(mesh: Q4Mesh) -> np.ndarray:
+    """True for nodes where second differences of the FE field are not
+    meaningful: hanging nodes (the constraint makes the field linear along
+    their edge), nodes with a hanging edge neighbour, and nodes whose edge
+    neighbours sit at unequal distances (quadtree level transitions)."""
+    def build(m):
+        nb = _cached(m, "axis_neighbours", _axis_neighbours)
+        n = m.n_nodes
+        hang = np.zeros(n, bool)
+        hang[m.hanging[:, 0]] = True
+        present = nb >= 0
+        nbc = np.maximum(nb, 0)
+        dist = np.where(present, np.abs(m.x[nbc] - m.x[:, None]) + np.abs(m.y[nbc] - m.y[:, None]),
+                        np.nan)
+        spread = np.nanmax(dist, axis=1) - np.nanmin(dist, axis=1)
+        out = hang | (present & hang[nbc]).any(axis=1) | (spread > 0)
+        return out
+
+    return _cached(mesh, "level_transition", build)
+
+
 def curvature_operator(mesh: Q4Mesh) -> sp.csr_matrix:
     """Thin-plate penalty ``Kᵀ K`` of a scalar nodal field: the sum over nodes of
     ``u_xx² + u_yy²`` plus, per element, ``2 u_xy²`` (1/px⁴). Zero for any
@@ -345,22 +366,31 @@ class GlobalSolver:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
         return np.column_stack([self.Gx @ uh, self.Gy @ uh, self.Gx @ vh, self.Gy @ vh])
 
-    def second_gradients(self, uh: np.ndarray, vh: np.ndarray, length: float) -> np.ndarray:
+    def second_gradients(self, uh: np.ndarray, vh: np.ndarray, length: float,
+                         data: np.ndarray | None = None) -> np.ndarray:
         """Nodal second derivatives (N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy``
         (1/px) of the field after smoothing it with the thin-plate smoother
         of length ``length`` (pixels).
+
+        ``data`` (N,) bool, optional: nodes whose values the smoother fits;
+        the others (e.g. subsets cut by a hole, often poorly matched) are
+        filled in by the thin-plate interpolation instead of bending their
+        neighbours' curvature. The same mask must be passed on every call.
 
         The smoothing keeps high-wavenumber noise out of the estimate, so
         feeding it back into the local step stays a contraction. Nodes
         without neighbours on both sides along an axis take that second
         derivative from the neighbour inwards; twists are the mean over the
-        node's elements; nodes in no element get zeros."""
+        node's elements; nodes in no element and nodes at quadtree level
+        transitions (:func:`level_transition_nodes`) get zeros."""
         if self._curv is None or self._curv[0] != length:
             Dxx, Dyy, Dxy, hx, hy = second_difference_operators(self.mesh)
             K = self.T.T @ curvature_operator(self.mesh) @ self.T
+            wd = np.ones(self.mesh.n_nodes) if data is None else \
+                np.where(data, 1.0, UNTRUSTED_WEIGHT)
+            Wd = self.T.T @ sp.diags(wd)
             # well conditioned (length ~ step): warm-started CG beats a factor
-            lu = _SPDSolver((self.T.T @ self.T + length**4 * K).tocsc(), direct=False,
-                            rtol=1e-6)
+            lu = _SPDSolver((Wd @ self.T + length**4 * K).tocsc(), direct=False, rtol=1e-6)
             nb = _cached(self.mesh, "axis_neighbours", _axis_neighbours)
             e = self.mesh.elements
             cnt = np.bincount(e.ravel(), minlength=self.mesh.n_nodes).astype(float)
@@ -369,13 +399,13 @@ class GlobalSolver:
                                  (e.ravel(), np.repeat(np.arange(e.shape[0]), 4))),
                                 shape=(self.mesh.n_nodes, e.shape[0]))
             self._curv = (length, lu, _fill_from_inside(Dxx, hx, nb[:, :2]),
-                          _fill_from_inside(Dyy, hy, nb[:, 2:]), avg @ Dxy)
-        _, lu, Dxx, Dyy, Dxy = self._curv
+                          _fill_from_inside(Dyy, hy, nb[:, 2:]), avg @ Dxy, Wd)
+        _, lu, Dxx, Dyy, Dxy, Wd = self._curv
         uv = np.column_stack([uh, vh])
-        sm = self.T @ lu.solve(self.T.T @ uv, uv[self.free])
+        sm = self.T @ lu.solve(Wd @ uv, uv[self.free])
         out = np.column_stack([Dxx @ sm[:, 0], Dxy @ sm[:, 0], Dyy @ sm[:, 0],
                                Dxx @ sm[:, 1], Dxy @ sm[:, 1], Dyy @ sm[:, 1]])
-        out[~self.covered] = 0.0
+        out[~self.covered | level_transition_nodes(self.mesh)] = 0.0
         return out
 
     def solve(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,

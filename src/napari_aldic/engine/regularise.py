@@ -44,7 +44,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .global_solve import Q4Mesh, curvature_operator, second_difference_operators
+from .global_solve import (Q4Mesh, curvature_operator, level_transition_nodes,
+                           second_difference_operators)
 from .icgn import _buffers, _gather
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
@@ -324,7 +325,7 @@ def _deconvolution_gain(mesh, T, KtK, u, v, keep, noise_var, step, subset, curv_
     uv = np.column_stack([u, v])
     sm = T @ lu.solve(np.asfortranarray(T.T @ uv))
     lap = (h * (h + 1) / 6) * ((Dxx + Dyy) @ sm)
-    inner = keep & hx & hy
+    inner = keep & hx & hy & ~level_transition_nodes(mesh)
     if not inner.any():
         return 0.0
     raw = float(np.mean(np.sum(lap[inner] ** 2, axis=1)))
