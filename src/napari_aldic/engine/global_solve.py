@@ -44,7 +44,8 @@ import scipy.sparse.linalg as spla
 from .subsets import integral_image, rect_sums
 
 __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
-           "element_inside_roi"]
+           "element_inside_roi", "CurvatureEstimator", "curvature_operator",
+           "second_difference_operators", "level_transition_nodes"]
 
 UNTRUSTED_WEIGHT = 1e-6
 DIRECT_MAX_UNKNOWNS = 150_000  # above this a warm-started CG keeps memory bounded
@@ -327,8 +328,55 @@ class _SPDSolver:
         return sol
 
 
+class CurvatureEstimator:
+    """Nodal second derivatives of a displacement field, smoothed first.
+
+    The field is fitted by the thin-plate smoother of length ``length``
+    (pixels) at the ``data`` nodes (others, e.g. subsets cut by a hole, are
+    filled in by the thin-plate interpolation), then differentiated: three-
+    point second differences (nodes without neighbours on both sides along
+    an axis take that derivative from the neighbour inwards) and element
+    twists averaged over each node's elements. Nodes in no element and nodes
+    at quadtree level transitions (:func:`level_transition_nodes`) get zeros.
+    The smoothing keeps high-wavenumber noise out, so feeding the estimate
+    back into the local step stays a contraction.
+    """
+
+    def __init__(self, mesh: Q4Mesh, length: float, data: np.ndarray | None = None,
+                 T: sp.csr_matrix | None = None, free: np.ndarray | None = None):
+        n = mesh.n_nodes
+        self.T, self.free = mesh.prolongation() if T is None else (T, free)
+        Dxx, Dyy, Dxy, hx, hy = second_difference_operators(mesh)
+        K = self.T.T @ curvature_operator(mesh) @ self.T
+        wd = np.ones(n) if data is None else np.where(data, 1.0, UNTRUSTED_WEIGHT)
+        self._Wd = self.T.T @ sp.diags(wd)
+        # well conditioned (length ~ step): warm-started CG beats a factor
+        self._smoother = _SPDSolver((self._Wd @ self.T + length**4 * K).tocsc(), direct=False,
+                                    rtol=1e-6)
+        nb = _cached(mesh, "axis_neighbours", _axis_neighbours)
+        e = mesh.elements
+        cnt = np.bincount(e.ravel(), minlength=n).astype(float)
+        twist_to_nodes = sp.csr_matrix(((1.0 / np.maximum(cnt[e], 1)).ravel(),
+                                        (e.ravel(), np.repeat(np.arange(e.shape[0]), 4))),
+                                       shape=(n, e.shape[0]))
+        self._Dxx = _fill_from_inside(Dxx, hx, nb[:, :2])
+        self._Dyy = _fill_from_inside(Dyy, hy, nb[:, 2:])
+        self._Dxy = twist_to_nodes @ Dxy
+        self._zero = (np.bincount(e.ravel(), minlength=n) == 0) | level_transition_nodes(mesh)
+
+    def __call__(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
+        """(N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy`` in 1/px."""
+        uv = np.column_stack([uh, vh])
+        sm = self.T @ self._smoother.solve(self._Wd @ uv, uv[self.free])
+        out = np.column_stack([self._Dxx @ sm[:, 0], self._Dxy @ sm[:, 0], self._Dyy @ sm[:, 0],
+                               self._Dxx @ sm[:, 1], self._Dxy @ sm[:, 1], self._Dyy @ sm[:, 1]])
+        out[self._zero] = 0.0
+        return out
+
+
 class GlobalSolver:
-    """Solves ``(β GᵀG + μ diag(w)) û = β Gᵀ(F - W) + μ w (u - v)`` per component.
+    """Solves ``(β GᵀG + μ diag(w) + κ KᵀK) û = β Gᵀ(F - W) + μ w (u - v)`` per
+    component (``KᵀK``: :func:`curvature_operator`, ``κ = curvature``).
 
     The matrix depends only on the mesh, β, μ and the node weights, so it is
     factorised once (SuperLU) and reused for every ADMM iteration and for
@@ -360,7 +408,7 @@ class GlobalSolver:
         n_free = self.A.shape[0]
         self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
         self._system = _SPDSolver(self.A, self.direct, rtol=1e-7)
-        self._curv = None  # (length, smoother, operators) of second_gradients
+        self._curv = None  # (length, CurvatureEstimator) of second_gradients
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""
@@ -368,45 +416,12 @@ class GlobalSolver:
 
     def second_gradients(self, uh: np.ndarray, vh: np.ndarray, length: float,
                          data: np.ndarray | None = None) -> np.ndarray:
-        """Nodal second derivatives (N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy``
-        (1/px) of the field after smoothing it with the thin-plate smoother
-        of length ``length`` (pixels).
-
-        ``data`` (N,) bool, optional: nodes whose values the smoother fits;
-        the others (e.g. subsets cut by a hole, often poorly matched) are
-        filled in by the thin-plate interpolation instead of bending their
-        neighbours' curvature. The same mask must be passed on every call.
-
-        The smoothing keeps high-wavenumber noise out of the estimate, so
-        feeding it back into the local step stays a contraction. Nodes
-        without neighbours on both sides along an axis take that second
-        derivative from the neighbour inwards; twists are the mean over the
-        node's elements; nodes in no element and nodes at quadtree level
-        transitions (:func:`level_transition_nodes`) get zeros."""
+        """Nodal second derivatives (N, 6) of the field, from a
+        :class:`CurvatureEstimator` of this mesh kept between calls (the same
+        ``length`` and ``data`` mask are expected on every call)."""
         if self._curv is None or self._curv[0] != length:
-            Dxx, Dyy, Dxy, hx, hy = second_difference_operators(self.mesh)
-            K = self.T.T @ curvature_operator(self.mesh) @ self.T
-            wd = np.ones(self.mesh.n_nodes) if data is None else \
-                np.where(data, 1.0, UNTRUSTED_WEIGHT)
-            Wd = self.T.T @ sp.diags(wd)
-            # well conditioned (length ~ step): warm-started CG beats a factor
-            lu = _SPDSolver((Wd @ self.T + length**4 * K).tocsc(), direct=False, rtol=1e-6)
-            nb = _cached(self.mesh, "axis_neighbours", _axis_neighbours)
-            e = self.mesh.elements
-            cnt = np.bincount(e.ravel(), minlength=self.mesh.n_nodes).astype(float)
-            # node <- mean of its elements' twists
-            avg = sp.csr_matrix((np.repeat(1.0 / np.maximum(cnt[e], 1), 1).ravel(),
-                                 (e.ravel(), np.repeat(np.arange(e.shape[0]), 4))),
-                                shape=(self.mesh.n_nodes, e.shape[0]))
-            self._curv = (length, lu, _fill_from_inside(Dxx, hx, nb[:, :2]),
-                          _fill_from_inside(Dyy, hy, nb[:, 2:]), avg @ Dxy, Wd)
-        _, lu, Dxx, Dyy, Dxy, Wd = self._curv
-        uv = np.column_stack([uh, vh])
-        sm = self.T @ lu.solve(Wd @ uv, uv[self.free])
-        out = np.column_stack([Dxx @ sm[:, 0], Dxy @ sm[:, 0], Dyy @ sm[:, 0],
-                               Dxx @ sm[:, 1], Dxy @ sm[:, 1], Dyy @ sm[:, 1]])
-        out[~self.covered | level_transition_nodes(self.mesh)] = 0.0
-        return out
+            self._curv = (length, CurvatureEstimator(self.mesh, length, data, self.T, self.free))
+        return self._curv[1](uh, vh)
 
     def solve(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,
               vu: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

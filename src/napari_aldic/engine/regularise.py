@@ -44,8 +44,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .global_solve import (Q4Mesh, curvature_operator, level_transition_nodes,
-                           second_difference_operators)
+from .global_solve import (CurvatureEstimator, Q4Mesh, curvature_operator,
+                           level_transition_nodes, second_difference_operators)
 from .icgn import _buffers, _gather
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
@@ -157,11 +157,23 @@ def _lattice_noise_factor(ell: float, step: float, subset: int,
     s = _thin_plate_symbol(ell, step, qx, qy)
     H = s
     if curv_length is not None:
-        h = subset // 2
-        g = (h * (h + 1) / 6) * 4 * (qx + qy) / step**2 * _thin_plate_symbol(
-            curv_length, step, qx, qy)
-        H = s / (1 - s * g)
+        H = s / (1 - s * _feedback_symbol(step, subset, curv_length, qx, qy))
     return float(np.mean(H * H * r) - np.mean((s - 1) ** 2 * r))
+
+
+def _subset_gamma(subset: int) -> float:
+    """``γ = h(h+1)/6``: the subset mean of ``dx²/2`` (pixel offsets -h..h), the
+    centre shift a curvature of 1/px causes in an affine subset fit."""
+    h = subset // 2
+    return h * (h + 1) / 6
+
+
+def _feedback_symbol(step, subset, curv_length, qx, qy):
+    """Symbol of ``g = γ (-∇²) S_c``: the second-order warp's correction of the
+    local displacement per unit global field (curvature smoothed over
+    ``curv_length``)."""
+    return (_subset_gamma(subset) * 4 * (qx + qy) / step**2
+            * _thin_plate_symbol(curv_length, step, qx, qy))
 
 
 def _lattice_symbols(step: float, subset: int, n: int = 256):
@@ -184,8 +196,8 @@ def curvature_noise_gains(smooth: float, curv_length: float, step: float,
     the global step (length ``smooth``) and by the curvature smoother
     (``curv_length``), with subset-overlap-correlated local noise."""
     qx, qy, r = _lattice_symbols(step, subset)
-    thin = 16 * (qx + qy) ** 2
-    filt = 1.0 / ((1 + (smooth / step) ** 4 * thin) * (1 + (curv_length / step) ** 4 * thin))
+    filt = (_thin_plate_symbol(smooth, step, qx, qy)
+            * _thin_plate_symbol(curv_length, step, qx, qy))
     dxx2 = (4 * qx / step**2) ** 2
     dxy2 = 16 * qx * qy * (1 - qx) * (1 - qy) / step**4
     return float(np.mean(dxx2 * filt**2 * r)), float(np.mean(dxy2 * filt**2 * r))
@@ -272,7 +284,7 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     n_keep = int(keep.sum())
     gain = 0.0
     if curv_length is not None:
-        gain = _deconvolution_gain(mesh, T, KtK, u, v, keep, noise_var, step, subset,
+        gain = _deconvolution_gain(mesh, T, free, u, v, keep, noise_var, step, subset,
                                    curv_length)
 
     def risks(c: float) -> tuple[float, float]:
@@ -315,23 +327,20 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     return SmoothingChoice(float(candidates[i]) * subset, bool(warp < plain), table, gain)
 
 
-def _deconvolution_gain(mesh, T, KtK, u, v, keep, noise_var, step, subset, curv_length):
+def _deconvolution_gain(mesh, T, free, u, v, keep, noise_var, step, subset, curv_length):
     """Mean per node of ``‖γ ∇² u‖²``: the squared undermatching bias of an
-    affine subset (``γ = h(h+1)/6``), from the local field smoothed as the
-    curvature estimate is, minus the noise share of that estimate."""
-    Dxx, Dyy, _, hx, hy = second_difference_operators(mesh)
-    h = subset // 2
-    lu = spla.splu((T.T @ T + curv_length**4 * KtK).tocsc(), permc_spec="MMD_AT_PLUS_A")
-    uv = np.column_stack([u, v])
-    sm = T @ lu.solve(np.asfortranarray(T.T @ uv))
-    lap = (h * (h + 1) / 6) * ((Dxx + Dyy) @ sm)
+    affine subset, from the local field's curvature estimated exactly as the
+    second-order warp estimates it, minus the noise share of that estimate."""
+    _, _, _, hx, hy = second_difference_operators(mesh)
     inner = keep & hx & hy & ~level_transition_nodes(mesh)
     if not inner.any():
         return 0.0
+    curv = CurvatureEstimator(mesh, curv_length, keep, T, free)(u, v)
+    lap = _subset_gamma(subset) * np.column_stack([curv[:, 0] + curv[:, 2],
+                                                   curv[:, 3] + curv[:, 5]])
     raw = float(np.mean(np.sum(lap[inner] ** 2, axis=1)))
     qx, qy, r = _lattice_symbols(step, subset)
-    g = (h * (h + 1) / 6) * 4 * (qx + qy) / step**2 * _thin_plate_symbol(curv_length, step,
-                                                                          qx, qy)
+    g = _feedback_symbol(step, subset, curv_length, qx, qy)
     noise = float(np.mean(g * g * r)) * float(np.mean(noise_var[inner].sum(axis=1)))
     return max(raw - noise, 0.0)
 
