@@ -112,7 +112,7 @@ def test_second_order_warp_removes_undermatching_bias():
     both = loc.valid & affine.valid & quad.valid
     e_loc, e_aff, e_quad = (_rmse(r, field, both) for r in (loc, affine, quad))
     assert e_loc > 0.03 and e_aff > 0.03  # the bias is real (measured 0.048, 0.050)
-    assert e_quad < 0.35 * e_loc  # measured 0.012
+    assert e_quad < 0.3 * e_loc  # measured 0.012 (0.25x)
     # noise-free images get (almost) no smoothing
     assert quad.meta["regularisation"]["smooth_px"] <= 0.2 * 31
 

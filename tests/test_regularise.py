@@ -112,8 +112,8 @@ def test_predicted_noise_matches_the_actual_local_error(noise):
     ok = loc.valid
     actual = np.sqrt(np.mean([(loc.u - ut)[ok] ** 2, (loc.v - vt)[ok] ** 2], axis=1))
     predicted = np.sqrt(np.mean(var[ok], axis=0))
-    # measured ratios 0.95-1.05
-    np.testing.assert_allclose(predicted, actual, rtol=0.2)
+    # measured predicted/actual 0.86-0.92 (a sinusoid case: 0.95-1.01)
+    np.testing.assert_allclose(predicted, actual, rtol=0.15)
 
 
 def test_sure_picks_no_smoothing_without_noise_and_more_with_noise():
@@ -133,10 +133,18 @@ def test_sure_picks_no_smoothing_without_noise_and_more_with_noise():
 
 
 def test_fixed_smoothing_length_and_validation():
-    ref, dfm = S.speckle_pair((160, 160), S.Translation(0.2, 0.1), noise=3.0, seed=2)
+    field = S.Translation(0.2, 0.1)
+    ref, dfm = S.speckle_pair((160, 160), field, noise=6.0, seed=2)
     res = correlate(ref, dfm, method="aldic", smooth=9.5)
     assert res.meta["regularisation"] == {"mode": "fixed", "smooth_px": 9.5,
                                           "second_order_warp": True}
+    # the length really reaches the global solve: more smoothing, less noise
+    # on a rigid shift (the thin-plate term costs an affine field nothing)
+    errs = []
+    for ell in (0.0, 9.5):
+        r = correlate(ref, dfm, method="aldic", smooth=ell, second_order_warp=False)
+        errs.append(np.sqrt(np.mean((r.u - 0.2) ** 2 + (r.v - 0.1) ** 2)))
+    assert errs[1] < 0.8 * errs[0], errs  # measured 0.67x
     for bad in ("big", -1.0, True):
         with pytest.raises(ValueError, match="smooth"):
             DICParams(smooth=bad)

@@ -276,9 +276,13 @@ def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: fl
 def _regularisation(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
                       sol: "_Solution", trusted: np.ndarray, params: DICParams):
     """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
-    predicted local noise variances (n, 2))``; the user's smoothing length,
-    or the length (and use of the second-order warp) chosen by risk."""
+    predicted local noise variances (n, 2) or None when nothing needs them)``;
+    the user's smoothing length, or the length (and use of the second-order
+    warp) chosen by risk."""
     t = time.perf_counter()
+    if params.smooth != "auto" and not params.second_order_warp:
+        return float(params.smooth), False, {"mode": "fixed", "second_order_warp": False,
+                                             "seconds": 0.0}, None
     var = displacement_noise(im.f, im.fgx, im.fgy, grid.x, grid.y, sub.slot, sub.masks,
                              params.half, sol.zncc, im.g_spline.order)
     if params.smooth != "auto":
