@@ -145,7 +145,7 @@ def test_fixed_smoothing_length_and_validation():
         r = correlate(ref, dfm, method="aldic", smooth=ell, second_order_warp=False)
         errs.append(np.sqrt(np.mean((r.u - 0.2) ** 2 + (r.v - 0.1) ** 2)))
     assert errs[1] < 0.8 * errs[0], errs  # measured 0.67x
-    for bad in ("big", -1.0, True):
+    for bad in ("big", -1.0, True, None):
         with pytest.raises(ValueError, match="smooth"):
             DICParams(smooth=bad)
     with pytest.raises(ValueError, match="second_order_warp"):

@@ -264,7 +264,8 @@ class DICWidget(Container):
             section("Input"), self.image, self.roi_add, self.roi_subtract, self.roi_labels,
             self.brush, self.seeds,
             section("Correlation"), self.method, self.subset, self.step, self.search,
-            self.refine, self.smooth, self.smooth_px, self.init, self.reference, self.start, self.stop, self.stride,
+            self.refine, self.smooth, self.smooth_px, self.init, self.reference, self.start,
+            self.stop, self.stride,
             section("Strain"), self.strain_window, self.strain_method, self.strain_measure,
             section("Units"), self.pixel_size, self.unit, self.frame_interval, self.time_unit,
             section("Display"), self.show_field, display, self.vector_length,
@@ -304,7 +305,8 @@ class DICWidget(Container):
         self.image.changed.connect(self._on_image_changed)
         for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds,
                   self.method, self.subset, self.step, self.search, self.refine, self.init,
-                  self.smooth, self.smooth_px, self.reference, self.start, self.stop, self.stride, self.strain_window):
+                  self.smooth, self.smooth_px, self.reference, self.start, self.stop,
+                  self.stride, self.strain_window):
             w.changed.connect(self._validate)
         for w in (self.pixel_size, self.unit, self.frame_interval, self.time_unit):
             w.changed.connect(self._on_units_changed)

@@ -85,14 +85,13 @@ class DICParams:
         the global solve, so the smoothing it implies scales with the node
         spacing. Larger values make the global field smoother.
     smooth : "auto" or float, default "auto"
-        AL-DIC curvature regularisation: the smoothing length ``ℓ`` in
-        pixels of an extra global-step term that penalises changes of the
-        displacement gradient between neighbouring nodes (zero for uniform
-        strain and rigid motion; a displacement wave of wavenumber ``k`` is
-        damped by ``1/(1 + (kℓ)^4)``). ``"auto"`` chooses ``ℓ`` per image
-        pair by minimising Stein's unbiased risk estimate with the noise
-        predicted from the images (noise-free pairs get ~0, noisy pairs of
-        smooth fields up to ~2 steps); ``0`` runs plain Algorithm 1. See
+        AL-DIC thin-plate regularisation: the smoothing length ``ℓ`` in
+        pixels of an extra global-step term, the squared second derivatives
+        of ``û`` (zero for uniform strain and rigid motion; a displacement
+        wave of wavenumber ``k`` is damped by ``1/(1 + (kℓ)^4)``). ``"auto"``
+        chooses ``ℓ`` per image pair, at most half a subset, by minimising
+        Stein's unbiased risk estimate with the noise predicted from the
+        images (noise-free pairs get ~0); ``0`` runs plain Algorithm 1. See
         :mod:`napari_aldic.engine.regularise`.
     second_order_warp : bool, default True
         Allow the AL-DIC local step to bend each subset with the global
@@ -182,12 +181,10 @@ class DICParams:
             bad(f"mu={self.mu} must be > 0")
         if not self.beta > 0:
             bad(f"beta={self.beta} must be > 0")
-        if isinstance(self.smooth, str):
-            if self.smooth != "auto":
+        if self.smooth != "auto":
+            ok = isinstance(self.smooth, (int, float)) and not isinstance(self.smooth, bool)
+            if not (ok and self.smooth >= 0):
                 bad(f"smooth={self.smooth!r} must be 'auto' or a length >= 0 in pixels")
-        elif isinstance(self.smooth, bool) or not (float(self.smooth) >= 0):
-            bad(f"smooth={self.smooth!r} must be 'auto' or a length >= 0 in pixels")
-        else:
             object.__setattr__(self, "smooth", float(self.smooth))
         if not isinstance(self.second_order_warp, bool):
             bad(f"second_order_warp={self.second_order_warp!r} must be True or False")
