@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from napari_aldic.engine import Reason, correlate, synthetic as S
-from napari_aldic.engine.global_solve import GlobalSolver, Q4Mesh, gradient_operator
-from napari_aldic.engine.mesh import make_grid
-from napari_aldic.engine.quadtree import Refinement, build_quadtree, flag_elements
+from napari_aldic.engine.dic.global_solve import GlobalSolver, Q4Mesh, gradient_operator
+from napari_aldic.engine.dic.mesh import make_grid
+from napari_aldic.engine import Refinement
+from napari_aldic.engine.dic.quadtree import build_quadtree, flag_elements
 
 
 def _rmse(res, field, sel=None):
@@ -201,7 +202,7 @@ def test_hanging_constraint_in_global_solve():
 
 def test_gradient_operator_is_exact_for_linear_fields():
     grid = make_grid(np.ones((80, 80), bool), 11, 6)
-    from napari_aldic.engine.global_solve import uniform_mesh
+    from napari_aldic.engine.dic.global_solve import uniform_mesh
 
     mesh = uniform_mesh(grid, np.ones((80, 80), bool))
     Gx, Gy, covered = gradient_operator(mesh)

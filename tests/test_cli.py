@@ -14,7 +14,7 @@ import pytest
 import tifffile
 
 from napari_aldic import __version__
-from napari_aldic._cases import make_field
+from napari_aldic.engine.synthetic import make_field
 from napari_aldic.cli import main
 from napari_aldic.engine import load_result, synthetic as S
 
@@ -290,7 +290,7 @@ def test_usage_errors_and_version():
 
 # ----------------------------------------------------------------- figure
 def test_displacement_figure_panels(demo):
-    from napari_aldic.engine.figures import displacement_figure
+    from napari_aldic.engine.viz import displacement_figure
 
     folder, _ = demo
     res = load_result(folder / "result.npz")

@@ -9,29 +9,12 @@ import scipy.io as sio
 from PIL import Image
 
 from napari_aldic.engine import DICParams, compute_strain
-from napari_aldic.engine.export import (
-    EncoderNotFoundError,
-    collect_frames,
-    export_result,
-    export_csv,
-    export_davis,
-    export_gif,
-    export_mat,
-    export_mp4,
-    export_png,
-    export_vtu,
-    field_figure,
-    load_mat,
-    load_params,
-    load_run,
-    load_settings,
-    read_csv,
-    read_vtu,
-    result_cells,
-    save_params,
-)
-from napari_aldic.engine.report import export_report, line_profile, report_page_count
-from napari_aldic.engine.units import Units
+from napari_aldic.engine import EncoderNotFoundError, export_result, load_params, load_run, save_params
+from napari_aldic.engine.io import collect_frames, export_csv, export_davis, export_mat, export_vtu, load_mat, load_settings, read_csv, read_vtu, result_cells
+from napari_aldic.engine.viz import export_gif, export_mp4, export_png, field_figure
+from napari_aldic.engine import export_report
+from napari_aldic.engine.viz import line_profile, report_page_count
+from napari_aldic.engine import Units
 
 from _export_data import N_FRAMES, aldic_result, field, run_folder, sequence, stack
 

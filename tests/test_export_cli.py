@@ -14,7 +14,7 @@ from PIL import Image
 
 from napari_aldic.cli import main
 from napari_aldic.engine import load_result
-from napari_aldic.engine.export import read_csv, read_vtu
+from napari_aldic.engine.io import read_csv, read_vtu
 
 from _export_data import N_FRAMES, run_folder, stack
 

@@ -7,18 +7,10 @@ import os
 import pytest
 
 from napari_aldic.engine import DICParams
-from napari_aldic.engine.export import (
-    ExportError,
-    export_csv,
-    export_davis,
-    export_gif,
-    export_mat,
-    export_mp4,
-    export_png,
-    export_vtu,
-    save_params,
-)
-from napari_aldic.engine.report import export_report
+from napari_aldic.engine import ExportError, save_params
+from napari_aldic.engine.io import export_csv, export_davis, export_mat, export_vtu
+from napari_aldic.engine.viz import export_gif, export_mp4, export_png
+from napari_aldic.engine import export_report
 
 from _export_data import sequence
 

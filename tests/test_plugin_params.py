@@ -12,8 +12,9 @@ import pytestqt  # noqa: E402,F401
 
 from napari_aldic._widget import DICWidget  # noqa: E402
 from napari_aldic.engine import DICParams  # noqa: E402
-from napari_aldic.engine.export import load_settings, save_params  # noqa: E402
-from napari_aldic.engine.units import Units  # noqa: E402
+from napari_aldic.engine.io import load_settings
+from napari_aldic.engine import save_params  # noqa: E402
+from napari_aldic.engine import Units  # noqa: E402
 
 from _plugin_helpers import add_inputs, speckle_stack  # noqa: E402
 
@@ -285,7 +286,7 @@ def test_saved_file_runs_with_the_cli(make_napari_viewer_proxy, qtbot, tmp_path)
     import tifffile
 
     from napari_aldic.cli import main
-    from napari_aldic.engine.results import load_result
+    from napari_aldic.engine import load_result
 
     stack = speckle_stack()[:2]
     tif = tmp_path / "pair.tif"

@@ -6,14 +6,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from napari_aldic.engine import DICParams, correlate, synthetic as S
-from napari_aldic.engine.global_solve import (GlobalSolver, curvature_operator,
-                                              second_difference_operators, uniform_mesh)
-from napari_aldic.engine.local import prepare_images
-from napari_aldic.engine.mesh import make_grid
-from napari_aldic.engine.quadtree import Refinement, build_quadtree
-from napari_aldic.engine.regularise import (_lattice_trace_factor, choose_smoothing,
-                                            displacement_noise)
-from napari_aldic.engine.subsets import split_subsets
+from napari_aldic.engine.dic.global_solve import GlobalSolver, curvature_operator, second_difference_operators, uniform_mesh
+from napari_aldic.engine.dic.local import prepare_images
+from napari_aldic.engine.dic.mesh import make_grid
+from napari_aldic.engine import Refinement
+from napari_aldic.engine.dic.quadtree import build_quadtree
+from napari_aldic.engine.dic.regularise import _lattice_trace_factor, choose_smoothing, displacement_noise
+from napari_aldic.engine.dic.subsets import split_subsets
 
 
 def _mesh(shape=(160, 200), subset=15, step=8):
@@ -156,7 +155,7 @@ def test_fixed_smoothing_length_and_validation():
 
 
 def test_noise_factor_reduces_to_sure_and_counts_the_warp_amplification():
-    from napari_aldic.engine.regularise import _lattice_noise_factor
+    from napari_aldic.engine.dic.regularise import _lattice_noise_factor
 
     for ell in (0.0, 5.0, 12.0):
         assert _lattice_noise_factor(ell, 8, 31) == pytest.approx(
@@ -185,7 +184,7 @@ def test_warp_is_chosen_only_where_it_pays():
 
 
 def test_shrinkage_keeps_strong_curvature_and_drops_noise():
-    from napari_aldic.engine.regularise import shrink_curvature
+    from napari_aldic.engine.dic.regularise import shrink_curvature
 
     curv = np.zeros((2, 6))
     curv[0] = 1e-3  # far above its noise
@@ -199,7 +198,7 @@ def test_curvature_is_not_estimated_across_level_transitions():
     """Hanging nodes make the FE field linear along their edge: second
     differences there are artefacts, so those nodes (and their neighbours)
     get no curvature; elsewhere a quadratic field's curvature is exact."""
-    from napari_aldic.engine.global_solve import level_transition_nodes
+    from napari_aldic.engine.dic.global_solve import level_transition_nodes
 
     mesh = _hole_quadtree()
     trans = level_transition_nodes(mesh)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from napari_aldic.engine import compute_strain, correlate, synthetic as S
-from napari_aldic.engine.strain import strain_measures
+from napari_aldic.engine.dic.strain import strain_measures
 
 
 def test_measures_of_a_uniaxial_stretch():

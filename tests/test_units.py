@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from napari_aldic.engine import DICParams, Reason, correlate, load_result, synthetic as S
-from napari_aldic.engine.init_guess import ncc_search, ncc_search_widening
-from napari_aldic.engine.interpolation import prefilter, reference_gradients, sample
-from napari_aldic.engine.mesh import EDGE, make_grid
-from napari_aldic.engine.outliers import lattice_neighbours, median_test
-from napari_aldic.engine.subsets import split_subsets
+from napari_aldic.engine.dic.init_guess import ncc_search, ncc_search_widening
+from napari_aldic.engine.dic.interpolation import prefilter, reference_gradients, sample
+from napari_aldic.engine.dic.mesh import EDGE, make_grid
+from napari_aldic.engine.dic.outliers import lattice_neighbours, median_test
+from napari_aldic.engine.dic.subsets import split_subsets
 
 
 @pytest.mark.parametrize("order", [3, 5])

@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from .engine import DICParams, DICResult, Refinement, compute_strain, track
-from .engine.quadtree import resolve_refinement
+from .engine.dic.quadtree import resolve_refinement
 
 __all__ = ["Analysis", "StrainSettings", "run_analysis"]
 

@@ -45,7 +45,7 @@ def make_translation_pair():
 def make_crack_pair():
     """Synthetic 256 x 256 Mode-I crack pair (``(2, 256, 256)`` uint8 stack)
     and its ROI as a Labels layer (1 = analysed, 0 = the crack slot)."""
-    from ._cases import make_case
+    from .engine.synthetic import make_case
 
     case = make_case("crack", (256, 256), seed=4, n_quad=2)
     f = case.field

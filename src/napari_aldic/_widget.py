@@ -35,7 +35,7 @@ from ._analysis import Analysis, StrainSettings, run_analysis
 from ._layers import FIELDS, LAYER_NAMES, Display, Geometry, analysis_layers, layer_name
 from ._roi import build_roi, labels_mask, points_xy
 from .engine import DICParams
-from .engine.units import Units
+from .engine import Units
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
@@ -680,7 +680,7 @@ class DICWidget(Container):
         """
         from napari.utils.notifications import show_error
 
-        from .engine.export import save_params
+        from .engine import save_params
 
         try:
             s = self.current_settings()
@@ -759,7 +759,7 @@ class DICWidget(Container):
     def _settings_plan(self, path):
         """Read and check a parameter file: ``(plan, extra, seeds, notes)``, the
         plan a list of ``(control, value)``; raises ``ValueError`` on any problem."""
-        from .engine.export import load_settings as read_settings
+        from .engine.io import load_settings as read_settings
 
         s = read_settings(path)
         params: DICParams = s["params"]

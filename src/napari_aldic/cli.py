@@ -44,7 +44,7 @@ class CLIError(Exception):
 # ----------------------------------------------------------------- parsing
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``napari-aldic``."""
-    from ._cases import FIELDS
+    from .engine.synthetic import CASES as FIELDS
 
     parser = argparse.ArgumentParser(
         prog=PROG, description="2-D digital image correlation (napari-aldic engine).")
@@ -250,9 +250,9 @@ def run_demo(args) -> None:
     """``napari-aldic demo``: synthetic pair, analysis, error report, files."""
     import tifffile
 
-    from ._cases import make_case
+    from .engine.synthetic import make_case
     from .engine import correlate
-    from .engine.figures import plot_displacement
+    from .engine.viz import plot_displacement
 
     out = args.out.expanduser().resolve()
     case = make_case(args.field, (args.size, args.size), noise=args.noise, seed=args.seed)
@@ -459,7 +459,7 @@ def load_params(args):
 def _units_from_args(args, base=None):
     """Units from --pixel-size/--unit/--frame-interval/--time-unit over ``base``
     (None when nothing is given)."""
-    from .engine.units import Units
+    from .engine import Units
 
     given = {k: getattr(args, k) for k in ("pixel_size", "unit", "frame_interval", "time_unit")
              if getattr(args, k, None) is not None}
@@ -472,7 +472,7 @@ def _settings_extras(path):
     """(units, strain) of a settings file given with ``--params``/``--settings``."""
     if path is None:
         return None, None
-    from .engine.export import load_settings
+    from .engine.io import load_settings
 
     s = load_settings(_check_file(path))
     return s["units"], s["strain"]
@@ -480,7 +480,7 @@ def _settings_extras(path):
 
 def run_params(args) -> None:
     """``napari-aldic params OUT.json``: write the parameters (and units)."""
-    from .engine.export import save_params
+    from .engine import save_params
 
     params = load_params(args)
     units0, strain = _settings_extras(args.params)
@@ -531,14 +531,14 @@ def frame_summary(res) -> list[str]:
 def run_analysis(args) -> None:
     """``napari-aldic run``: every frame against frame 0, one result file each."""
     from .engine import correlate, track
-    from .engine.figures import plot_displacement
+    from .engine.viz import plot_displacement
 
     params = load_params(args)
     roi = read_mask(args.roi) if args.roi is not None else None
     units0, strain = _settings_extras(args.params)
     units = _units_from_args(args, units0)
     if getattr(args, "params_out", None) is not None:
-        from .engine.export import save_params
+        from .engine import save_params
 
         written = save_params(args.params_out, params, units=units, strain=strain)
         print(f"parameters written to {written.resolve()}")
@@ -635,7 +635,7 @@ def _export_base(inputs: list[Path], output: Path | None) -> Path:
 
 def run_export(args) -> int:
     """``napari-aldic export``: every requested format; returns the exit code."""
-    from .engine.export import EncoderNotFoundError, export_result
+    from .engine import EncoderNotFoundError, export_result
 
     formats = [f.strip().lower() for item in args.formats for f in item.split(",") if f.strip()]
     bad = [f for f in formats if f not in EXPORT_FORMATS]
@@ -650,7 +650,7 @@ def run_export(args) -> int:
         if any(p.is_dir() for p in args.inputs):
             raise CLIError("give one run folder, or one or more result files")
         data = [p.expanduser() for p in args.inputs]
-    from .engine.export import collect_frames
+    from .engine.io import collect_frames
 
     units0, strain0 = _settings_extras(args.settings)
     units = _units_from_args(args, units0)

@@ -1,68 +1,80 @@
 """napari-free DIC engine: NumPy/SciPy/Numba only (no napari, no Qt).
 
-Public API::
+The public API is what this module exports (``__all__``), plus the curated
+subpackages :mod:`~napari_aldic.engine.io` (file formats, run folders, image
+stacks), :mod:`~napari_aldic.engine.viz` (figures, media, PDF report) and
+:mod:`~napari_aldic.engine.synthetic` (exact-truth speckle images)::
 
-    from napari_aldic.engine import correlate, DICParams, DICResult
+    from napari_aldic.engine import correlate, track, compute_strain
+    res = correlate(reference, deformed, subset=31, step=8, method="aldic")
+
+Layout, by role (imports flow downwards only; see docs/architecture.md):
+
+* ``core/``      value types and validation: parameters, results, units, reasons,
+  settings, atomic file writes, progress/cancel;
+* ``kernels/``   every Numba kernel (numpy/numba only);
+* ``dic/``       the algorithm, one module per step of Algorithm 1;
+* ``io/``        image stacks, run folders and every result file format;
+* ``viz/``       matplotlib figures, PNG/GIF/MP4 and the PDF report;
+* ``workflow/``  what strings the steps together: ``track`` and ``export_result``;
+* ``synthetic/`` exact-truth images and the named demo cases.
 """
 
-from . import synthetic
-from .correlate import correlate
-from .figures import displacement_figure, plot_displacement
-from .images import as_gray_float
-from .interpolation import SplineImage, prefilter, sample
-from .params import DICParams
-from .reasons import Reason
-from .results import DICResult, load_result
-from .strain import StrainResult, compute_strain
-from .sequence import SequenceResult, open_stack, track
-from .units import Units
-from .progress import Cancelled
-from .export import (EncoderNotFoundError, ExportError, collect_frames, export_csv,
-                     export_davis, export_gif, export_mat, export_mp4, export_png,
-                     export_result, export_vtu, field_figure, load_mat, load_params,
-                     load_run, load_settings, read_csv, read_vtu, save_params)
-from .report import export_report
-from .quadtree import Refinement
+from __future__ import annotations
+
+import importlib
+import warnings
+
+from . import io, synthetic, viz
+from .core.files import EncoderNotFoundError, ExportError
+from .core.params import DICParams
+from .core.progress import Cancelled
+from .core.reasons import Reason
+from .core.results import DICResult, SequenceResult, load_result
+from .core.units import Units
+from .dic.correlate import correlate
+from .dic.quadtree import Refinement
+from .dic.strain import StrainResult, compute_strain
+from .io.runs import load_run
+from .io.settings_file import load_params, save_params
+from .io.stack import open_stack
+from .viz.report import export_report
+from .workflow.export import export_result
+from .workflow.sequence import track
 
 __all__ = [
-    "correlate",
-    "track",
-    "open_stack",
-    "SequenceResult",
-    "compute_strain",
-    "StrainResult",
-    "Refinement",
-    "DICParams",
-    "DICResult",
-    "Reason",
-    "load_result",
-    "as_gray_float",
-    "prefilter",
-    "sample",
-    "SplineImage",
-    "synthetic",
-    "displacement_figure",
-    "Units",
-    "Cancelled",
-    "ExportError",
-    "EncoderNotFoundError",
-    "export_result",
-    "export_mat",
-    "load_mat",
-    "export_csv",
-    "read_csv",
-    "export_vtu",
-    "read_vtu",
-    "export_davis",
-    "export_png",
-    "export_gif",
-    "export_mp4",
-    "field_figure",
-    "save_params",
-    "load_params",
-    "load_settings",
-    "load_run",
-    "collect_frames",
-    "export_report",
-    "plot_displacement",
+    # analysis
+    "correlate", "track", "compute_strain", "DICParams", "Refinement", "Cancelled",
+    # results
+    "DICResult", "SequenceResult", "StrainResult", "Reason", "Units", "load_result",
+    "load_run", "open_stack",
+    # files
+    "export_result", "export_report", "save_params", "load_params",
+    "ExportError", "EncoderNotFoundError",
+    # subpackages
+    "io", "viz", "synthetic",
 ]
+
+#: names this module exported before the engine was split into subpackages;
+#: still importable (with a DeprecationWarning naming the new home)
+_MOVED = {
+    "as_gray_float": "core.images", "prefilter": "dic.interpolation",
+    "sample": "dic.interpolation", "SplineImage": "dic.interpolation",
+    "displacement_figure": "viz.figures", "plot_displacement": "viz.figures",
+    "field_figure": "viz.figures", "export_png": "viz.media", "export_gif": "viz.media",
+    "export_mp4": "viz.media", "export_csv": "io.csv", "read_csv": "io.csv",
+    "export_mat": "io.matlab", "load_mat": "io.runs", "export_vtu": "io.vtk",
+    "read_vtu": "io.vtk", "export_davis": "io.davis", "load_settings": "io.settings_file",
+    "collect_frames": "io.runs",
+}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        public = "viz" if _MOVED[name].startswith("viz") else "io"
+        if _MOVED[name].startswith(("core", "dic")):
+            public = _MOVED[name]
+        warnings.warn(f"napari_aldic.engine.{name} moved: import it from "
+                      f"napari_aldic.engine.{public}", DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(f".{_MOVED[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

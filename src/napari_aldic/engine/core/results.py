@@ -227,3 +227,27 @@ def load_result(path) -> DICResult:
             arrays["roi"] = bits.reshape(shape).astype(bool)
     return DICResult(**arrays, image_shape=tuple(header["image_shape"]),
                      params=DICParams.from_dict(header["params"]), meta=header["meta"])
+
+
+@dataclass
+class SequenceResult:
+    """Per-frame results, all in frame-0 (Lagrangian) coordinates.
+
+    ``seq[0]`` is the reference frame (zero displacement); ``seq[k]`` is frame
+    k against frame 0. Frames not computed (cancelled run) are ``None``.
+    """
+
+    frames: list
+    params: DICParams
+    reference: str
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, k: int) -> DICResult | None:
+        return self.frames[k]
+
+    @property
+    def complete(self) -> bool:
+        return all(r is not None for r in self.frames)

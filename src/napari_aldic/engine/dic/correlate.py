@@ -11,17 +11,17 @@ from typing import Callable
 import numba
 import numpy as np
 
+from ..core.images import as_gray_float, validate_pair, validate_roi
+from ..core.params import DICParams
+from ..core.progress import CancelFn, check_cancel
+from ..core.reasons import Reason
+from ..core.results import DICResult
 from .admm import CURVATURE_SMOOTHING, run_admm
 from .global_solve import Q4Mesh, uniform_mesh
-from .images import as_gray_float, validate_pair, validate_roi
 from .local import Images, correlation_floor, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
-from .params import DICParams
-from .progress import CancelFn, check_cancel
 from .quadtree import Refinement, build_quadtree, resolve_refinement
-from .reasons import Reason
 from .regularise import choose_smoothing, displacement_noise
-from .results import DICResult
 from .subsets import SubsetMasks, split_subsets
 
 __all__ = ["correlate", "reference_result"]
@@ -45,7 +45,7 @@ def _numba_threads(n: int | None):
 def _versions() -> dict[str, str]:
     import scipy
 
-    from .. import __version__
+    from ..core.version import __version__
 
     return {"napari-aldic": __version__, "numpy": np.__version__,
             "scipy": scipy.__version__, "numba": numba.__version__}

@@ -20,13 +20,13 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..core.params import DICParams
+from ..core.reasons import Reason
 from .icgn import icgn_solve
 from .init_guess import ncc_search_widening
 from .interpolation import SplineImage, choose_order, prefilter, reference_gradients
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
-from .params import DICParams
-from .reasons import Reason
 from .subsets import SubsetMasks
 
 __all__ = ["Images", "prepare_images", "solve_local", "correlation_floor"]

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from .results import DICResult
+from ..core.results import DICResult
 
 __all__ = ["StrainResult", "compute_strain", "strain_measures"]
 

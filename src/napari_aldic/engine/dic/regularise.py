@@ -44,8 +44,13 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .global_solve import (CurvatureEstimator, Q4Mesh, curvature_operator,
-                           level_transition_nodes, second_difference_operators)
+from .global_solve import (
+    CurvatureEstimator,
+    Q4Mesh,
+    curvature_operator,
+    level_transition_nodes,
+    second_difference_operators,
+)
 from .icgn import _buffers, _gather
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",

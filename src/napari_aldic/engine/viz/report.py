@@ -24,22 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .export import (
-    FIELDS,
-    Frame,
-    _draw_field,
-    _field_label,
-    _field_values,
-    _frame_title,
-    _limits,
-    _software,
-    _target,
-    atomic_write,
-    collect_frames,
-    result_cells,
-)
-from .reasons import Reason
-from .units import Units
+from ..core.files import atomic_write, target_path
+from ..core.reasons import Reason
+from ..core.units import Units
+from ..io.columns import FIELDS, software_name
+from ..io.runs import Frame, collect_frames
+from ..io.vtk import result_cells
+from .figures import colour_limits, draw_field, field_label, field_values, frame_title
 
 __all__ = ["export_report", "line_profile", "report_page_count", "sample_cells"]
 
@@ -90,7 +81,7 @@ def line_profile(frame: Frame, units: Units, line, names=("u", "v"), n: int = 20
     cells = result_cells(res)
     out = {}
     for name in names:
-        vals = _field_values(frame, name, units)
+        vals = field_values(frame, name, units)
         out[name] = sample_cells(res.x, res.y, cells, vals, xs, ys)
     return dist, out
 
@@ -141,7 +132,7 @@ def _page_parameters(fr_list, units, info, line):
     idx = info.get("frames_all") or [f.index for f in fr_list]
     s = info.get("strain")
     lines = [("napari-aldic DIC report", {"size": 18, "weight": "bold", "gap": 0.04}),
-             (f"written {_dt.datetime.now().isoformat(timespec='seconds')} by {_software()}",
+             (f"written {_dt.datetime.now().isoformat(timespec='seconds')} by {software_name()}",
               {}),
              ("analysis software: " + (", ".join(f"{k} {v}" for k, v in versions.items())
                                        or "not recorded"), {}),
@@ -223,7 +214,7 @@ def _page_mesh(fr_list, units, info, line, image):
     ax.set_xlabel(f"x ({units.unit})")
     ax.set_ylabel(f"y ({units.unit})")
     p = info["params"]
-    ax.set_title(f"Mesh and nodes ({_frame_title(fr, units)}): {len(res)} nodes, "
+    ax.set_title(f"Mesh and nodes ({frame_title(fr, units)}): {len(res)} nodes, "
                  f"{len(cells)} Q4 cells, subset {p.subset} px, step {p.step} px, "
                  f"method {p.method}", fontsize=11)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="node status")
@@ -245,14 +236,14 @@ def _page_maps(fr, units, info, limits, image):
     axes = np.atleast_1d(fig.subplots(nrow, ncol)).ravel()
     for ax, name in zip(axes, names):
         cm, lo, hi = limits[name]
-        im = _draw_field(ax, fr, name, units, cm, lo, hi, image=image)
-        fig.colorbar(im, ax=ax, label=_field_label(name, units, info), shrink=0.8)
+        im = draw_field(ax, fr, name, units, cm, lo, hi, image=image)
+        fig.colorbar(im, ax=ax, label=field_label(name, units, info), shrink=0.8)
         ax.set_title(FIELDS[name][0], fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes[len(names):]:
         ax.axis("off")
     res = fr.result
-    fig.suptitle(f"{_frame_title(fr, units)}: {res.n_valid} of {len(res)} nodes trusted",
+    fig.suptitle(f"{frame_title(fr, units)}: {res.n_valid} of {len(res)} nodes trusted",
                  fontsize=12)
     return fig
 
@@ -268,24 +259,24 @@ def _page_profiles(fr_list, units, info, line, limits, image):
     ax0 = fig.add_subplot(gs[0])
     last = fr_list[-1]
     cm, lo, hi = limits["magnitude"]
-    im = _draw_field(ax0, last, "magnitude", units, cm, lo, hi, image=image,
+    im = draw_field(ax0, last, "magnitude", units, cm, lo, hi, image=image,
                      mark_flagged=False)
-    fig.colorbar(im, ax=ax0, label=_field_label("magnitude", units, info), shrink=0.8)
+    fig.colorbar(im, ax=ax0, label=field_label("magnitude", units, info), shrink=0.8)
     ps = units.pixel_size
     ax0.plot([line[0] * ps, line[2] * ps], [line[1] * ps, line[3] * ps], "-", color="m", lw=2)
     ax0.annotate("A", (line[0] * ps, line[1] * ps), color="m", weight="bold")
     ax0.annotate("B", (line[2] * ps, line[3] * ps), color="m", weight="bold")
     ax0.set_anchor("C")
-    ax0.set_title(f"profile line A-B over |u|, {_frame_title(last, units)}", fontsize=10)
+    ax0.set_title(f"profile line A-B over |u|, {frame_title(last, units)}", fontsize=10)
     names = ["u", "v"] + (["exx", "eyy", "exy"] if has_strain else [])
     axes = [fig.add_subplot(gs[i + 1]) for i in range(n_plots)]
     colors = matplotlib.colormaps["viridis"](np.linspace(0, 0.9, max(len(fr_list), 1)))
     for fr, color in zip(fr_list, colors):
         dist, prof = line_profile(fr, units, line, names)
         for ax, name in zip(axes, names):
-            ax.plot(dist, prof[name], color=color, lw=1.2, label=_frame_title(fr, units))
+            ax.plot(dist, prof[name], color=color, lw=1.2, label=frame_title(fr, units))
     for ax, name in zip(axes, names):
-        ax.set_ylabel(_field_label(name, units, info).replace(" (", "\n("), fontsize=8)
+        ax.set_ylabel(field_label(name, units, info).replace(" (", "\n("), fontsize=8)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=7)
     axes[-1].set_xlabel(f"distance from A along the line ({units.unit})")
@@ -299,7 +290,7 @@ def _series(fr_list, units):
     stats = {n: ([], []) for n in names}
     for fr in fr_list:
         for n in names:
-            v = _field_values(fr, n, units)
+            v = field_values(fr, n, units)
             v = v[np.isfinite(v)]
             stats[n][0].append(v.mean() if v.size else np.nan)
             stats[n][1].append(v.std() if v.size else np.nan)
@@ -420,7 +411,7 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
     """
     from matplotlib.backends.backend_pdf import PdfPages
 
-    path = _target(path, (".pdf",))
+    path = target_path(path, (".pdf",))
     line = _check_line(line)
     all_frames, units, info = collect_frames(data, strain=strain, units=units)
     if frames is None:
@@ -435,7 +426,7 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
     has_strain = shown[0].strain is not None
     limits = {}
     for name in set(_map_fields(has_strain)) | {"magnitude"}:
-        limits[name] = _limits(name, [_field_values(f, name, units) for f in shown])
+        limits[name] = colour_limits(name, [field_values(f, name, units) for f in shown])
     pages = [lambda: _page_parameters(all_frames, units, info, line),
              lambda: _page_mesh(shown, units, info, line, image)]
     pages += [lambda fr=fr: _page_maps(fr, units, info, limits, image) for fr in shown]
@@ -443,7 +434,7 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
         pages.append(lambda: _page_profiles(shown, units, info, line, limits, image))
     pages += [lambda: _page_summary(all_frames, units, info),
               lambda: _page_validity(all_frames, units)]
-    meta = {"Title": title or "napari-aldic DIC report", "Creator": _software(),
+    meta = {"Title": title or "napari-aldic DIC report", "Creator": software_name(),
             "Subject": f"DIC analysis, {len(all_frames)} frame(s)"}
     with atomic_write(path) as tmp:
         with PdfPages(tmp, metadata=meta) as pdf:

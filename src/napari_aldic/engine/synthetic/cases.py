@@ -10,10 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FIELDS", "SyntheticCase", "crack_roi", "make_field", "make_case"]
+from . import speckle as synthetic
+
+__all__ = ["CASES", "SyntheticCase", "crack_roi", "make_field", "make_case"]
 
 #: displacement fields the demo knows, first one is the default
-FIELDS = ("strain", "translation", "sinusoid", "crack")
+CASES = ("strain", "translation", "sinusoid", "crack")
 
 
 @dataclass
@@ -45,8 +47,6 @@ def make_field(kind: str, shape: tuple[int, int]):
 
     Returns ``(field, description)``.
     """
-    from .engine import synthetic
-
     rows, cols = shape
     cx, cy = cols / 2.0, rows / 2.0
     if kind == "strain":
@@ -68,13 +68,13 @@ def make_field(kind: str, shape: tuple[int, int]):
         desc = (f"Mode-I crack from the left edge to the tip at ({tip[0]:g}, {tip[1]:g}), "
                 f"opening {field.opening(0.0):.2f} px at the edge")
     else:
-        raise ValueError(f"unknown synthetic field {kind!r}; choose one of {', '.join(FIELDS)}")
+        raise ValueError(f"unknown synthetic field {kind!r}; choose one of {', '.join(CASES)}")
     return field, desc
 
 
 def make_case(kind: str = "strain", shape=(512, 512), noise: float = 0.0,
               seed: int = 0, n_quad: int = 4) -> SyntheticCase:
-    """Render the synthetic case ``kind`` (see :data:`FIELDS`).
+    """Render the synthetic case ``kind`` (see :data:`CASES`).
 
     ``noise`` is the standard deviation of independent Gaussian noise in grey
     levels added to each 8-bit image; ``n_quad`` the Gauss-Legendre points
@@ -87,7 +87,6 @@ def make_case(kind: str = "strain", shape=(512, 512), noise: float = 0.0,
         raise ValueError(f"synthetic image size {shape} is too small; use at least 48 px")
     if noise < 0:
         raise ValueError(f"noise={noise} must be >= 0 grey levels")
-    from .engine import synthetic
 
     field, desc = make_field(kind, shape)
     ref, dfm = synthetic.speckle_pair(shape, field, noise=noise, seed=seed, n_quad=n_quad)

@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
-from .reasons import Reason
+from ..core.reasons import Reason
 
 __all__ = ["SubsetMasks", "split_subsets", "integral_image", "rect_sums"]
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..core.reasons import Reason
 from .interpolation import PAD
-from .reasons import Reason
 
 # fast-math without the no-NaN/no-inf assumptions, so NaN checks survive
 _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}

@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.reasons import Reason
 from .global_solve import GlobalSolver, Q4Mesh
 from .icgn import icgn_solve_translation
-from .reasons import Reason
 from .regularise import curvature_noise_gains, shrink_curvature
 
 # the curvature of the second-order warp is taken from û smoothed over this

@@ -1,0 +1,1 @@
+"""Value types and primitives every other layer builds on (no algorithm here)."""

@@ -1,0 +1,117 @@
+"""Per-frame columns shared by every export: field names, units, metadata lines."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.reasons import Reason
+from ..core.results import DICResult
+from ..core.units import Units
+from .runs import RATE_NAMES, STRAIN_NAMES, Frame
+
+# =================================================================== columns
+#: field name -> (title, kind); kind picks the unit: length, velocity, rate, strain, ...
+FIELDS: dict[str, tuple[str, str]] = {
+    "u": ("u (x displacement)", "length"),
+    "v": ("v (y displacement)", "length"),
+    "magnitude": ("|u| (displacement magnitude)", "length"),
+    "vx": ("x velocity", "velocity"),
+    "vy": ("y velocity", "velocity"),
+    "exx": ("strain exx", "strain"),
+    "eyy": ("strain eyy", "strain"),
+    "exy": ("strain exy (tensor shear)", "strain"),
+    "e1": ("major principal strain e1", "strain"),
+    "e2": ("minor principal strain e2", "strain"),
+    "max_shear": ("maximum shear strain", "strain"),
+    "von_mises": ("equivalent (von Mises) strain", "strain"),
+    "rotation": ("rotation", "angle"),
+    "exx_rate": ("strain rate d(exx)/dt", "rate"),
+    "eyy_rate": ("strain rate d(eyy)/dt", "rate"),
+    "exy_rate": ("strain rate d(exy)/dt", "rate"),
+    "zncc": ("ZNCC (correlation quality)", "none"),
+}
+
+
+def unit_of(kind: str, units: Units) -> str:
+    return {"length": units.unit, "velocity": units.velocity_unit, "rate": units.rate_unit,
+            "angle": "rad", "px": "px", "time": units.time_unit}.get(kind, "")
+
+
+def same_nodes(a: DICResult, b: DICResult) -> bool:
+    return a.x.shape == b.x.shape and np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)
+
+
+def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
+    """Per-node columns of one frame: ``name -> (values, unit)``.
+
+    Lengths are in ``units.unit`` (``x_px``/``y_px`` stay in pixels);
+    velocities and strain rates appear only with a frame interval; they are
+    backward differences to the previous frame (frame 0 = zero field), NaN
+    at frame 0 and where the previous frame has other nodes.
+    """
+    res, ps = fr.result, units.pixel_size
+    n = len(res)
+    L = units.unit
+    cols: dict[str, tuple[np.ndarray, str]] = {
+        "node": (np.arange(n), ""),
+        "x_px": (np.asarray(res.x, float), "px"),
+        "y_px": (np.asarray(res.y, float), "px"),
+        "x": (res.x * ps, L),
+        "y": (res.y * ps, L),
+        "u": (res.u * ps, L),
+        "v": (res.v * ps, L),
+        "magnitude": (np.hypot(res.u, res.v) * ps, L),
+    }
+    dt_frames = None
+    prev_u = prev_v = None
+    prev_strain = None
+    if units.has_time:
+        p = fr.prev
+        if fr.index > 0 and (p is None or same_nodes(p.result, res)):
+            dt_frames = fr.index - (0 if p is None else p.index)
+            if p is None:
+                prev_u = prev_v = np.zeros(n)
+            else:
+                prev_u, prev_v = p.result.u, p.result.v
+                prev_strain = p.strain
+        dt = None if dt_frames is None else dt_frames * units.frame_interval
+        if dt is None:
+            vx = vy = np.full(n, np.nan)
+        else:
+            vx, vy = (res.u - prev_u) * ps / dt, (res.v - prev_v) * ps / dt
+        cols["vx"] = (vx, units.velocity_unit)
+        cols["vy"] = (vy, units.velocity_unit)
+    s = fr.strain
+    if s is not None:
+        for name in STRAIN_NAMES:
+            cols[name] = (np.asarray(getattr(s, name), float), "rad" if name == "rotation" else "")
+        if units.has_time:
+            for name in RATE_NAMES:
+                if dt_frames is None:
+                    rate = np.full(n, np.nan)
+                else:
+                    if fr.prev is None:
+                        before = np.zeros(n)
+                    elif prev_strain is not None:
+                        before = np.asarray(getattr(prev_strain, name), float)
+                    else:
+                        before = np.full(n, np.nan)
+                    rate = (getattr(s, name) - before) / (dt_frames * units.frame_interval)
+                cols[f"{name}_rate"] = (rate, units.rate_unit)
+        cols["strain_valid"] = (np.asarray(s.valid, bool), "")
+    cols["valid"] = (np.asarray(res.valid, bool), "")
+    cols["reason"] = (np.asarray(res.reason, np.int64), "")
+    cols["zncc"] = (np.asarray(res.zncc, float), "")
+    return cols
+
+
+def reason_lines() -> list[str]:
+    return [f"{int(r)}={Reason.describe(int(r))}" for r in Reason]
+
+
+def software_name() -> str:
+    from ..core.version import __version__
+
+    return f"napari-aldic {__version__}"
+
+

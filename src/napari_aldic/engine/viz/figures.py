@@ -1,0 +1,328 @@
+"""Headless figures of DIC results (matplotlib only, no GUI backend).
+
+matplotlib is imported inside the functions, so importing the engine stays
+light. Figures are built on :class:`matplotlib.figure.Figure` directly, not
+through ``pyplot``: no backend is selected, no window can open and no global
+figure state is touched, which makes them safe in scripts, batch jobs and
+worker threads.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.results import DICResult
+from ..core.units import Units
+from ..io.columns import FIELDS, frame_columns, unit_of
+from ..io.runs import Frame, collect_frames
+from ..io.vtk import result_cells
+
+__all__ = ["displacement_figure", "plot_displacement", "truth_at_nodes", "field_figure",
+           "field_label", "field_values", "colour_limits", "draw_field", "frame_title"]
+
+
+def truth_at_nodes(result, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Exact displacement ``(u, v)`` at the nodes of ``result``.
+
+    ``truth`` is a displacement field with a ``displacement(x, y)`` method
+    (e.g. from :mod:`napari_aldic.engine.synthetic`), a callable
+    ``truth(x, y) -> (u, v)``, or a pair of arrays with one value per node.
+    """
+    if hasattr(truth, "displacement"):
+        ut, vt = truth.displacement(result.x, result.y)
+    elif callable(truth):
+        ut, vt = truth(result.x, result.y)
+    else:
+        ut, vt = truth
+    ut = np.broadcast_to(np.asarray(ut, dtype=np.float64), result.x.shape)
+    vt = np.broadcast_to(np.asarray(vt, dtype=np.float64), result.x.shape)
+    return ut, vt
+
+
+def _lattice_extent(result) -> tuple[float, float, float, float]:
+    """imshow extent putting each lattice cell centred on its node."""
+    xs = np.asarray(result.grid_xs, float)
+    ys = np.asarray(result.grid_ys, float)
+    step = float(result.params.step)
+    dx = xs[1] - xs[0] if xs.size > 1 else step
+    dy = ys[1] - ys[0] if ys.size > 1 else step
+    return (xs[0] - dx / 2, xs[-1] + dx / 2, ys[-1] + dy / 2, ys[0] - dy / 2)
+
+
+def _symmetric_limit(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    lim = float(np.abs(finite).max()) if finite.size else 0.0
+    return lim if lim > 0 else 1.0
+
+
+def displacement_figure(result, truth=None, image=None, title: str | None = None):
+    """Figure with the u and v maps of ``result`` and an error (or ZNCC) map.
+
+    Parameters
+    ----------
+    result : DICResult
+        The analysis to show. Fields are drawn on the node lattice
+        (``result.to_grid``), one cell per node centred on it, in pixel
+        coordinates of the reference image; untrusted nodes are blank.
+    truth : displacement field, callable or (u, v) arrays, optional
+        Exact displacement (see :func:`truth_at_nodes`). When given, the
+        third panel is the error magnitude ``|(u, v) - truth|`` in pixels;
+        otherwise it is the ZNCC of every node.
+    image : (H, W) array, optional
+        Reference image drawn in grey underneath (visible where there is no
+        trusted node: holes, borders, flagged nodes).
+    title : str, optional
+        Figure title (default: a one-line summary of the result).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    rows, cols = (int(s) for s in result.image_shape)
+    extent = _lattice_extent(result)
+    diverging = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0, 0, 0, 0))
+    sequential = matplotlib.colormaps["viridis"].with_extremes(bad=(0, 0, 0, 0))
+
+    panels: list[dict[str, Any]] = []
+    for name in ("u", "v"):
+        grid = result.to_grid(name)
+        lim = _symmetric_limit(grid)
+        panels.append(dict(data=grid, cmap=diverging, vmin=-lim, vmax=lim,
+                           label=f"{name} (px)", title=f"{name} displacement", extend="neither"))
+    if truth is not None:
+        ut, vt = truth_at_nodes(result, truth)
+        err = np.hypot(result.u - ut, result.v - vt)
+        sel = result.valid & np.isfinite(err)
+        rmse = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else float("nan")
+        grid = np.full(result.grid_shape, np.nan)
+        grid[result.grid_iy[sel], result.grid_ix[sel]] = err[sel]
+        top = float(np.percentile(err[sel], 99)) if sel.any() else 1.0
+        top = top if top > 0 else 1.0
+        panels.append(dict(data=grid, cmap=matplotlib.colormaps["magma"].with_extremes(
+            bad=(0, 0, 0, 0)), vmin=0.0, vmax=top, label="error |(u, v) - truth| (px)",
+            title=f"error vs truth (RMSE {rmse:.4f} px)",
+            extend="max" if float(np.nanmax(grid, initial=0.0)) > top else "neither"))
+    else:
+        grid = result.to_grid("zncc", invalid=None)
+        finite = grid[np.isfinite(grid)]
+        lo = min(float(np.percentile(finite, 1)), 0.99) if finite.size else 0.0
+        clipped = finite.size and float(finite.min()) < lo
+        panels.append(dict(data=grid, cmap=sequential, vmin=lo, vmax=1.0, label="ZNCC",
+                           title="correlation quality", extend="min" if clipped else "neither"))
+
+    # size the figure so each map keeps the image aspect with room for its colour bar
+    n = len(panels)
+    wide = cols > 1.6 * rows
+    if wide:
+        ax_w = 8.0
+        ax_h = ax_w * rows / cols
+        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.6), layout="constrained")
+        axes = fig.subplots(n, 1, sharex=True, sharey=True)
+    else:
+        ax_h = min(7.0, 4.2 * rows / cols)
+        ax_w = ax_h * cols / rows
+        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.3), layout="constrained")
+        axes = fig.subplots(1, n, sharex=True, sharey=True)
+    axes = np.atleast_1d(axes)
+
+    bad = ~np.asarray(result.valid, bool)
+    for ax, panel in zip(axes, panels):
+        ax.set_facecolor("0.85")
+        if image is not None:
+            ax.imshow(np.asarray(image), cmap="gray", extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
+                      interpolation="nearest")
+        im = ax.imshow(panel["data"], cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"],
+                       extent=extent, interpolation="nearest")
+        if bad.any():
+            ax.plot(result.x[bad], result.y[bad], linestyle="none", marker="x", markersize=3,
+                    color="k", alpha=0.6, label="flagged node")
+        ax.set_xlim(-0.5, cols - 0.5)
+        ax.set_ylim(rows - 0.5, -0.5)
+        ax.set_title(panel["title"], fontsize=10)
+        ax.set_xlabel("x (px)")
+        ax.set_ylabel("y (px)")
+        fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
+    p = result.params
+    if title is None:
+        title = (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "
+                 f"step {p.step} px, {p.method}")
+    fig.suptitle(title, fontsize=11)
+    return fig
+
+
+def plot_displacement(result, path, truth=None, image=None, title: str | None = None,
+                      dpi: int = 120) -> Path:
+    """Save :func:`displacement_figure` to ``path`` (PNG, PDF, SVG... by suffix).
+
+    Returns the path written. The figure is closed afterwards (no pyplot state).
+    """
+    path = Path(path)
+    if not path.parent.exists():
+        raise FileNotFoundError(f"folder {path.parent} does not exist; create it first")
+    fig = displacement_figure(result, truth=truth, image=image, title=title)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+# =================================================================== figures
+def field_label(name: str, units: Units, info: dict | None = None) -> str:
+    if name not in FIELDS:
+        raise ValueError(f"unknown field {name!r}; choose one of {sorted(FIELDS)}")
+    title, kind = FIELDS[name]
+    unit = unit_of(kind, units)
+    if kind == "strain":
+        s = (info or {}).get("strain") or {}
+        measure = s.get("measure", "").replace("_", "-")
+        return f"{name} ({measure}, dimensionless)" if measure else f"{name} (dimensionless)"
+    if kind == "rate":
+        return f"{name} ({unit})"
+    return f"{name} ({unit})" if unit else name
+
+
+def field_values(fr: Frame, name: str, units: Units) -> np.ndarray:
+    cols = frame_columns(fr, units)
+    if name not in cols:
+        if FIELDS.get(name, ("", ""))[1] in ("strain", "angle", "rate") and fr.strain is None:
+            raise ValueError(f"field {name!r} needs strain: export with strain=True")
+        if name in ("vx", "vy") or name.endswith("_rate"):
+            raise ValueError(f"field {name!r} needs a frame interval (units.frame_interval)")
+        raise ValueError(f"unknown field {name!r}; choose one of {sorted(FIELDS)}")
+    vals = np.asarray(cols[name][0], float).copy()
+    ok = np.asarray(fr.result.valid, bool)
+    if fr.strain is not None and FIELDS[name][1] in ("strain", "angle", "rate"):
+        ok = ok & np.asarray(fr.strain.valid, bool)
+    vals[~ok] = np.nan
+    return vals
+
+
+def colour_limits(name: str, values: list[np.ndarray], clim=None):
+    """(cmap name, vmin, vmax) shared by all frames of an export."""
+    kind = FIELDS[name][1]
+    allv = np.concatenate([np.ravel(v) for v in values]) if values else np.empty(0)
+    fin = allv[np.isfinite(allv)]
+    if clim is not None:
+        lo, hi = float(clim[0]), float(clim[1])
+    elif fin.size:
+        lo, hi = (float(np.percentile(fin, 0.5)), float(np.percentile(fin, 99.5)))
+    else:
+        lo, hi = 0.0, 1.0
+    if name == "zncc":
+        return "viridis", (min(lo, 0.99) if clim is None else lo), (1.0 if clim is None else hi)
+    signed = kind in ("length", "velocity", "strain", "angle", "rate") and name not in (
+        "magnitude", "von_mises", "max_shear")
+    if signed and lo < 0 < hi:
+        if clim is None:
+            lim = max(abs(lo), abs(hi))
+            lo, hi = -lim, lim
+        return "RdBu_r", lo, hi
+    if hi <= lo:
+        span = abs(lo) * 0.01 or 1e-6
+        lo, hi = lo - span, hi + span
+    return "viridis", lo, hi
+
+
+def triangulation(res: DICResult, units: Units, values: np.ndarray):
+    """matplotlib Triangulation of the result's Q4 cells (2 triangles each),
+    triangles with an untrusted or NaN corner masked; None without cells."""
+    from matplotlib.tri import Triangulation
+
+    cells = result_cells(res)
+    if cells.shape[0] == 0:
+        return None
+    tris = np.concatenate([cells[:, [0, 1, 2]], cells[:, [0, 2, 3]]])
+    tri = Triangulation(res.x * units.pixel_size, res.y * units.pixel_size, tris)
+    bad = ~np.isfinite(values)
+    tri.set_mask(bad[tris].any(axis=1))
+    return tri
+
+
+def draw_field(ax, fr: Frame, name: str, units: Units, cmap, vmin, vmax, image=None,
+                mark_flagged: bool = True):
+    """Draw one field of one frame on ``ax``; returns the colour mappable."""
+    import matplotlib
+
+    res, ps = fr.result, units.pixel_size
+    rows, cols = (int(s) for s in res.image_shape)
+    vals = field_values(fr, name, units)
+    ax.set_facecolor("0.88")
+    if image is not None:
+        ax.imshow(np.asarray(image), cmap="gray",
+                  extent=(-0.5 * ps, (cols - 0.5) * ps, (rows - 0.5) * ps, -0.5 * ps),
+                  interpolation="nearest")
+    cm = matplotlib.colormaps[cmap] if isinstance(cmap, str) else cmap
+    tri = triangulation(res, units, vals)
+    if tri is not None and not tri.mask.all():
+        shown = np.where(np.isfinite(vals), vals, 0.0)
+        im = ax.tripcolor(tri, shown, shading="gouraud", cmap=cm, vmin=vmin, vmax=vmax,
+                          rasterized=True)
+    else:
+        ok = np.isfinite(vals)
+        im = ax.scatter(res.x[ok] * ps, res.y[ok] * ps, c=vals[ok], cmap=cm, vmin=vmin,
+                        vmax=vmax, s=12, marker="s")
+        if not ok.any():
+            im = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(vmin, vmax),
+                                              cmap=cm)
+    bad = ~np.asarray(res.valid, bool)
+    if mark_flagged and bad.any():
+        ax.plot(res.x[bad] * ps, res.y[bad] * ps, linestyle="none", marker="x", markersize=3,
+                color="k", alpha=0.5)
+    ax.set_xlim(-0.5 * ps, (cols - 0.5) * ps)
+    ax.set_ylim((rows - 0.5) * ps, -0.5 * ps)
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x ({units.unit})")
+    ax.set_ylabel(f"y ({units.unit})")
+    return im
+
+
+def frame_title(fr: Frame, units: Units) -> str:
+    t = f"frame {fr.index}"
+    if units.has_time:
+        t += f", t = {units.time(fr.index):g} {units.time_unit}"
+    return t
+
+
+def figure_size(shape, width: float = 6.4) -> tuple[float, float]:
+    rows, cols = shape
+    ax_w = width - 1.8  # room for the colour bar
+    ax_h = max(2.0, min(8.0, ax_w * rows / max(cols, 1)))
+    return width, ax_h + 1.1
+
+
+def field_figure(data, field: str = "u", *, frame: int | None = None, units=None,
+                 strain=True, image=None, cmap=None, clim=None, title: str | None = None,
+                 _prepared=None):
+    """A matplotlib Figure of one field of one frame, with a labelled colour bar.
+
+    ``frame`` is a frame number (default: the last). Untrusted nodes are left
+    blank and marked with x. Built on ``matplotlib.figure.Figure`` (no pyplot,
+    no GUI backend).
+    """
+    from matplotlib.figure import Figure
+
+    if _prepared is None:
+        fr_list, units, info = collect_frames(
+            data, frames=None if frame is None else [frame], strain=strain, units=units)
+        fr = fr_list[-1]
+        cm, lo, hi = colour_limits(field, [field_values(fr, field, units)], clim)
+    else:
+        fr, units, info, cm, lo, hi = _prepared
+    fig = Figure(figsize=figure_size(fr.result.image_shape), dpi=100, layout="constrained")
+    ax = fig.add_subplot()
+    im = draw_field(ax, fr, field, units, cmap or cm, lo, hi, image=image)
+    fig.colorbar(im, ax=ax, label=field_label(field, units, info), shrink=0.9)
+    ax.set_title(title or f"{FIELDS[field][0]} - {frame_title(fr, units)}", fontsize=10)
+    return fig
+
+
+def prepare_series(data, field, frames, units, strain, clim):
+    if field not in FIELDS:
+        raise ValueError(f"unknown field {field!r}; choose one of {sorted(FIELDS)}")
+    fr_list, units, info = collect_frames(data, frames=frames, strain=strain, units=units)
+    values = [field_values(fr, field, units) for fr in fr_list]
+    cm, lo, hi = colour_limits(field, values, clim)
+    return fr_list, units, info, cm, lo, hi
