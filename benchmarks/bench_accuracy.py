@@ -71,8 +71,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
 
-    from napari_aldic.engine import correlate
-    from napari_aldic.engine import synthetic as S
+    from napari_aldic.engine import correlate, synthetic as S
 
     rows = []
     for name, field in fields().items():

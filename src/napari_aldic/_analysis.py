@@ -1,24 +1,29 @@
 """What the plugin's Run button does, without napari: track a stack, then strain.
 
-The dock widget calls :func:`run_analysis` in a worker thread; tests and scripts
-can call it directly. Everything here is a thin layer over the engine
-(:func:`~napari_aldic.engine.track`, :func:`~napari_aldic.engine.correlate`,
-:func:`~napari_aldic.engine.compute_strain`); no napari or Qt is imported.
+The dock widget collects a :class:`Job` on the main thread and runs it with
+:func:`run_in_thread` in a napari worker; tests and scripts can call
+:func:`run_analysis` directly. Everything here is a thin layer over the engine
+(:func:`~napari_aldic.engine.track`, with a painted refine region as its
+``refine=``, and :func:`~napari_aldic.engine.compute_strain`); no napari or Qt
+is imported.
 """
 
 from __future__ import annotations
 
+import queue
 import re
+import threading
 import time
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Any
 
 import numpy as np
 
-from .engine import DICParams, DICResult, Refinement, compute_strain, track
-from .engine.dic.quadtree import resolve_refinement
+from .engine import DICParams, DICResult, Refinement, compute_strain, resolve_refinement, track
 
-__all__ = ["Analysis", "StrainSettings", "run_analysis"]
+__all__ = ["Analysis", "StrainSettings", "Job", "run_analysis", "run_in_thread", "zero_field",
+           "brush_refinement", "describe_fields"]
 
 ProgressFn = Callable[[int, float, str], None]
 
@@ -74,40 +79,19 @@ class Analysis:
         return None
 
 
-def _zero_field(res: DICResult) -> DICResult:
+def zero_field(res: DICResult) -> DICResult:
     """``res`` with zero displacement (the reference frame of a sequence)."""
     z = np.zeros_like(res.u)
     return replace(res, u=z, v=z.copy(), dudx=z.copy(), dudy=z.copy(), dvdx=z.copy(),
                    dvdy=z.copy(), zncc=np.ones_like(res.zncc), meta={**res.meta, "frame": 0})
 
 
-def _track_refined(stack, roi, params: DICParams, frames: list[int], refine: Refinement,
-                   progress: ProgressFn, cancel) -> tuple[list, bool]:
-    """Accumulative tracking with a full :class:`Refinement` (e.g. a brush region).
-
-    ``track`` takes refinement only as a preset name in ``DICParams``, so a
-    painted region goes through ``correlate(refine=...)`` frame by frame here,
-    each frame against frame 0, started from the previous frame's field.
-    """
-    from .engine import correlate, open_stack
-
-    src = open_stack(stack)
-    plain = params.replace(refine=None)
-    ref = src[0]
-    results: list = [None] * len(frames)
-    results[0] = _zero_field(correlate(ref, ref, roi=roi, params=plain, refine=refine))
-    prev = None
-    for i in range(1, len(frames)):
-        if cancel is not None and cancel():
-            return results, True
-        k = frames[i]
-        progress(k, (i - 1) / (len(frames) - 1), f"frame {k} against frame 0")
-        res = correlate(ref, src[k], roi=roi, params=plain, refine=refine, guess=prev)
-        res.meta["frame"] = k
-        res.meta["reference_frame"] = 0
-        results[i] = prev = res
-        progress(k, i / (len(frames) - 1), f"frame {k} done: {res.n_valid}/{len(res)} valid")
-    return results, False
+def brush_refinement(preset: str | None, brush: np.ndarray) -> Refinement:
+    """The refinement of a painted region: ``preset``'s criteria (two levels of
+    refinement when there is no preset) plus the region ``brush``."""
+    base = resolve_refinement(preset)
+    return replace(Refinement(levels=2) if base is None else base,
+                   brush=np.asarray(brush, bool))
 
 
 def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
@@ -157,17 +141,14 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
         msg = re.sub(r"frame (\d+)", lambda m: f"frame {int(m.group(1)) + start}", msg)
         report(start + k, frac, msg)
 
+    refine = None
     if brush is not None and np.any(brush):
         if reference != "accumulative":
             raise ValueError("a brush refinement region needs accumulative tracking")
-        base = resolve_refinement(params.refine)
-        refine = (Refinement(levels=2) if base is None else base)
-        refine = replace(refine, brush=np.asarray(brush, bool))
-        results, cancelled = _track_refined(sub, roi, params, rel, refine, rel_report, cancel)
-    else:
-        seq = track(sub, roi=roi, params=params, reference=reference, frames=rel,
-                    progress=rel_report, cancel=cancel)
-        results, cancelled = list(seq.frames), bool(seq.meta.get("cancelled", False))
+        refine = brush_refinement(params.refine, brush)  # replaces the preset
+    seq = track(sub, roi=roi, params=params, reference=reference, frames=rel, refine=refine,
+                progress=rel_report, cancel=cancel)
+    results, cancelled = list(seq.frames), bool(seq.meta.get("cancelled", False))
     for k, r in zip(frames, results):
         if r is not None:
             r.meta["frame"] = k  # index in the full stack
@@ -183,3 +164,93 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
                     strain=strain if strain is not None else StrainSettings(),
                     cancelled=cancelled, seconds=time.perf_counter() - t0, source=source)
 
+
+
+def describe_fields(fields: dict) -> str:
+    """``name=value, ...`` of parameter fields (for the log)."""
+    return ", ".join(f"{k}={v!r}" for k, v in fields.items())
+
+
+@dataclass
+class Job:
+    """Everything one run needs, collected from the widget on the main thread."""
+
+    stack: Any
+    roi: np.ndarray | None
+    params: DICParams
+    reference: str = "accumulative"
+    start: int = 0
+    stop: int | None = None
+    stride: int = 1
+    brush: np.ndarray | None = None
+    strain: StrainSettings = field(default_factory=StrainSettings)
+    source: str = ""
+    summary: str = ""
+
+    @property
+    def n_deformed(self) -> int:
+        """Frames to correlate (the reference frame not counted)."""
+        stop = int(self.stack.shape[0]) - 1 if self.stop is None else int(self.stop)
+        return len(range(self.start, stop + 1, self.stride)) - 1
+
+    def describe(self, roi_notes: list[str], extra: dict | None = None) -> str:
+        """The job in words (for the log): image, frames, ROI (``roi_notes``: how
+        it was made), parameters, strain and the ``extra`` parameters kept from a
+        settings file."""
+        n, rows, cols = self.stack.shape
+        p = self.params
+        n_roi = rows * cols if self.roi is None else int(self.roi.sum())
+        stop = n - 1 if self.stop is None else int(self.stop)
+        s = self.strain
+        return (f"image '{self.source}' ({n} frames, {cols} x {rows} px, {self.stack.dtype}); "
+                f"frames {self.start}..{stop} every {self.stride}, {self.reference}; "
+                f"ROI {n_roi} px"
+                + (f" [{'; '.join(roi_notes)}]" if roi_notes else " (whole image)")
+                + f"; method {p.method}, subset {p.subset} px, step {p.step} px, search "
+                f"{p.search} px, init {p.init}"
+                + (f" ({len(p.seeds)} seeds)" if p.seeds else "")
+                + f", refinement {p.refine or 'none'}"
+                + (f" + brush region ({int(self.brush.sum())} px)"
+                   if self.brush is not None else "")
+                + (f", smoothing {p.smooth}" if p.method == "aldic" else "")
+                + f"; strain {s.method}, window {s.window}, {s.measure}"
+                + (f"; from the parameter file: {describe_fields(extra)}" if extra else ""))
+
+    def run(self, progress: ProgressFn | None = None,
+            cancel: Callable[[], bool] | None = None) -> Analysis:
+        """:func:`run_analysis` of this job."""
+        return run_analysis(self.stack, self.roi, self.params, reference=self.reference,
+                            start=self.start, stop=self.stop, stride=self.stride,
+                            brush=self.brush, strain=self.strain, progress=progress,
+                            cancel=cancel, source=self.source)
+
+
+def run_in_thread(job: Job, cancel: threading.Event
+                  ) -> Generator[tuple[int, float, str], None, Analysis]:
+    """Run ``job`` in a helper thread; yield its progress reports
+    ``(frame, fraction, message)`` and return its :class:`Analysis`.
+
+    The engine reports through a callback; the callback queues the reports
+    and this generator yields them, so a napari generator worker delivers
+    each one to the main thread. An exception of the run is raised here.
+    """
+    reports: queue.Queue = queue.Queue()
+    box: dict = {}
+
+    def target():
+        try:
+            box["result"] = job.run(lambda k, frac, msg: reports.put((k, frac, msg)),
+                                    cancel.is_set)
+        except BaseException as exc:  # re-raised in the generator
+            box["error"] = exc
+        finally:
+            reports.put(None)
+
+    thread = threading.Thread(target=target, name="napari-aldic-analysis", daemon=True)
+    thread.start()
+    while (item := reports.get()) is not None:
+        yield item
+    thread.join()
+    if "error" in box:
+        raise box["error"]
+    return box["result"]

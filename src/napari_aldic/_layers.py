@@ -25,14 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from .engine import DICResult, Reason
+from .engine.io import result_cells
+from .engine.viz import colour_limits, to_deformed
 
-__all__ = ["Geometry", "Display", "FIELDS", "LAYER_NAMES", "layer_name", "analysis_layers",
-           "field_on_lattice", "to_deformed"]
+__all__ = ["Geometry", "Display", "DISPLAY_FIELDS", "LAYER_NAMES", "layer_name",
+           "analysis_layers", "field_on_lattice"]
 
 PREFIX = "DIC "
 
-#: image fields: key -> (attribute, quantity, colormap, symmetric limits, description)
-FIELDS = {
+#: the result fields shown as Image layers: key (the layer name after "DIC ") ->
+#: (attribute, quantity, colormap, symmetric limits, description)
+DISPLAY_FIELDS = {
     "u": ("u", "length", "RdBu_r", True, "displacement along x (columns)"),
     "v": ("v", "length", "RdBu_r", True, "displacement along y (rows, down)"),
     "|u|": ("magnitude", "length", "viridis", False, "displacement magnitude"),
@@ -44,7 +47,7 @@ FIELDS = {
 VECTORS = "displacement"
 UNRELIABLE = "unreliable nodes"
 MESH = "mesh"
-LAYER_NAMES = tuple(PREFIX + k for k in (*FIELDS, VECTORS, UNRELIABLE, MESH))
+LAYER_NAMES = tuple(PREFIX + k for k in (*DISPLAY_FIELDS, VECTORS, UNRELIABLE, MESH))
 
 #: colour of each reason code in the unreliable-nodes layer (RGBA)
 _REASON_COLORS = {
@@ -81,7 +84,7 @@ class Geometry:
     def ndim(self) -> int:
         return len(self.scale)
 
-    def last(self, n: int) -> "Geometry":
+    def last(self, n: int) -> Geometry:
         """The transform of the last ``n`` axes."""
         return Geometry(tuple(self.scale[-n:]), tuple(self.translate[-n:]),
                         None if self.units is None else tuple(self.units[-n:]),
@@ -101,7 +104,7 @@ class Geometry:
 class Display:
     """Which result layers to make and how."""
 
-    fields: tuple = tuple(FIELDS)
+    fields: tuple = tuple(DISPLAY_FIELDS)
     visible_field: str = "|u|"
     vectors: bool = True
     vector_length: float = 0.0  # arrow length per unit displacement; 0 = automatic
@@ -116,7 +119,7 @@ class Display:
 
 # ----------------------------------------------------------------- helpers
 def _node_values(res: DICResult, strain, key: str) -> np.ndarray:
-    attr = FIELDS[key][0]
+    attr = DISPLAY_FIELDS[key][0]
     if attr == "magnitude":
         return np.hypot(res.u, res.v)
     if attr in ("u", "v"):
@@ -136,74 +139,6 @@ def field_on_lattice(res: DICResult, values: np.ndarray, valid: np.ndarray | Non
         ok &= valid
     out[res.grid_iy[ok], res.grid_ix[ok]] = np.asarray(values, float)[ok]
     return out
-
-
-def _fill_nearest(a: np.ndarray) -> np.ndarray:
-    from scipy import ndimage
-
-    bad = ~np.isfinite(a)
-    if not bad.any() or bad.all():
-        return np.where(bad, 0.0, a)
-    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
-    return a[tuple(idx)]
-
-
-def to_deformed(grids: list[np.ndarray], u: np.ndarray, v: np.ndarray, step: float,
-                iterations: int = 12) -> list[np.ndarray]:
-    """Lattice fields moved to the deformed configuration.
-
-    ``u``, ``v`` (pixels) and every grid in ``grids`` live on the node lattice
-    of the reference image (spacing ``step`` pixels). The value shown at the
-    lattice point ``x`` is that of the material point ``X`` with
-    ``X + u(X) = x``, found by fixed-point iteration ``X <- x - u(X)`` with
-    bilinear interpolation; points no trusted material reaches are NaN.
-    """
-    from scipy import ndimage
-
-    ok = np.isfinite(u) & np.isfinite(v)
-    if not ok.any():
-        return [np.full_like(g, np.nan) for g in grids]
-    uf, vf = _fill_nearest(u) / step, _fill_nearest(v) / step  # lattice units
-    rr, cc = np.mgrid[0:u.shape[0], 0:u.shape[1]].astype(float)
-    R, C = rr.copy(), cc.copy()
-    for _ in range(iterations):
-        du = ndimage.map_coordinates(uf, [R, C], order=1, mode="nearest")
-        dv = ndimage.map_coordinates(vf, [R, C], order=1, mode="nearest")
-        R, C = rr - dv, cc - du
-    inside = ndimage.map_coordinates(ok.astype(float), [R, C], order=0, mode="constant",
-                                     cval=0.0) > 0.5
-    out = []
-    for g in grids:
-        val = ndimage.map_coordinates(_fill_nearest(g), [R, C], order=1, mode="nearest")
-        val[~inside | ~np.isfinite(ndimage.map_coordinates(
-            np.where(np.isfinite(g), 0.0, np.nan), [R, C], order=0, mode="nearest"))] = np.nan
-        out.append(val)
-    return out
-
-
-def _limits(stack: np.ndarray, symmetric: bool) -> tuple[float, float]:
-    finite = stack[np.isfinite(stack)]
-    if finite.size == 0:
-        return (-1.0, 1.0) if symmetric else (0.0, 1.0)
-    if symmetric:
-        m = float(np.percentile(np.abs(finite), 99.5))
-        m = m if m > 0 else max(float(np.abs(finite).max()), 1e-9)
-        return (-m, m)
-    lo, hi = 0.0, float(np.percentile(finite, 99.5))
-    return (lo, hi if hi > lo else lo + max(float(finite.max()), 1e-9))
-
-
-def _lattice_elements(res: DICResult) -> np.ndarray:
-    """(E, 4) node indices of the quads of the result's mesh (or lattice)."""
-    if res.elements is not None and len(res.elements):
-        return np.asarray(res.elements, np.int64)
-    idx = -np.ones(res.grid_shape, np.int64)
-    on = res.grid_ix >= 0
-    idx[res.grid_iy[on], res.grid_ix[on]] = np.nonzero(on)[0]
-    a, b = idx[:-1, :-1], idx[:-1, 1:]
-    c, d = idx[1:, 1:], idx[1:, :-1]
-    quad = np.stack([a, b, c, d], -1).reshape(-1, 4)
-    return quad[(quad >= 0).all(axis=1)]
 
 
 def _frame_coords(t, y, x, with_time: bool) -> np.ndarray:
@@ -231,25 +166,34 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
     geo = geometry if with_time else geometry.last(2)
     if with_time and geo.ndim != 3:
         raise ValueError(f"the image has {geo.ndim} axes; a stack has (time, rows, cols)")
-    step = float(base.params.step)
-    L, unit = float(display.length_scale), display.length_unit
-    sy, sx = geo.scale[-2:]
-    ty, tx = geo.translate[-2:]
-    meta_common = {"frames": list(analysis.frames), "length_unit": unit,
-                   "pixel_size": L, "frame_interval": display.frame_interval,
-                   "time_unit": display.time_unit, "params": base.params.to_dict(),
-                   "reference": analysis.reference, "cancelled": analysis.cancelled,
-                   "strain": {"window": analysis.strain.window,
-                              "method": analysis.strain.method,
-                              "measure": analysis.strain.measure}}
-    layers = []
+    meta = _common_meta(analysis, base, display)
+    layers = _image_layers(analysis, base, geo, display, meta)
+    tables = _node_tables(analysis, display, with_time)
+    if display.vectors:
+        layers.append(_vectors_layer(analysis, tables, geo, display, meta))
+    if display.unreliable:
+        layers.append(_unreliable_layer(tables, geo, display, meta, float(base.params.step)))
+    if display.mesh:
+        layers.append(_mesh_layer(analysis, geo, display, with_time, meta))
+    return layers
 
-    # --- lattice images
-    lat_scale = (step * sy, step * sx)
-    lat_translate = (ty + float(base.grid_ys[0]) * sy, tx + float(base.grid_xs[0]) * sx)
-    lat = geo.kwargs()
-    lat["scale"] = (*lat["scale"][:-2], *lat_scale)
-    lat["translate"] = (*lat["translate"][:-2], *lat_translate)
+
+def _common_meta(analysis, base: DICResult, display: Display) -> dict:
+    """Metadata every result layer carries under ``"napari_aldic"``."""
+    return {"frames": list(analysis.frames), "length_unit": display.length_unit,
+            "pixel_size": float(display.length_scale),
+            "frame_interval": display.frame_interval, "time_unit": display.time_unit,
+            "params": base.params.to_dict(), "reference": analysis.reference,
+            "cancelled": analysis.cancelled,
+            "strain": {"window": analysis.strain.window, "method": analysis.strain.method,
+                       "measure": analysis.strain.measure}}
+
+
+def _field_stacks(analysis, display: Display, step: float) -> dict[str, np.ndarray]:
+    """Every displayed field on the node lattice, one plane per frame of the
+    image's time axis (or one plane without a time axis: the last frame)."""
+    base = analysis.lattice()
+    with_time = analysis.n_frames is not None
     shape = base.grid_shape if not with_time else (analysis.n_frames, *base.grid_shape)
     stacks = {k: np.full(shape, np.nan, np.float32) for k in display.fields}
     for i, res in enumerate(analysis.results):
@@ -259,8 +203,8 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
         grids = []
         for k in display.fields:
             vals = _node_values(res, strain, k)
-            if FIELDS[k][1] == "length":
-                vals = vals * L
+            if DISPLAY_FIELDS[k][1] == "length":
+                vals = vals * float(display.length_scale)
             grids.append(field_on_lattice(res, vals))
         if display.deformed and i > 0:
             grids = to_deformed(grids, field_on_lattice(res, res.u),
@@ -270,109 +214,155 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
                 stacks[k][analysis.frames[i]] = g
             else:
                 stacks[k][...] = g  # no time axis: the last computed frame
-    for k in display.fields:
-        attr, quantity, cmap, sym, desc = FIELDS[k]
-        data = stacks[k]
-        u_txt = unit if quantity == "length" else "strain (dimensionless)"
-        if quantity == "strain":
+    return stacks
+
+
+def _image_layers(analysis, base: DICResult, geo: Geometry, display: Display,
+                  meta: dict) -> list:
+    """One Image layer per displayed field, on the node lattice (one pixel per
+    node, pixel spacing = ``step`` image pixels)."""
+    step = float(base.params.step)
+    sy, sx = geo.scale[-2:]
+    ty, tx = geo.translate[-2:]
+    lat = geo.kwargs()
+    lat["scale"] = (*lat["scale"][:-2], step * sy, step * sx)
+    lat["translate"] = (*lat["translate"][:-2], ty + float(base.grid_ys[0]) * sy,
+                        tx + float(base.grid_xs[0]) * sx)
+    layers = []
+    for k, data in _field_stacks(analysis, display, step).items():
+        _, quantity, cmap, sym, desc = DISPLAY_FIELDS[k]
+        if quantity == "length":
+            u_txt = display.length_unit
+        else:
             u_txt = f"{analysis.strain.measure.replace('_', '-')} strain (dimensionless)"
         layers.append((data, {
             "name": layer_name(k), **lat, "colormap": cmap,
-            "contrast_limits": _limits(data, sym), "interpolation2d": "nearest",
+            "contrast_limits": colour_limits(data, "symmetric" if sym else "from_zero"),
+            "interpolation2d": "nearest",
             "blending": "translucent", "opacity": 0.8, "visible": k == display.visible_field,
-            "metadata": {"napari_aldic": {**meta_common, "field": k, "description": desc,
+            "metadata": {"napari_aldic": {**meta, "field": k, "description": desc,
                                           "value_unit": u_txt, "deformed": display.deformed},
                          "napari_aldic_analysis": analysis},
         }, "image"))
+    return layers
 
-    # --- per-node tables: vectors at trusted nodes, points at untrusted ones
-    vec_rows, vec_feats, bad_rows, bad_feats = [], [], [], []
+
+@dataclass
+class _NodeTables:
+    """Per-frame node positions and features: trusted nodes (vectors) and
+    untrusted ones (unreliable-node points)."""
+
+    vec_rows: list
+    vec_feats: list
+    bad_rows: list
+    bad_feats: list
+    ndim: int
+
+
+def _trusted_rows(res: DICResult, strain, t, display: Display, with_time: bool):
+    """(vector rows, features) of the trusted nodes of one frame."""
+    L = float(display.length_scale)
+    ok = np.asarray(res.valid, bool) & np.isfinite(res.u) & np.isfinite(res.v)
+    x, y = res.x[ok].astype(float), res.y[ok].astype(float)
+    if display.deformed:
+        x, y = x + res.u[ok], y + res.v[ok]
+    pos = _frame_coords(t, y, x, with_time)
+    proj = _frame_coords(0.0, res.v[ok], res.u[ok], with_time)
+    feats = {"frame": np.full(ok.sum(), t, np.int64), "x_px": res.x[ok].astype(float),
+             "y_px": res.y[ok].astype(float), "u": res.u[ok] * L, "v": res.v[ok] * L,
+             "magnitude": np.hypot(res.u[ok], res.v[ok]) * L,
+             "zncc": np.asarray(res.zncc, float)[ok]}
+    for name in ("exx", "eyy", "exy", "von_mises"):
+        feats[name] = (np.asarray(getattr(strain, name), float)[ok] if strain is not None
+                       else np.full(ok.sum(), np.nan))
+    return np.stack([pos, proj], axis=1), feats
+
+
+def _untrusted_rows(res: DICResult, t, display: Display, with_time: bool):
+    """(point rows, features) of the untrusted nodes of one frame."""
+    bad = ~np.asarray(res.valid, bool) & np.isfinite(res.x) & np.isfinite(res.y)
+    bx, by = res.x[bad].astype(float), res.y[bad].astype(float)
+    if display.deformed:
+        shift = np.isfinite(res.u[bad]) & np.isfinite(res.v[bad])
+        bx = np.where(shift, bx + np.nan_to_num(res.u[bad]), bx)
+        by = np.where(shift, by + np.nan_to_num(res.v[bad]), by)
+    codes = np.asarray(res.reason, np.int64)[bad]
+    feats = {"frame": np.full(bad.sum(), t, np.int64),
+             "x_px": res.x[bad].astype(float), "y_px": res.y[bad].astype(float),
+             "reason": codes,
+             "reason_text": np.array([Reason.describe(c) for c in codes], object),
+             "zncc": np.asarray(res.zncc, float)[bad]}
+    return _frame_coords(t, by, bx, with_time), feats
+
+
+def _node_tables(analysis, display: Display, with_time: bool) -> _NodeTables:
+    tables = _NodeTables([], [], [], [], 3 if with_time else 2)
     for i, res in enumerate(analysis.results):
         if res is None:
             continue
         t = analysis.frames[i]
         strain = analysis.strains[i] if i < len(analysis.strains) else None
-        ok = np.asarray(res.valid, bool) & np.isfinite(res.u) & np.isfinite(res.v)
-        x, y = res.x[ok].astype(float), res.y[ok].astype(float)
-        if display.deformed:
-            x, y = x + res.u[ok], y + res.v[ok]
-        pos = _frame_coords(t, y, x, with_time)
-        proj = _frame_coords(0.0, res.v[ok], res.u[ok], with_time)
-        vec_rows.append(np.stack([pos, proj], axis=1))
-        feats = {"frame": np.full(ok.sum(), t, np.int64), "x_px": res.x[ok].astype(float),
-                 "y_px": res.y[ok].astype(float), "u": res.u[ok] * L, "v": res.v[ok] * L,
-                 "magnitude": np.hypot(res.u[ok], res.v[ok]) * L,
-                 "zncc": np.asarray(res.zncc, float)[ok]}
-        for name in ("exx", "eyy", "exy", "von_mises"):
-            feats[name] = (np.asarray(getattr(strain, name), float)[ok] if strain is not None
-                           else np.full(ok.sum(), np.nan))
-        vec_feats.append(feats)
+        rows, feats = _trusted_rows(res, strain, t, display, with_time)
+        tables.vec_rows.append(rows)
+        tables.vec_feats.append(feats)
+        rows, feats = _untrusted_rows(res, t, display, with_time)
+        tables.bad_rows.append(rows)
+        tables.bad_feats.append(feats)
+    return tables
 
-        bad = ~np.asarray(res.valid, bool) & np.isfinite(res.x) & np.isfinite(res.y)
-        bx, by = res.x[bad].astype(float), res.y[bad].astype(float)
-        if display.deformed:
-            shift = np.isfinite(res.u[bad]) & np.isfinite(res.v[bad])
-            bx = np.where(shift, bx + np.nan_to_num(res.u[bad]), bx)
-            by = np.where(shift, by + np.nan_to_num(res.v[bad]), by)
-        bad_rows.append(_frame_coords(t, by, bx, with_time))
-        codes = np.asarray(res.reason, np.int64)[bad]
-        bad_feats.append({"frame": np.full(bad.sum(), t, np.int64),
-                          "x_px": res.x[bad].astype(float), "y_px": res.y[bad].astype(float),
-                          "reason": codes,
-                          "reason_text": np.array([Reason.describe(c) for c in codes], object),
-                          "zncc": np.asarray(res.zncc, float)[bad]})
-    ndim = 3 if with_time else 2
-    node_geo = geo.kwargs()
 
-    def cat(parts, empty_shape):
-        return np.concatenate(parts) if parts else np.zeros(empty_shape)
+def _concat(parts: list, empty_shape) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(empty_shape)
 
-    def cat_feats(parts, keys):
-        return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)
-                for k in keys}
 
-    if display.vectors:
-        vdata = cat(vec_rows, (0, 2, ndim))
-        length = float(display.vector_length)
-        if length <= 0:  # automatic: the longest arrows (95th percentile) span ~one node step
-            mags = np.hypot(vdata[:, 1, -1], vdata[:, 1, -2]) if len(vdata) else np.zeros(0)
-            big = float(np.percentile(mags, 95)) if mags.size else 0.0
-            length = 0.9 * step / big if big > 1e-9 else 1.0
-        keys = ("frame", "x_px", "y_px", "u", "v", "magnitude", "zncc", "exx", "eyy", "exy",
-                "von_mises")
-        feats = cat_feats(vec_feats, keys)
-        kw = {"name": layer_name(VECTORS), **node_geo, "features": feats,
-              "length": length, "edge_width": max(1.0, step / 6.0),
-              "vector_style": "arrow", "projection_mode": "none", "opacity": 0.9,
-              "metadata": {"napari_aldic": {**meta_common, "field": VECTORS,
-                                            "value_unit": unit,
-                                            "deformed": display.deformed},
-                           "napari_aldic_analysis": analysis}}
-        if len(vdata):
-            kw.update(edge_color="magnitude", edge_colormap="viridis")
-        else:
-            kw["edge_color"] = "white"
-        layers.append((vdata, kw, "vectors"))
+def _concat_features(parts: list, keys) -> dict:
+    return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in keys}
 
-    if display.unreliable:
-        pdata = cat(bad_rows, (0, ndim))
-        keys = ("frame", "x_px", "y_px", "reason", "reason_text", "zncc")
-        feats = cat_feats(bad_feats, keys)
-        colors = np.array([_REASON_COLORS.get(int(c), (1, 0, 0, 1)) for c in feats["reason"]]
-                          ).reshape(-1, 4) if len(pdata) else "red"
-        layers.append((pdata, {
-            "name": layer_name(UNRELIABLE), **node_geo, "features": feats,
-            "size": max(2.0, 0.5 * step), "symbol": "x", "face_color": colors,
-            "border_width": 0.0, "projection_mode": "none", "opacity": 0.9,
-            "metadata": {"napari_aldic": {**meta_common, "field": UNRELIABLE,
-                                          "deformed": display.deformed,
-                                          "reasons": {int(c): Reason.describe(c)
-                                                      for c in Reason}}},
-        }, "points"))
 
-    if display.mesh:
-        layers.append(_mesh_layer(analysis, geo, display, with_time, meta_common))
-    return layers
+def _vectors_layer(analysis, tables: _NodeTables, geo: Geometry, display: Display,
+                   meta: dict):
+    """The displacement arrows at the trusted nodes, every node value in the features."""
+    step = float(analysis.lattice().params.step)
+    vdata = _concat(tables.vec_rows, (0, 2, tables.ndim))
+    length = float(display.vector_length)
+    if length <= 0:  # automatic: the longest arrows (95th percentile) span ~one node step
+        mags = np.hypot(vdata[:, 1, -1], vdata[:, 1, -2]) if len(vdata) else np.zeros(0)
+        big = float(np.percentile(mags, 95)) if mags.size else 0.0
+        length = 0.9 * step / big if big > 1e-9 else 1.0
+    keys = ("frame", "x_px", "y_px", "u", "v", "magnitude", "zncc", "exx", "eyy", "exy",
+            "von_mises")
+    kw = {"name": layer_name(VECTORS), **geo.kwargs(),
+          "features": _concat_features(tables.vec_feats, keys),
+          "length": length, "edge_width": max(1.0, step / 6.0),
+          "vector_style": "arrow", "projection_mode": "none", "opacity": 0.9,
+          "metadata": {"napari_aldic": {**meta, "field": VECTORS,
+                                        "value_unit": display.length_unit,
+                                        "deformed": display.deformed},
+                       "napari_aldic_analysis": analysis}}
+    if len(vdata):
+        kw.update(edge_color="magnitude", edge_colormap="viridis")
+    else:
+        kw["edge_color"] = "white"
+    return vdata, kw, "vectors"
+
+
+def _unreliable_layer(tables: _NodeTables, geo: Geometry, display: Display, meta: dict,
+                      step: float):
+    """Points at the untrusted nodes, coloured by the reason (in the features)."""
+    pdata = _concat(tables.bad_rows, (0, tables.ndim))
+    feats = _concat_features(tables.bad_feats,
+                             ("frame", "x_px", "y_px", "reason", "reason_text", "zncc"))
+    colors = np.array([_REASON_COLORS.get(int(c), (1, 0, 0, 1)) for c in feats["reason"]]
+                      ).reshape(-1, 4) if len(pdata) else "red"
+    return (pdata, {
+        "name": layer_name(UNRELIABLE), **geo.kwargs(), "features": feats,
+        "size": max(2.0, 0.5 * step), "symbol": "x", "face_color": colors,
+        "border_width": 0.0, "projection_mode": "none", "opacity": 0.9,
+        "metadata": {"napari_aldic": {**meta, "field": UNRELIABLE,
+                                      "deformed": display.deformed,
+                                      "reasons": {int(c): Reason.describe(c)
+                                                  for c in Reason}}},
+    }, "points")
 
 
 def _edge_chains(res: DICResult) -> list[np.ndarray]:
@@ -382,7 +372,7 @@ def _edge_chains(res: DICResult) -> list[np.ndarray]:
     that share a node are chained, so a uniform mesh becomes one line per
     lattice row and column segment (a few dozen Shapes instead of thousands).
     """
-    el = _lattice_elements(res)
+    el = result_cells(res)
     if el.size == 0:
         return []
     pairs = np.concatenate([el[:, [0, 1]], el[:, [1, 2]], el[:, [2, 3]], el[:, [3, 0]]])

@@ -16,19 +16,16 @@ napari is not imported here.
 from __future__ import annotations
 
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 
+from .engine import open_stack
+from .engine.io import IMAGE_SUFFIXES, TIFF_SUFFIXES, grey_frame, image_files, natural_key
+
 __all__ = ["get_reader", "read_stack", "read_results", "is_result_file"]
 
-IMAGE_EXT = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
 _FRAME_FILE = re.compile(r"frame_(\d+)\.npz$")
-
-
-def _natural_key(name: str):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
 def is_result_file(path) -> bool:
@@ -54,20 +51,15 @@ def _result_frames(folder: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
-def _image_files(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXT),
-                  key=lambda p: _natural_key(p.name))
-
-
-def _tiff_stack_shape(path: Path):
-    import tifffile
-
+def _tiff_stack(path: Path) -> bool:
+    """True for a TIFF holding a (frames, rows, cols) series of at least two
+    grey frames; single images and RGB stacks are left to napari's own reader."""
     try:
-        with tifffile.TiffFile(path) as tf:
-            series = tf.series[0]
-            return tuple(series.shape), np.dtype(series.dtype), str(series.axes)
-    except Exception:
-        return None
+        with open_stack(path) as src:
+            return src.series_shape is not None and len(src.series_shape) == 3 \
+                and len(src.frame_shape) == 2
+    except (OSError, ValueError):
+        return False
 
 
 def get_reader(path):
@@ -76,7 +68,7 @@ def get_reader(path):
         paths = [Path(p) for p in path]
         if len(paths) == 1:
             return get_reader(paths[0])
-        if paths and all(p.is_file() and p.suffix.lower() in IMAGE_EXT for p in paths):
+        if paths and all(p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES for p in paths):
             return read_stack
         if paths and all(is_result_file(p) for p in paths):
             return read_results
@@ -85,54 +77,26 @@ def get_reader(path):
     if path.is_dir():
         if _result_frames(path):
             return read_results
-        return read_stack if len(_image_files(path)) >= 2 else None
+        return read_stack if len(image_files(path)) >= 2 else None
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return read_results if is_result_file(path) else None
-    if suffix in (".tif", ".tiff") and path.is_file():
-        info = _tiff_stack_shape(path)
-        if info is None:
-            return None
-        shape, _, axes = info
-        # a (frames, rows, cols) series; single images and RGB stacks are left
-        # to napari's own reader
-        if len(shape) == 3 and shape[0] >= 2 and not axes.endswith("S"):
-            return read_stack
+    if suffix in TIFF_SUFFIXES and path.is_file() and _tiff_stack(path):
+        return read_stack
     return None
 
 
 # ----------------------------------------------------------------- stacks
-def _grey(frame: np.ndarray) -> np.ndarray:
-    """RGB(A) frames become grey (float32); grey frames are returned as they are."""
-    if frame.ndim == 3 and frame.shape[-1] in (3, 4):
-        from .engine import as_gray_float
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return as_gray_float(frame).astype(np.float32)
-    return frame
-
-
-def _read_file(path: Path) -> np.ndarray:
-    if path.suffix.lower() in (".tif", ".tiff"):
-        import tifffile
-
-        return tifffile.imread(path)
-    from skimage import io
-
-    return io.imread(path)
-
-
 def _lazy_stack(read_frame, n: int, first: np.ndarray, label: str):
     """A (n, H, W) dask array whose frame k is ``read_frame(k)``."""
     import dask
     import dask.array as da
 
-    first = _grey(first)
+    first = grey_frame(first)
     shape, dtype = first.shape, first.dtype
 
     def load(k: int) -> np.ndarray:
-        img = _grey(np.asarray(read_frame(k)))
+        img = grey_frame(read_frame(k))
         if img.shape != shape:
             raise ValueError(f"{label}: frame {k} has shape {img.shape}, frame 0 has {shape}; "
                              "all frames of a stack must have the same size")
@@ -155,33 +119,27 @@ def _stack_layer(data, first: np.ndarray, name: str, meta: dict):
 
 
 def read_stack(path):
-    """A TIFF stack, an image folder or a list of image files as one lazy layer."""
-    from .engine import open_stack
-
+    """A TIFF stack, an image folder or a list of image files (in natural
+    order) as one lazy layer."""
     if isinstance(path, (list, tuple)) and len(path) > 1:
-        files = sorted((Path(p) for p in path), key=lambda p: _natural_key(p.name))
-        first = _read_file(files[0])
-        data, first = _lazy_stack(lambda k: _read_file(files[k]), len(files), first,
-                                  str(files[0].parent))
-        name = files[0].parent.name or files[0].stem
+        files = sorted((Path(p) for p in path), key=natural_key)
+        src = open_stack(files)
+        label, name = str(files[0].parent), files[0].parent.name or files[0].stem
         meta = {"source": [str(f) for f in files], "frames": [f.name for f in files]}
-        return _stack_layer(data, first, name, meta)
-    if isinstance(path, (list, tuple)):
-        path = path[0]
-    path = Path(path)
-    src = open_stack(path)  # natural sort, one page or file per request
-    first = src[0]
-    data, first = _lazy_stack(src.__getitem__, len(src), first, str(path))
-    meta = {"source": str(path)}
-    if path.is_dir():
-        meta["frames"] = [p.name for p in _image_files(path)]
-    name = path.stem if path.is_file() else path.name
+    else:
+        path = Path(path[0] if isinstance(path, (list, tuple)) else path)
+        src = open_stack(path)  # natural sort, one page or file per request
+        label, name = str(path), path.stem if path.is_file() else path.name
+        meta = {"source": str(path)}
+        if path.is_dir():
+            meta["frames"] = [p.name for p in image_files(path)]
+    data, first = _lazy_stack(src.__getitem__, len(src), src[0], label)
     return _stack_layer(data, first, name, meta)
 
 
 # ----------------------------------------------------------------- results
 def _load_analysis(paths: list[Path], folder: bool):
-    from ._analysis import Analysis, StrainSettings, _zero_field
+    from ._analysis import Analysis, StrainSettings, zero_field
     from .engine import compute_strain, load_result
 
     loaded = [load_result(p) for p in paths]
@@ -201,7 +159,7 @@ def _load_analysis(paths: list[Path], folder: bool):
             ref = min(int(r.meta.get("reference_frame", 0)) for r in results)
             ref = ref if ref < ks[0] else 0
             ks.insert(0, ref)
-            results.insert(0, _zero_field(results[0]))
+            results.insert(0, zero_field(results[0]))
         frames, n_frames = ks, ks[-1] + 1
     strains = []
     for r in results:

@@ -31,9 +31,10 @@ from .core.params import DICParams
 from .core.progress import Cancelled
 from .core.reasons import Reason
 from .core.results import DICResult, SequenceResult, load_result
+from .core.settings import Settings
 from .core.units import Units
 from .dic.correlate import correlate
-from .dic.quadtree import Refinement
+from .dic.quadtree import Refinement, resolve_refinement
 from .dic.strain import StrainResult, compute_strain
 from .io.runs import load_run
 from .io.settings_file import load_params, save_params
@@ -44,7 +45,8 @@ from .workflow.sequence import track
 
 __all__ = [
     # analysis
-    "correlate", "track", "compute_strain", "DICParams", "Refinement", "Cancelled",
+    "correlate", "track", "compute_strain", "DICParams", "Settings", "Refinement",
+    "resolve_refinement", "Cancelled",
     # results
     "DICResult", "SequenceResult", "StrainResult", "Reason", "Units", "load_result",
     "load_run", "open_stack",

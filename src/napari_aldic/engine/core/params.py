@@ -217,7 +217,7 @@ class DICParams:
             return self.search_max
         return max(4 * self.search, max(shape) // 4)
 
-    def replace(self, **changes: Any) -> "DICParams":
+    def replace(self, **changes: Any) -> DICParams:
         """Return a copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -229,7 +229,7 @@ class DICParams:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "DICParams":
+    def from_dict(cls, d: dict[str, Any]) -> DICParams:
         """Build parameters from a dictionary, rejecting unknown keys."""
         names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
         unknown = sorted(set(d) - names)

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .files import atomic_write
 from .params import DICParams
 from .reasons import Reason
 
@@ -39,7 +38,8 @@ class DICResult:
     u, v : (n,) float64
         Displacement along x and y.
     dudx, dudy, dvdx, dvdy : (n,) float64
-        Displacement gradient of each subset's affine shape function.
+        Displacement gradient of each subset's affine shape function (stacked
+        as :attr:`F`; the deformation gradient is ``I + F``).
     valid : (n,) bool
         Node converged and is trusted (``reason == 0``).
     zncc : (n,) float64
@@ -101,7 +101,10 @@ class DICResult:
 
     @property
     def F(self) -> np.ndarray:
-        """Displacement gradient per node, shape (n, 2, 2): [[du/dx, du/dy], [dv/dx, dv/dy]]."""
+        """Displacement gradient per node, shape (n, 2, 2): [[du/dx, du/dy], [dv/dx, dv/dy]].
+
+        Not the deformation gradient despite the letter: that is ``I + F``.
+        """
         return np.stack([np.stack([self.dudx, self.dudy], -1),
                          np.stack([self.dvdx, self.dvdy], -1)], -2)
 
@@ -146,16 +149,18 @@ class DICResult:
             f"step {self.params.step} px, method {self.params.method}",
         ]
         if v.any():
+            u, w = self.u[v], self.v[v]
             lines.append(
-                f"u: mean {self.u[v].mean():+.4f} px [{self.u[v].min():+.3f}, {self.u[v].max():+.3f}]; "
-                f"v: mean {self.v[v].mean():+.4f} px [{self.v[v].min():+.3f}, {self.v[v].max():+.3f}]; "
+                f"u: mean {u.mean():+.4f} px [{u.min():+.3f}, {u.max():+.3f}]; "
+                f"v: mean {w.mean():+.4f} px [{w.min():+.3f}, {w.max():+.3f}]; "
                 f"median ZNCC {np.median(self.zncc[v]):.4f}"
             )
         if self.aldic_summary():
             lines.append(self.aldic_summary())
         t = self.meta.get("timing", {})
         if "total" in t:
-            lines.append(f"time {t['total']:.3f} s ({len(self) / max(t['total'], 1e-9):,.0f} POI/s)")
+            rate = len(self) / max(t["total"], 1e-9)
+            lines.append(f"time {t['total']:.3f} s ({rate:,.0f} POI/s)")
         flagged = {k: c for k, c in self.reason_counts().items() if k != "converged"}
         if flagged:
             lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))
@@ -165,8 +170,12 @@ class DICResult:
     def save(self, path) -> Path:
         """Write the result to ``path`` (``.npz``, no pickled objects).
 
-        The file is written under a temporary name and renamed when complete,
-        so an interrupted save never leaves a truncated file behind.
+        The file is written under a temporary name and renamed when complete
+        (:func:`~napari_aldic.engine.core.files.atomic_write`), so an
+        interrupted save never leaves a truncated file behind. A missing
+        folder raises :class:`FileNotFoundError`; other write failures raise
+        :class:`~napari_aldic.engine.core.files.ExportError` (an ``OSError``)
+        that names the file and the cause.
         """
         path = Path(path)
         if path.suffix != ".npz":
@@ -186,22 +195,12 @@ class DICResult:
                 arrays[k] = np.asarray(getattr(self, k))
         if self.roi is not None:
             arrays["roi_packed"] = np.packbits(np.asarray(self.roi, bool), axis=None)
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; use normal permissions
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_write(path) as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
         return path
 
     @classmethod
-    def load(cls, path) -> "DICResult":
+    def load(cls, path) -> DICResult:
         """Read a result written by :meth:`save`."""
         return load_result(path)
 

@@ -112,7 +112,7 @@ class Units:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "Units":
+    def from_dict(cls, d: dict[str, Any] | None) -> Units:
         """Units from a dictionary (``None`` or ``{}`` gives pixels, no time)."""
         if not d:
             return cls()
@@ -123,7 +123,7 @@ class Units:
         return cls(**d)
 
     @classmethod
-    def from_meta(cls, meta: dict[str, Any] | None) -> "Units | None":
+    def from_meta(cls, meta: dict[str, Any] | None) -> Units | None:
         """Units stored in a result's ``meta["units"]``, else ``None``."""
         if not meta or not isinstance(meta.get("units"), dict):
             return None

@@ -122,17 +122,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         target = np.column_stack([uh + vu, vh + vv])
         start = np.column_stack([u, v])
         t = time.perf_counter()
-        curv = None
-        if second_order:
-            # cut subsets (next to holes, cracks, the outline) are often poorly
-            # matched: the curvature smoother interpolates over them instead
-            curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half,
-                                           data=slot < 0)
-            if gains is not None:
-                curv = shrink_curvature(curv, noise_var, gains)
-            # subsets cut by a hole/crack/outline keep the affine warp: next to
-            # a discontinuity the smoothed curvature is one-sided and unreliable
-            curv[slot >= 0] = 0.0
+        curv = (_warp_curvature(solver, uh, vh, half, slot, gains, noise_var)
+                if second_order else None)
         uv, zncc, iters, reason_k = icgn_solve_translation(
             f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F, target, mu, active,
             slot, masks, half, icgn_max_iter, icgn_tol, curvature=curv)
@@ -142,21 +133,50 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         u = np.where(ok, uv[:, 0], u)
         v = np.where(ok, uv[:, 1], v)
         reason = np.where(active, reason_k, reason).astype(np.int8)
-        t = time.perf_counter()
-        uh_new, vh_new = solver.solve(F, W, u, v, vu, vv)
-        timing["global_solve"] += time.perf_counter() - t
-        G = solver.gradients(uh_new, vh_new)
-        W += G - F
-        vu += uh_new - u
-        vv += vh_new - v
-        change = float(np.sqrt(np.mean((uh_new - uh) ** 2 + (vh_new - vh) ** 2)))
-        primal = float(np.sqrt(np.mean(((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted])))
-        history.append({"iteration": k + 1, "uhat_change_px": change,
-                        "primal_residual_px": primal,
-                        "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0})
+        uh_new, vh_new, G = _global_step(solver, F, W, u, v, vu, vv, timing)
+        history.append(_progress(k, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok))
         uh, vh, grad = uh_new, vh_new, G
-        if change < tol:
+        if history[-1]["uhat_change_px"] < tol:
             break
     grad = grad.copy()
     grad[~solver.covered] = grad0[~solver.covered]  # no element: local gradient
     return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing), solver
+
+
+def _global_step(solver: GlobalSolver, F, W, u, v, vu, vv, timing: dict):
+    """Global step and dual update: solve for ``û``, then ``W += D û - F``
+    and ``v += û - u`` (``W``, ``vu``, ``vv`` in place). Returns
+    ``(uh, vh, D û)``."""
+    t = time.perf_counter()
+    uh, vh = solver.solve(F, W, u, v, vu, vv)
+    timing["global_solve"] += time.perf_counter() - t
+    G = solver.gradients(uh, vh)
+    W += G - F
+    vu += uh - u
+    vv += vh - v
+    return uh, vh, G
+
+
+def _warp_curvature(solver: GlobalSolver, uh, vh, half: int, slot, gains, noise_var):
+    """Second derivatives of ``û`` for the second-order warp of the local step:
+    smoothed over ``CURVATURE_SMOOTHING * half``, shrunk where noisy (when
+    ``gains`` are known), zero on subsets cut by the ROI edge."""
+    # cut subsets (next to holes, cracks, the outline) are often poorly
+    # matched: the curvature smoother interpolates over them instead
+    curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half, data=slot < 0)
+    if gains is not None:
+        curv = shrink_curvature(curv, noise_var, gains)
+    # subsets cut by a hole/crack/outline keep the affine warp: next to
+    # a discontinuity the smoothed curvature is one-sided and unreliable
+    curv[slot >= 0] = 0.0
+    return curv
+
+
+def _progress(k: int, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok) -> dict:
+    """History entry of ADMM iteration ``k``: the change of ``û`` (the
+    stopping criterion), the primal residual ``û - u`` on trusted nodes and
+    the mean local IC-GN iterations."""
+    change = float(np.sqrt(np.mean((uh_new - uh) ** 2 + (vh_new - vh) ** 2)))
+    primal = float(np.sqrt(np.mean(((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted])))
+    return {"iteration": k + 1, "uhat_change_px": change, "primal_residual_px": primal,
+            "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0}

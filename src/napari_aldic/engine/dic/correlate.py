@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numba
 import numpy as np
@@ -76,7 +76,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         ``kwargs`` then override its fields only when given explicitly.
     refine : None, "light", "medium", "strong", Refinement or dict
         Adaptive quadtree refinement of the mesh (see
-        :mod:`napari_aldic.engine.quadtree`); overrides ``params.refine``.
+        :mod:`napari_aldic.engine.dic.quadtree`); overrides ``params.refine``.
         Refined nodes are extra DIC points; with ``method="aldic"`` the
         global solve constrains hanging nodes.
     guess : DICResult, optional
@@ -88,7 +88,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         Called as the analysis advances.
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
-        iterations); returning True raises :class:`~napari_aldic.engine.progress.Cancelled`.
+        iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.
     solver_cache : dict, optional
         AL-DIC: a dictionary kept between calls (``track`` passes one per
         sequence). The factorised global system is stored there and reused
@@ -274,7 +274,7 @@ def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: fl
 
 
 def _regularisation(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
-                      sol: "_Solution", trusted: np.ndarray, params: DICParams):
+                      sol: _Solution, trusted: np.ndarray, params: DICParams):
     """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
     predicted local noise variances (n, 2) or None when nothing needs them)``;
     the user's smoothing length, or the length (and use of the second-order

@@ -41,7 +41,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .subsets import integral_image, rect_sums
+from ..kernels.sums import integral_image
+from .subsets import rect_sums
 
 __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
            "element_inside_roi", "CurvatureEstimator", "curvature_operator",

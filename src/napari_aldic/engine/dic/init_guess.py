@@ -22,9 +22,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy import fft as sfft
+
+from ..kernels.sums import window_sums
 
 __all__ = ["NCCResult", "ncc_search", "ncc_search_widening"]
 
@@ -43,36 +44,12 @@ class NCCResult:
 
 
 def _subpixel(c_m, c_0, c_p):
+    """Offset (-0.5..0.5) of the vertex of the parabola through three samples
+    at -1, 0, 1; 0 where they do not curve downwards."""
     den = c_m - 2.0 * c_0 + c_p
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.where(den < 0, 0.5 * (c_m - c_p) / den, 0.0)
     return np.clip(np.nan_to_num(d), -0.5, 0.5)
-
-
-@nb.njit(cache=True, parallel=True, nogil=True)
-def _box_sums(a, S):
-    """Sums of ``a`` and ``a**2`` (B, L, L) over every S x S window, float64."""
-    B, L, _ = a.shape
-    K = L - S + 1
-    s1 = np.empty((B, K, K))
-    s2 = np.empty((B, K, K))
-    for b in nb.prange(B):
-        c1 = np.zeros((L + 1, L + 1))
-        c2 = np.zeros((L + 1, L + 1))
-        for i in range(L):
-            r1 = 0.0
-            r2 = 0.0
-            for j in range(L):
-                x = np.float64(a[b, i, j])
-                r1 += x
-                r2 += x * x
-                c1[i + 1, j + 1] = c1[i, j + 1] + r1
-                c2[i + 1, j + 1] = c2[i, j + 1] + r2
-        for i in range(K):
-            for j in range(K):
-                s1[b, i, j] = c1[i + S, j + S] - c1[i, j + S] - c1[i + S, j] + c1[i, j]
-                s2[b, i, j] = c2[i + S, j + S] - c2[i, j + S] - c2[i + S, j] + c2[i, j]
-    return s1, s2
 
 
 def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
@@ -100,7 +77,6 @@ def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, hal
     R = int(search)
     L = S + 2 * R
     N = sfft.next_fast_len(L, real=True)
-    rows, cols = g.shape
     cu = np.zeros(n, np.int64) if cu is None else np.asarray(cu, np.int64)
     cv = np.zeros(n, np.int64) if cv is None else np.asarray(cv, np.int64)
     out_u = np.zeros(n)
@@ -109,72 +85,107 @@ def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, hal
     out_b = np.zeros(n, bool)
     per_node = N * N * 40 + L * L * 24
     batch = max(1, min(n, _BATCH_BYTES // per_node))
-    off = np.arange(-half, half + 1)
-    woff = np.arange(-half - R, half + R + 1)
-    nshift = 2 * R + 1
     for b0 in range(0, n, batch):
         sl = slice(b0, min(n, b0 + batch))
-        bx, by = xs[sl], ys[sl]
-        B = bx.size
-        T = f[(by[:, None, None] + off[None, :, None]), (bx[:, None, None] + off[None, None, :])]
-        T = T.astype(np.float32)
-        M = None if masks is None else masks[sl].astype(np.float32)
-        wy = by[:, None] + cv[sl, None] + woff[None, :]
-        wx = bx[:, None] + cu[sl, None] + woff[None, :]
-        # shifts whose subset would leave the image are invalid
-        ok_y = (wy[:, :nshift] - 0 >= 0) & (wy[:, S - 1:] <= rows - 1)
-        ok_x = (wx[:, :nshift] >= 0) & (wx[:, S - 1:] <= cols - 1)
-        W = g[np.clip(wy, 0, rows - 1)[:, :, None], np.clip(wx, 0, cols - 1)[:, None, :]]
-        W = W.astype(np.float32)
-        if M is None:
-            npx = float(S * S)
-            Tz = T - T.mean(axis=(1, 2), keepdims=True)
-        else:
-            npx = M.sum(axis=(1, 2), keepdims=True)
-            Tz = (T - (T * M).sum(axis=(1, 2), keepdims=True) / npx) * M
-        tnorm = np.sqrt((Tz.astype(np.float64) ** 2).sum(axis=(1, 2)))
-        FW = sfft.rfft2(W, s=(N, N), workers=workers)
-        FT = np.conj(sfft.rfft2(Tz, s=(N, N), workers=workers))
-        num = sfft.irfft2(FT * FW, s=(N, N), workers=workers)[:, :nshift, :nshift]
-        del FT
-        if M is None:
-            s1, s2 = _box_sums(W, S)
-            var = s2 - s1 * s1 / npx
-        else:
-            FM = np.conj(sfft.rfft2(M, s=(N, N), workers=workers))
-            s1 = sfft.irfft2(FM * FW, s=(N, N), workers=workers)[:, :nshift, :nshift]
-            FW2 = sfft.rfft2(W * W, s=(N, N), workers=workers)
-            s2 = sfft.irfft2(FM * FW2, s=(N, N), workers=workers)[:, :nshift, :nshift]
-            del FM, FW2
-            var = s2.astype(np.float64) - s1.astype(np.float64) ** 2 / npx
-        del FW
-        den = tnorm[:, None, None] * np.sqrt(np.maximum(var, 0.0))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.where(den > 1e-9 * (tnorm[:, None, None] + 1e-30) * np.sqrt(npx) + 1e-12,
-                         num / den, -np.inf)
-        c[~(ok_y[:, :, None] & ok_x[:, None, :])] = -np.inf
-        flat = c.reshape(B, -1)
-        k = np.argmax(flat, axis=1)
-        iy, ix = np.divmod(k, nshift)
-        best = flat[np.arange(B), k]
-        good = np.isfinite(best)
-        # sub-pixel refinement with neighbours where they exist
-        iym = np.clip(iy - 1, 0, nshift - 1)
-        iyp = np.clip(iy + 1, 0, nshift - 1)
-        ixm = np.clip(ix - 1, 0, nshift - 1)
-        ixp = np.clip(ix + 1, 0, nshift - 1)
-        ar = np.arange(B)
-        cym, cyp = c[ar, iym, ix], c[ar, iyp, ix]
-        cxm, cxp = c[ar, iy, ixm], c[ar, iy, ixp]
-        inner_y = (iy > 0) & (iy < nshift - 1) & np.isfinite(cym) & np.isfinite(cyp)
-        inner_x = (ix > 0) & (ix < nshift - 1) & np.isfinite(cxm) & np.isfinite(cxp)
-        dy = np.where(inner_y, _subpixel(np.where(inner_y, cym, 0), best, np.where(inner_y, cyp, 0)), 0.0)
-        dx = np.where(inner_x, _subpixel(np.where(inner_x, cxm, 0), best, np.where(inner_x, cxp, 0)), 0.0)
-        out_u[sl] = np.where(good, ix - R + cu[sl] + dx, 0.0)
-        out_v[sl] = np.where(good, iy - R + cv[sl] + dy, 0.0)
-        out_p[sl] = np.where(good, best, np.nan)
-        out_b[sl] = good & ((ix == 0) | (ix == nshift - 1) | (iy == 0) | (iy == nshift - 1))
+        c = _ncc_surface(f, g, xs[sl], ys[sl], cu[sl], cv[sl],
+                         None if masks is None else masks[sl], half, R, N, workers)
+        out_u[sl], out_v[sl], out_p[sl], out_b[sl] = _ncc_peak(c, R, cu[sl], cv[sl])
     return NCCResult(out_u, out_v, out_p, out_b, np.full(n, R))
+
+
+def _search_windows(g, bx, by, cu, cv, half: int, R: int):
+    """Search windows ``(B, L, L)`` float32 of the deformed image around the
+    nodes (clamped at the border) and the valid shifts ``(B, 2R+1, 2R+1)``:
+    those whose subset stays inside the image."""
+    S = 2 * half + 1
+    rows, cols = g.shape
+    nshift = 2 * R + 1
+    woff = np.arange(-half - R, half + R + 1)
+    wy = by[:, None] + cv[:, None] + woff[None, :]
+    wx = bx[:, None] + cu[:, None] + woff[None, :]
+    # shifts whose subset would leave the image are invalid
+    ok_y = (wy[:, :nshift] >= 0) & (wy[:, S - 1:] <= rows - 1)
+    ok_x = (wx[:, :nshift] >= 0) & (wx[:, S - 1:] <= cols - 1)
+    W = g[np.clip(wy, 0, rows - 1)[:, :, None], np.clip(wx, 0, cols - 1)[:, None, :]]
+    return W.astype(np.float32), ok_y[:, :, None] & ok_x[:, None, :]
+
+
+def _ncc_surface(f, g, bx, by, cu, cv, masks, half: int, R: int, N: int,
+                 workers: int) -> np.ndarray:
+    """ZNCC ``(B, 2R+1, 2R+1)`` of a batch of nodes at every integer shift
+    (-inf where the shift is invalid or the window has no texture).
+
+    The numerator is an FFT correlation (size ``N``) of the zero-mean subset
+    with the window; the window energy under the subset comes from integral
+    images (full squares) or from FFT correlations with the mask."""
+    S = 2 * half + 1
+    nshift = 2 * R + 1
+    off = np.arange(-half, half + 1)
+    T = f[(by[:, None, None] + off[None, :, None]), (bx[:, None, None] + off[None, None, :])]
+    T = T.astype(np.float32)
+    M = None if masks is None else masks.astype(np.float32)
+    W, ok = _search_windows(g, bx, by, cu, cv, half, R)
+    if M is None:
+        npx = float(S * S)
+        Tz = T - T.mean(axis=(1, 2), keepdims=True)
+    else:
+        npx = M.sum(axis=(1, 2), keepdims=True)
+        Tz = (T - (T * M).sum(axis=(1, 2), keepdims=True) / npx) * M
+    tnorm = np.sqrt((Tz.astype(np.float64) ** 2).sum(axis=(1, 2)))
+    FW = sfft.rfft2(W, s=(N, N), workers=workers)
+    FT = np.conj(sfft.rfft2(Tz, s=(N, N), workers=workers))
+    num = sfft.irfft2(FT * FW, s=(N, N), workers=workers)[:, :nshift, :nshift]
+    del FT
+    if M is None:
+        s1, s2 = window_sums(W, S)
+        var = s2 - s1 * s1 / npx
+    else:
+        FM = np.conj(sfft.rfft2(M, s=(N, N), workers=workers))
+        s1 = sfft.irfft2(FM * FW, s=(N, N), workers=workers)[:, :nshift, :nshift]
+        FW2 = sfft.rfft2(W * W, s=(N, N), workers=workers)
+        s2 = sfft.irfft2(FM * FW2, s=(N, N), workers=workers)[:, :nshift, :nshift]
+        del FM, FW2
+        var = s2.astype(np.float64) - s1.astype(np.float64) ** 2 / npx
+    del FW
+    den = tnorm[:, None, None] * np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(den > 1e-9 * (tnorm[:, None, None] + 1e-30) * np.sqrt(npx) + 1e-12,
+                     num / den, -np.inf)
+    c[~ok] = -np.inf
+    return c
+
+
+def _ncc_peak(c: np.ndarray, R: int, cu, cv):
+    """Peak of each correlation surface, refined to sub-pixel precision by a
+    parabola through its neighbours along each axis (where they exist).
+
+    Returns ``(u, v, peak, on_border)``; ``u = v = 0`` and ``peak = NaN``
+    where no shift is valid."""
+    B = c.shape[0]
+    nshift = 2 * R + 1
+    flat = c.reshape(B, -1)
+    k = np.argmax(flat, axis=1)
+    iy, ix = np.divmod(k, nshift)
+    best = flat[np.arange(B), k]
+    good = np.isfinite(best)
+    iym = np.clip(iy - 1, 0, nshift - 1)
+    iyp = np.clip(iy + 1, 0, nshift - 1)
+    ixm = np.clip(ix - 1, 0, nshift - 1)
+    ixp = np.clip(ix + 1, 0, nshift - 1)
+    ar = np.arange(B)
+    cym, cyp = c[ar, iym, ix], c[ar, iyp, ix]
+    cxm, cxp = c[ar, iy, ixm], c[ar, iy, ixp]
+    inner_y = (iy > 0) & (iy < nshift - 1) & np.isfinite(cym) & np.isfinite(cyp)
+    inner_x = (ix > 0) & (ix < nshift - 1) & np.isfinite(cxm) & np.isfinite(cxp)
+    dy = np.where(inner_y,
+                  _subpixel(np.where(inner_y, cym, 0), best, np.where(inner_y, cyp, 0)), 0.0)
+    dx = np.where(inner_x,
+                  _subpixel(np.where(inner_x, cxm, 0), best, np.where(inner_x, cxp, 0)), 0.0)
+    u = np.where(good, ix - R + cu + dx, 0.0)
+    v = np.where(good, iy - R + cv + dy, 0.0)
+    peak = np.where(good, best, np.nan)
+    on_border = good & ((ix == 0) | (ix == nshift - 1) | (iy == 0) | (iy == nshift - 1))
+    return u, v, peak, on_border
 
 
 def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,

@@ -2,7 +2,8 @@
 
 The image is prefiltered once (``scipy.ndimage.spline_filter``) into B-spline
 coefficients; sampling at a sub-pixel point is then a short weighted sum
-(4 x 4 taps for cubic, 6 x 6 for quintic) done inside Numba kernels.
+(4 x 4 taps for cubic, 6 x 6 for quintic) done inside the Numba kernels of
+:mod:`~napari_aldic.engine.kernels.bspline`.
 Coefficients are padded by :data:`PAD` pixels (mirror extension) so the
 kernels never bounds-check in their inner loop.
 
@@ -14,12 +15,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy import ndimage
 
-# fast-math without the no-NaN/no-inf assumptions, so NaN checks survive
-_FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
+from ..kernels.bspline import PAD, sample_points, spline_gradients
 
 __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
            "speckle_scale", "choose_order"]
@@ -28,8 +27,6 @@ __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
 #: cubic B-splines leave a sub-pixel bias near 0.005-0.01 px; quintic ones
 #: cut it 2-4x (measured on Gaussian-filtered noise, sigma 0.8-1.0 px)
 FINE_SPECKLE_PX = 1.8
-
-PAD = 8  # coefficient padding in pixels on every side
 
 
 @dataclass
@@ -108,101 +105,8 @@ def reference_gradients(spl: SplineImage) -> tuple[np.ndarray, np.ndarray]:
     h, w = spl.shape
     gx = np.empty((h, w), np.float32)
     gy = np.empty((h, w), np.float32)
-    _spline_gradients(spl.coef, value, deriv, gx, gy)
+    spline_gradients(spl.coef, value, deriv, gx, gy)
     return gx, gy
-
-
-@nb.njit(cache=True, parallel=True, nogil=True)
-def _spline_gradients(c, value, deriv, gx, gy):
-    # f'(i) = sum_k c_k B'(i - k): a separable value x derivative stencil
-    h, w = gx.shape
-    r = value.size // 2
-    for i in nb.prange(h):
-        for j in range(w):
-            sx = 0.0
-            sy = 0.0
-            for a in range(-r, r + 1):
-                for b in range(-r, r + 1):
-                    cv = np.float64(c[PAD + i + a, PAD + j + b])
-                    sx += value[a + r] * deriv[b + r] * cv
-                    sy += deriv[a + r] * value[b + r] * cv
-            gx[i, j] = sx
-            gy[i, j] = sy
-
-
-@nb.njit(inline="always", fastmath=_FM)
-def cubic_weights(t):
-    """Cubic B-spline weights for taps at offsets -1, 0, 1, 2 (0 <= t < 1)."""
-    s = 1.0 - t
-    t2 = t * t
-    t3 = t2 * t
-    w0 = s * s * s / 6.0
-    w3 = t3 / 6.0
-    w1 = 2.0 / 3.0 - t2 + 0.5 * t3
-    w2 = 1.0 - w0 - w1 - w3
-    return w0, w1, w2, w3
-
-
-@nb.njit(inline="always", fastmath=_FM)
-def _b5(x):
-    ax = abs(x)
-    if ax < 1.0:
-        a = 3.0 - ax
-        b = 2.0 - ax
-        c = 1.0 - ax
-        return (a**5 - 6.0 * b**5 + 15.0 * c**5) / 120.0
-    elif ax < 2.0:
-        a = 3.0 - ax
-        b = 2.0 - ax
-        return (a**5 - 6.0 * b**5) / 120.0
-    elif ax < 3.0:
-        a = 3.0 - ax
-        return a**5 / 120.0
-    return 0.0
-
-
-@nb.njit(inline="always", fastmath=_FM)
-def sample_cubic(coef, x, y):
-    """Cubic B-spline value at image point (x, y) (x = column, y = row)."""
-    xf = np.floor(x)
-    yf = np.floor(y)
-    ix = int(xf) + PAD - 1
-    iy = int(yf) + PAD - 1
-    wx0, wx1, wx2, wx3 = cubic_weights(x - xf)
-    wy0, wy1, wy2, wy3 = cubic_weights(y - yf)
-    r0 = wx0 * coef[iy, ix] + wx1 * coef[iy, ix + 1] + wx2 * coef[iy, ix + 2] + wx3 * coef[iy, ix + 3]
-    r1 = wx0 * coef[iy + 1, ix] + wx1 * coef[iy + 1, ix + 1] + wx2 * coef[iy + 1, ix + 2] + wx3 * coef[iy + 1, ix + 3]
-    r2 = wx0 * coef[iy + 2, ix] + wx1 * coef[iy + 2, ix + 1] + wx2 * coef[iy + 2, ix + 2] + wx3 * coef[iy + 2, ix + 3]
-    r3 = wx0 * coef[iy + 3, ix] + wx1 * coef[iy + 3, ix + 1] + wx2 * coef[iy + 3, ix + 2] + wx3 * coef[iy + 3, ix + 3]
-    return wy0 * r0 + wy1 * r1 + wy2 * r2 + wy3 * r3
-
-
-@nb.njit(inline="always", fastmath=_FM)
-def sample_quintic(coef, x, y):
-    """Quintic B-spline value at image point (x, y)."""
-    xf = np.floor(x)
-    yf = np.floor(y)
-    tx = x - xf
-    ty = y - yf
-    ix = int(xf) + PAD - 2
-    iy = int(yf) + PAD - 2
-    acc = 0.0
-    for a in range(6):
-        wy = _b5(ty + 2.0 - a)
-        row = 0.0
-        for b in range(6):
-            row += _b5(tx + 2.0 - b) * coef[iy + a, ix + b]
-        acc += wy * row
-    return acc
-
-
-@nb.njit(cache=True, parallel=True, nogil=True)
-def _sample_many(coef, order, xs, ys, out):
-    for k in nb.prange(xs.size):
-        if order == 3:
-            out[k] = sample_cubic(coef, xs[k], ys[k])
-        else:
-            out[k] = sample_quintic(coef, xs[k], ys[k])
 
 
 def sample(spl: SplineImage, x, y) -> np.ndarray:
@@ -221,6 +125,6 @@ def sample(spl: SplineImage, x, y) -> np.ndarray:
     ):
         raise ValueError("sample points lie outside the image (beyond the padded border)")
     out = np.empty(x.size, dtype=np.float64)
-    _sample_many(spl.coef, spl.order, np.ascontiguousarray(x).ravel(),
-                 np.ascontiguousarray(y).ravel(), out)
+    sample_points(spl.coef, spl.order, np.ascontiguousarray(x).ravel(),
+                  np.ascontiguousarray(y).ravel(), out)
     return out.reshape(x.shape)

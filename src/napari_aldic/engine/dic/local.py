@@ -14,8 +14,8 @@ Stages (see ``solve_local``):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -201,7 +201,6 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     3. What still fails is flagged (LOW_CORRELATION, OUTLIER, or its reason).
     """
     n = grid.n
-    h = params.half
     usable = sub.reason == Reason.OK
     p = np.zeros((n, 6))
     zncc = np.full(n, np.nan)
@@ -211,64 +210,91 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     def run(active: np.ndarray, p_init: np.ndarray):
         out = (p.copy(), zncc.copy(), iters.copy(), reason.copy())
         return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, p_init, active,
-                          sub.slot, sub.masks, h, params.max_iter, params.tol, out=out)
+                          sub.slot, sub.masks, params.half, params.max_iter, params.tol,
+                          out=out)
 
     def store(res, nodes: np.ndarray):
         rp, rz, ri, rr = res
         p[nodes], zncc[nodes], iters[nodes], reason[nodes] = (rp[nodes], rz[nodes], ri[nodes],
                                                               rr[nodes])
 
-    p_init = np.zeros((n, 6))
-    active = np.zeros(n, bool)
+    t = time.perf_counter()
     if guess is not None and np.any(guess.valid):
         # a previous result (e.g. the last frame of a sequence) as the guess
-        t = time.perf_counter()
-        gv = np.nonzero(guess.valid)[0]
-        tree = cKDTree(np.column_stack([guess.x[gv], guess.y[gv]]))
-        _, j = tree.query(np.column_stack([grid.x, grid.y]))
-        src = gv[j]
-        pg = np.column_stack([guess.u, guess.dudx, guess.dudy, guess.v, guess.dvdx, guess.dvdy])
-        p_init[:] = _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
+        p_init = _guess_from_result(grid, guess)
         timing["init"] = time.perf_counter() - t
-        active[:] = usable
-        store(run(active, p_init), np.nonzero(usable)[0])
+        store(run(usable.copy(), p_init), np.nonzero(usable)[0])
     elif params.init == "seeds":
-        t = time.perf_counter()
         _propagate_seeds(im, roi, grid, sub, params, run, store, p, zncc, iters, reason)
         timing["init"] = 0.0
     else:
-        t = time.perf_counter()
-        k = max(1, params.resolved_init_spacing() // params.step)
-        coarse = np.nonzero(usable & (grid.ix >= 0) & (grid.ix % k == 0)
-                            & (grid.iy % k == 0))[0]
-        if coarse.size == 0:
-            coarse = np.nonzero(usable)[0]
-        p_init[coarse] = _ncc_guess(im, grid, sub, coarse, params)
-        timing["init"] = time.perf_counter() - t
-        report(0.3, f"initial guess at {coarse.size} coarse nodes")
-
-        t = time.perf_counter()
-        active[coarse] = True
-        store(run(active, p_init), coarse)
-        good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
-        rest = np.nonzero(usable & ~active)[0]
-        if rest.size:
-            if good_c.size:
-                tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
-                _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
-                src = good_c[j]
-                p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
-                                            grid.y[rest] - grid.y[src])
-            else:
-                p_init[rest] = _ncc_guess(im, grid, sub, rest, params)
-            active[:] = False
-            active[rest] = True
-            store(run(active, p_init), rest)
+        t = _coarse_to_fine(im, grid, sub, params, usable, run, store, zncc, reason, p,
+                            timing, report)
     timing["icgn"] = time.perf_counter() - t
     report(0.8, "IC-GN done")
 
-    # --- repair: failed, poorly correlated or inconsistent nodes
     t = time.perf_counter()
+    _repair(im, roi, grid, sub, params, usable, run, p, zncc, iters, reason, report)
+    timing["rescue"] = time.perf_counter() - t
+    return p, zncc, iters, reason
+
+
+def _guess_from_result(grid: NodeGrid, guess) -> np.ndarray:
+    """Initial affine parameters from a previous result: each node starts
+    from the nearest valid node of ``guess``, extrapolated to first order."""
+    gv = np.nonzero(guess.valid)[0]
+    tree = cKDTree(np.column_stack([guess.x[gv], guess.y[gv]]))
+    _, j = tree.query(np.column_stack([grid.x, grid.y]))
+    src = gv[j]
+    pg = np.column_stack([guess.u, guess.dudx, guess.dudy, guess.v, guess.dvdx, guess.dvdy])
+    return _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
+
+
+def _coarse_to_fine(im: Images, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+                    usable, run, store, zncc, reason, p, timing: dict,
+                    report: ProgressFn) -> float:
+    """FFT initial guess: NCC and IC-GN at coarse nodes (every k-th lattice
+    node), then IC-GN at every other usable node from its nearest converged
+    coarse node, extrapolated to first order (or from its own NCC search if
+    none converged). Records ``timing["init"]``; returns the
+    ``time.perf_counter()`` at which IC-GN started."""
+    t = time.perf_counter()
+    n = grid.n
+    k = max(1, params.resolved_init_spacing() // params.step)
+    coarse = np.nonzero(usable & (grid.ix >= 0) & (grid.ix % k == 0)
+                        & (grid.iy % k == 0))[0]
+    if coarse.size == 0:
+        coarse = np.nonzero(usable)[0]
+    p_init = np.zeros((n, 6))
+    p_init[coarse] = _ncc_guess(im, grid, sub, coarse, params)
+    timing["init"] = time.perf_counter() - t
+    report(0.3, f"initial guess at {coarse.size} coarse nodes")
+
+    t = time.perf_counter()
+    active = np.zeros(n, bool)
+    active[coarse] = True
+    store(run(active, p_init), coarse)
+    good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
+    rest = np.nonzero(usable & ~active)[0]
+    if rest.size:
+        if good_c.size:
+            tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
+            _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
+            src = good_c[j]
+            p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
+                                        grid.y[rest] - grid.y[src])
+        else:
+            p_init[rest] = _ncc_guess(im, grid, sub, rest, params)
+        active[:] = False
+        active[rest] = True
+        store(run(active, p_init), rest)
+    return t
+
+
+def _repair(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams, usable,
+            run, p, zncc, iters, reason, report: ProgressFn) -> None:
+    """Repair failed, poorly correlated or inconsistent nodes, then flag what
+    still fails (its best attempt kept). Updates the state arrays in place."""
     nbrs5 = lattice_neighbours(grid, roi)  # outlier test neighbourhoods (5 x 5)
     nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
     zmin = correlation_floor(zncc, usable & (reason == Reason.OK), params)
@@ -287,7 +313,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
         p_try = p.copy()
         p_try[bad] = _ncc_guess(im, grid, sub, bad, params)
-        active[:] = False
+        active = np.zeros(grid.n, bool)
         active[bad] = True
         rp, rz, ri, rr = run(active, p_try)
         ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin)
@@ -299,5 +325,3 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     reason[low] = Reason.LOW_CORRELATION
     trusted = reason == Reason.OK
     reason[median_test(p[:, 0], p[:, 3], trusted, nbrs5)] = Reason.OUTLIER
-    timing["rescue"] = time.perf_counter() - t
-    return p, zncc, iters, reason

@@ -53,7 +53,7 @@ class NodeGrid:
         idx[self.iy[on], self.ix[on]] = np.nonzero(on)[0]
         return idx
 
-    def with_extra(self, x, y) -> "NodeGrid":
+    def with_extra(self, x, y) -> NodeGrid:
         """This grid plus extra nodes at integer (x, y) off the lattice (ix = iy = -1)."""
         x = np.asarray(x, np.int64)
         y = np.asarray(y, np.int64)

@@ -10,11 +10,12 @@ the ROI count, so the two faces of a crack never vote against each other.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
+from ..kernels.lattice import median_flags
+from ..kernels.sums import integral_image
 from .mesh import NodeGrid
-from .subsets import integral_image, rect_sums
+from .subsets import rect_sums
 
 __all__ = ["lattice_neighbours", "median_test"]
 
@@ -83,32 +84,6 @@ def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: n
     min_neighbours : nodes with fewer trusted neighbours are not tested.
     """
     out = np.zeros(u.size, bool)
-    _median_test(np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64),
+    median_flags(np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64),
                  trusted, neighbours, float(threshold), float(eps), int(min_neighbours), out)
     return out
-
-
-@nb.njit(cache=True, parallel=True, nogil=True)
-def _median_test(u, v, trusted, nbr, threshold, eps, min_nb, out):
-    n, k = nbr.shape
-    for i in nb.prange(n):
-        if not trusted[i]:
-            continue
-        a = np.empty(k)
-        b = np.empty(k)
-        c = 0
-        for j in range(k):
-            q = nbr[i, j]
-            if q >= 0 and trusted[q]:
-                a[c] = u[q]
-                b[c] = v[q]
-                c += 1
-        if c < min_nb:
-            continue
-        for comp in range(2):
-            vals = a[:c] if comp == 0 else b[:c]
-            x = u[i] if comp == 0 else v[i]
-            med = np.median(vals)
-            fl = np.median(np.abs(vals - med))
-            if abs(x - med) / (fl + eps) > threshold:
-                out[i] = True

@@ -39,11 +39,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..kernels.subset import subset_noise
 from .global_solve import (
     CurvatureEstimator,
     Q4Mesh,
@@ -51,7 +51,6 @@ from .global_solve import (
     level_transition_nodes,
     second_difference_operators,
 )
-from .icgn import _buffers, _gather
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES"]
@@ -64,43 +63,6 @@ SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
 # larger meshes: the risk is estimated on a central window of this many nodes
 # (a mean over thousands of nodes; keeps the trial factorisations cheap)
 _SELECT_MAX_NODES = 3_000
-
-
-@nb.njit(cache=True, nogil=True, parallel=True)
-def _noise_kernel(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out):
-    n = xs.size
-    npx = (2 * h + 1) ** 2
-    for i in nb.prange(n):
-        dxs, dys, gx, gy, fs, _, _, _ = _buffers(npx)
-        # the subset's pixels exactly as IC-GN gathers them (mask component only)
-        m, fm, df2 = _gather(f, fgx, fgy, masks, slot[i], xs[i], ys[i], h,
-                             dxs, dys, gx, gy, fs)
-        hxx = hxy = hyy = 0.0
-        for q in range(m):
-            hxx += gx[q] * gx[q]
-            hxy += gx[q] * gy[q]
-            hyy += gy[q] * gy[q]
-        if m == 0 or not one_minus_zncc[i] >= 0.0:
-            out[i, 0] = np.nan
-            out[i, 1] = np.nan
-            continue
-        var_e = one_minus_zncc[i] * df2 / m
-        # the gradients of the noisy reference carry noise energy m var_e gain
-        # per direction; only the rest (the speckle's) makes the subset match
-        e = m * var_e * gain
-        sxx = max(hxx - e, 0.1 * hxx)
-        syy = max(hyy - e, 0.1 * hyy)
-        det = sxx * syy - hxy * hxy
-        if det <= 0.0:
-            out[i, 0] = np.nan
-            out[i, 1] = np.nan
-            continue
-        # covariance 2 var_e S^-1 H S^-1 (S: signal part of H)
-        a = syy / det
-        b = -hxy / det
-        c = sxx / det
-        out[i, 0] = 2.0 * var_e * (a * a * hxx + 2 * a * b * hxy + b * b * hyy)
-        out[i, 1] = 2.0 * var_e * (b * b * hxx + 2 * b * c * hxy + c * c * hyy)
 
 
 def gradient_noise_gain(order: int) -> float:
@@ -126,9 +88,9 @@ def displacement_noise(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int,
     """
     out = np.empty((nodes_x.size, 2))
     omz = np.where(np.isfinite(zncc), 1.0 - zncc, np.nan)
-    _noise_kernel(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
-                  np.asarray(slot, np.int32), masks, int(half), omz,
-                  gradient_noise_gain(order), out)
+    subset_noise(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
+                 np.asarray(slot, np.int32), masks, int(half), omz,
+                 gradient_noise_gain(order), out)
     return out
 
 
@@ -307,29 +269,39 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
         warp = resid + _lattice_noise_factor(ell, step, subset, curv_length) * total_var / n_keep
         return plain + gain, warp
 
-    # the risk is unimodal in log(ell) in practice: walk downhill from the
-    # middle candidate, factorising only the candidates visited
-    cache: dict[int, tuple[float, float]] = {}
-
-    def at(i: int) -> float:
-        if i not in cache:
-            cache[i] = risks(candidates[i])
-        return min(cache[i])
-
-    i = len(candidates) // 2
-    while True:
-        here = at(i)
-        if i > 0 and at(i - 1) < here:
-            i -= 1
-        elif i + 1 < len(candidates) and at(i + 1) < here:
-            i += 1
-        else:
-            break
+    i, cache = _walk_downhill(len(candidates), lambda k: risks(candidates[k]))
     table = [{"smooth_px": float(candidates[k]) * subset, "risk_px2": cache[k][0],
               **({"risk_second_order_px2": cache[k][1]} if curv_length is not None else {})}
              for k in sorted(cache)]
     plain, warp = cache[i]
     return SmoothingChoice(float(candidates[i]) * subset, bool(warp < plain), table, gain)
+
+
+def _walk_downhill(n: int, risks) -> tuple[int, dict[int, tuple[float, float]]]:
+    """Index of the least risk among ``n`` candidates, and the risks computed.
+
+    The risk is unimodal in log(ell) in practice: walk downhill from the
+    middle candidate, evaluating (factorising) only the candidates visited.
+    ``risks(k)`` returns ``(plain, second_order)``; a candidate scores the
+    lower of the two.
+    """
+    cache: dict[int, tuple[float, float]] = {}
+
+    def at(i: int) -> float:
+        if i not in cache:
+            cache[i] = risks(i)
+        return min(cache[i])
+
+    i = n // 2
+    while True:
+        here = at(i)
+        if i > 0 and at(i - 1) < here:
+            i -= 1
+        elif i + 1 < n and at(i + 1) < here:
+            i += 1
+        else:
+            break
+    return i, cache
 
 
 def _deconvolution_gain(mesh, T, free, u, v, keep, noise_var, step, subset, curv_length):

@@ -35,10 +35,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
 from ..core.results import DICResult
+from ..kernels.lattice import plane_fit
 
 __all__ = ["StrainResult", "compute_strain", "strain_measures"]
 
@@ -92,59 +92,6 @@ def strain_measures(dudx, dudy, dvdx, dvdy, measure: str = "green_lagrange"):
     return 0.5 * (1 - b11), 0.5 * (1 - b22), -0.5 * b12
 
 
-@nb.njit(cache=True, parallel=True, nogil=True)
-def _plane_fit(x, y, u, v, use, nbrs, min_pts, out):
-    n, k = nbrs.shape
-    for i in nb.prange(n):
-        for c in range(4):
-            out[i, c] = np.nan
-        if not use[i]:
-            continue
-        # centred normal equations of u = a + b dx + c dy
-        s = 1.0
-        sx = sy = sxx = sxy = syy = 0.0
-        su = sv = sxu = syu = sxv = syv = 0.0
-        cnt = 1
-        for j in range(k):
-            q = nbrs[i, j]
-            if q < 0 or not use[q]:
-                continue
-            dx = x[q] - x[i]
-            dy = y[q] - y[i]
-            du = u[q] - u[i]
-            dv = v[q] - v[i]
-            s += 1.0
-            sx += dx
-            sy += dy
-            sxx += dx * dx
-            sxy += dx * dy
-            syy += dy * dy
-            su += du
-            sv += dv
-            sxu += dx * du
-            syu += dy * du
-            sxv += dx * dv
-            syv += dy * dv
-            cnt += 1
-        if cnt < min_pts:
-            continue
-        # eliminate the intercept: covariance form
-        cxx = sxx - sx * sx / s
-        cxy = sxy - sx * sy / s
-        cyy = syy - sy * sy / s
-        det = cxx * cyy - cxy * cxy
-        if det <= 1e-9 * (cxx + cyy) ** 2 or cxx <= 0 or cyy <= 0:
-            continue
-        cxu = sxu - sx * su / s
-        cyu = syu - sy * su / s
-        cxv = sxv - sx * sv / s
-        cyv = syv - sy * sv / s
-        out[i, 0] = (cyy * cxu - cxy * cyu) / det
-        out[i, 1] = (cxx * cyu - cxy * cxu) / det
-        out[i, 2] = (cyy * cxv - cxy * cyv) / det
-        out[i, 3] = (cxx * cyv - cxy * cxv) / det
-
-
 def _grid_of(result: DICResult):
     from .mesh import NodeGrid
 
@@ -191,8 +138,8 @@ def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit"
 
         nbrs = lattice_neighbours(_grid_of(result), roi, radius=(window - 1) // 2)
         G = np.empty((len(result), 4))
-        _plane_fit(result.x.astype(float), result.y.astype(float), result.u.astype(float),
-                   result.v.astype(float), use, nbrs, 3, G)
+        plane_fit(result.x.astype(float), result.y.astype(float), result.u.astype(float),
+                  result.v.astype(float), use, nbrs, 3, G)
         vsg = (window - 1) * step + result.params.subset
     else:
         from .global_solve import Q4Mesh, gradient_operator, uniform_mesh

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 from scipy import ndimage
 
 from ..core.reasons import Reason
+from ..kernels.sums import integral_image
 
 __all__ = ["SubsetMasks", "split_subsets", "integral_image", "rect_sums"]
 
@@ -43,19 +43,6 @@ class SubsetMasks:
     masks: np.ndarray
     fraction: np.ndarray
     reason: np.ndarray
-
-
-@nb.njit(cache=True, nogil=True)
-def integral_image(mask):
-    """Summed-area table (H+1, W+1) int64 of a boolean/uint8 image."""
-    h, w = mask.shape
-    ii = np.zeros((h + 1, w + 1), np.int64)
-    for i in range(h):
-        run = 0
-        for j in range(w):
-            run += mask[i, j]
-            ii[i + 1, j + 1] = ii[i, j + 1] + run
-    return ii
 
 
 def rect_sums(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:

@@ -1,25 +1,38 @@
 """Files in and out: image stacks, run folders, result formats, settings files.
 
-* :func:`open_stack` / :class:`FrameSource` -- the one image-stack reader (arrays,
-  multi-page TIFF, image folders) used by ``track``, the CLI and the napari reader;
+* :func:`open_stack` / :class:`FrameSource` / :func:`read_image` -- the one image and
+  image-stack reader (arrays, multi-page TIFF, image folders, lists of image files)
+  used by ``track``, the CLI and the napari reader;
 * :func:`load_run`, :func:`collect_frames`, :func:`load_mat` -- results back from
   any file or folder the package writes;
 * writers/readers per format: CSV, MATLAB, VTK (.vtu/.pvd), DaVis text;
-* :func:`save_params` / :func:`load_params` / :func:`load_settings` -- settings files.
+* :func:`read_settings` / :func:`write_settings` (a :class:`~napari_aldic.engine.Settings`),
+  :func:`save_params` / :func:`load_params` / :func:`load_settings` -- settings files.
 """
 
-from .columns import FIELDS, frame_columns
+from .columns import FIELD_INFO, frame_columns
 from .csv import export_csv, read_csv
 from .davis import export_davis
 from .matlab import export_mat
 from .runs import Frame, FrameSet, collect_frames, load_mat, load_run
-from .settings_file import load_params, load_settings, save_params
-from .stack import FrameSource, natural_key, open_stack
+from .settings_file import load_params, load_settings, read_settings, save_params, write_settings
+from .stack import (
+    IMAGE_SUFFIXES,
+    TIFF_SUFFIXES,
+    FrameSource,
+    grey_frame,
+    image_files,
+    natural_key,
+    open_stack,
+    read_image,
+)
 from .vtk import export_vtu, read_vtu, result_cells
 
 __all__ = [
-    "FrameSource", "open_stack", "natural_key",
-    "Frame", "FrameSet", "collect_frames", "load_run", "load_mat", "frame_columns", "FIELDS",
+    "FrameSource", "open_stack", "read_image", "image_files", "natural_key", "grey_frame",
+    "IMAGE_SUFFIXES", "TIFF_SUFFIXES",
+    "Frame", "FrameSet", "collect_frames", "load_run", "load_mat", "frame_columns", "FIELD_INFO",
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
-    "export_davis", "save_params", "load_params", "load_settings",
+    "export_davis", "save_params", "load_params", "load_settings", "read_settings",
+    "write_settings",
 ]

@@ -10,8 +10,10 @@ from ..core.units import Units
 from .runs import RATE_NAMES, STRAIN_NAMES, Frame
 
 # =================================================================== columns
-#: field name -> (title, kind); kind picks the unit: length, velocity, rate, strain, ...
-FIELDS: dict[str, tuple[str, str]] = {
+#: the fields that figures, images and reports can show:
+#: field name -> (title, kind); the kind (length, velocity, rate, strain, angle,
+#: none) picks the unit (:func:`unit_of`). Not the plugin's layer table.
+FIELD_INFO: dict[str, tuple[str, str]] = {
     "u": ("u (x displacement)", "length"),
     "v": ("v (y displacement)", "length"),
     "magnitude": ("|u| (displacement magnitude)", "length"),
@@ -33,11 +35,13 @@ FIELDS: dict[str, tuple[str, str]] = {
 
 
 def unit_of(kind: str, units: Units) -> str:
+    """The unit of a quantity of ``kind`` (see :data:`FIELD_INFO`) in ``units``."""
     return {"length": units.unit, "velocity": units.velocity_unit, "rate": units.rate_unit,
             "angle": "rad", "px": "px", "time": units.time_unit}.get(kind, "")
 
 
 def same_nodes(a: DICResult, b: DICResult) -> bool:
+    """True when two results have the same nodes (same coordinates, same order)."""
     return a.x.shape == b.x.shape and np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)
 
 

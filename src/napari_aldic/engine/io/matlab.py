@@ -21,11 +21,8 @@ from .runs import (
     collect_frames,
 )
 
+
 # =================================================================== MATLAB
-_MAT_RESULT_FIELDS = ("x_px", "y_px", "u_px", "v_px", "dudx", "dudy", "dvdx", "dvdy", "valid",
-                      "zncc", "reason", "iterations", "grid_ix", "grid_iy")
-
-
 def _mat_frame(fr: Frame, units: Units) -> dict[str, Any]:
     res = fr.result
     cols = frame_columns(fr, units)

@@ -5,21 +5,21 @@ from __future__ import annotations
 import json
 import os
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
 from ..core.params import DICParams
-from ..core.results import DICResult, load_result
+from ..core.results import DICResult, SequenceResult, load_result
+from ..core.settings import STRAIN_DEFAULTS
 from ..core.units import Units
+from .stack import natural_key
 
 MAT_FORMAT = "napari-aldic-mat"
 MAT_FORMAT_VERSION = 1
-SETTINGS_FORMAT = "napari-aldic-settings"
-#: strain settings used when an export computes strain itself (``strain=True``)
-STRAIN_DEFAULTS = {"window": 5, "method": "plane_fit", "measure": "green_lagrange"}
 STRAIN_NAMES = ("exx", "eyy", "exy", "e1", "e2", "max_shear", "von_mises", "rotation")
 RATE_NAMES = ("exx", "eyy", "exy")
 
@@ -36,7 +36,7 @@ class Frame:
     index: int
     result: DICResult
     strain: Any = None
-    prev: "Frame | None" = None
+    prev: Frame | None = None
 
 
 def _frame_of(res: DICResult, default: int) -> int:
@@ -45,10 +45,6 @@ def _frame_of(res: DICResult, default: int) -> int:
         if isinstance(k, (int, np.integer)) and not isinstance(k, bool):
             return int(k)
     return default
-
-
-def natural_key(name: str):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
 def load_run(folder):
@@ -61,8 +57,6 @@ def load_run(folder):
     Frames not on disk, such as the reference frame 0 that ``track`` does
     not write, are ``None``.
     """
-    from ..core.results import SequenceResult
-
     folder = Path(os.fspath(folder)).expanduser()
     if not folder.is_dir():
         raise FileNotFoundError(f"no run folder at {folder}")
@@ -180,7 +174,8 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
         Frame numbers to keep (default all). Previous frames are still used
         for velocities and strain rates.
     strain : bool, dict, StrainResult or list of StrainResult
-        ``True`` computes strain with :data:`STRAIN_DEFAULTS`; a dict
+        ``True`` computes strain with
+        :data:`~napari_aldic.engine.core.settings.STRAIN_DEFAULTS`; a dict
         overrides them (``window``, ``method``, ``measure``); ``False``
         exports no strain.
     units : Units or dict, optional

@@ -1,4 +1,10 @@
-"""Parameter/settings files (JSON)."""
+"""Settings files (JSON): :class:`~napari_aldic.engine.Settings` on disk.
+
+:func:`read_settings` / :func:`write_settings` read and write a whole
+:class:`Settings`; :func:`save_params`, :func:`load_settings` and
+:func:`load_params` are the keyword and dictionary forms kept for callers of
+the earlier API. The format and every check live in :mod:`..core.settings`.
+"""
 
 from __future__ import annotations
 
@@ -9,75 +15,80 @@ from typing import Any
 
 from ..core.files import atomic_write, target_path
 from ..core.params import DICParams
-from ..core.units import Units
-from .columns import software_name
-from .runs import SETTINGS_FORMAT, STRAIN_DEFAULTS
+from ..core.settings import Settings
+
+__all__ = ["read_settings", "write_settings", "save_params", "load_settings", "load_params"]
 
 
-# =================================================================== parameters
-def save_params(path, params: DICParams, *, units=None, strain=None,
-                tracking: dict | None = None) -> Path:
-    """Write the complete analysis settings as readable JSON.
+def read_settings(path) -> Settings:
+    """Read a settings file (or a plain JSON object of DICParams fields).
 
-    The file holds ``{"format": "napari-aldic-settings", "software": ...,
-    "params": {DICParams fields}, "units": {...}, "strain": {...},
-    "tracking": {...}}`` (the last three when given).
-    ``napari-aldic run --params FILE`` and :func:`load_params` read it.
+    Raises
+    ------
+    FileNotFoundError
+        If there is no file at ``path``.
+    ValueError
+        If the file is a folder, not UTF-8 JSON, not a JSON object, or holds
+        an unknown section, key or an invalid value; the message names the
+        file and the problem.
     """
-    if not isinstance(params, DICParams):
-        raise TypeError("params must be a DICParams")
+    path = Path(os.fspath(path)).expanduser()
+    if not path.exists():
+        raise FileNotFoundError(f"no parameter file at {path} (no such file)")
+    if path.is_dir():
+        raise ValueError(f"parameter file {path} is a folder; expected a JSON file")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"parameter file {path} is not valid JSON: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"parameter file {path} is not UTF-8 text: {exc}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"parameter file {path} must hold a JSON object (a settings "
+                         "document or DICParams fields)")
+    try:
+        return Settings.from_dict(doc)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"parameter file {path}: {exc}") from None
+
+
+def write_settings(path, settings: Settings) -> Path:
+    """Write ``settings`` as readable JSON (``.json`` is appended when the
+    name has no suffix); the file is replaced only once complete. Returns the
+    path written."""
+    if not isinstance(settings, Settings):
+        raise TypeError("settings must be a Settings")
     path = target_path(path, (".json",))
-    doc: dict[str, Any] = {"format": SETTINGS_FORMAT, "format_version": 1,
-                           "software": software_name(), "params": params.to_dict()}
-    if units is not None:
-        doc["units"] = (units if isinstance(units, Units) else Units.from_dict(units)).to_dict()
-    if strain is not None:
-        doc["strain"] = {**STRAIN_DEFAULTS, **(strain if isinstance(strain, dict) else {})}
-    if tracking is not None:
-        doc["tracking"] = dict(tracking)
-    text = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+    text = json.dumps(settings.to_dict(), indent=2, ensure_ascii=False) + "\n"
     with atomic_write(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
     return path
 
 
+def save_params(path, params: DICParams, *, units=None, strain=None,
+                tracking: dict | None = None) -> Path:
+    """Write the analysis settings as readable JSON (see :func:`write_settings`).
+
+    ``units`` is a Units or a dict, ``strain`` a dict of strain settings
+    (``True``: the defaults), ``tracking`` a dict of tracking settings; the
+    file holds only the sections given. ``napari-aldic run --params FILE``
+    and :func:`load_settings` read it.
+    """
+    if not isinstance(params, DICParams):
+        raise TypeError("params must be a DICParams")
+    if strain is not None and not isinstance(strain, dict):
+        strain = {}
+    return write_settings(path, Settings(params, units, strain, tracking))
+
+
 def load_settings(path) -> dict[str, Any]:
-    """Read settings written by :func:`save_params` (or a plain JSON object of
-    DICParams fields). Returns ``{"params": DICParams, "units": Units or None,
-    "strain": dict or None, "tracking": dict or None}``."""
-    path = Path(os.fspath(path)).expanduser()
-    if not path.exists():
-        raise FileNotFoundError(f"no parameter file at {path}")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"parameter file {path} is not valid JSON: {exc}") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"parameter file {path} must hold a JSON object")
-    if doc.get("format") == SETTINGS_FORMAT or "params" in doc and isinstance(doc["params"],
-                                                                             dict):
-        known = {"format", "format_version", "software", "params", "units", "strain",
-                 "tracking"}
-        unknown = sorted(set(doc) - known)
-        if unknown:
-            raise ValueError(f"parameter file {path}: unknown section(s) {unknown}; valid "
-                             f"sections are {sorted(known)}")
-        try:
-            params = DICParams.from_dict(doc.get("params") or {})
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"parameter file {path}: {exc}") from None
-        units = Units.from_dict(doc["units"]) if doc.get("units") else None
-        return {"params": params, "units": units, "strain": doc.get("strain"),
-                "tracking": doc.get("tracking")}
-    try:
-        params = DICParams.from_dict(doc)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"parameter file {path}: {exc}") from None
-    return {"params": params, "units": None, "strain": None, "tracking": None}
+    """The sections of a settings file as a dictionary: ``{"params": DICParams,
+    "units": Units or None, "strain": dict or None, "tracking": dict or None}``
+    (see :func:`read_settings`, which gives them as one :class:`Settings`)."""
+    s = read_settings(path)
+    return {"params": s.params, "units": s.units, "strain": s.strain, "tracking": s.tracking}
 
 
 def load_params(path) -> DICParams:
-    """The :class:`DICParams` of a settings file (see :func:`load_settings`)."""
-    return load_settings(path)["params"]
-
-
+    """The :class:`DICParams` of a settings file (see :func:`read_settings`)."""
+    return read_settings(path).params

@@ -1,113 +1,304 @@
-"""One reader for image stacks: arrays, multi-page TIFF files and image folders.
+"""The one reader for images and image stacks.
 
 The engine's ``track``, the command line and the napari reader all open their
-frames through :class:`FrameSource`, so they accept the same files.
+frames here, so they accept the same files and explain problems the same way:
+
+* :func:`read_image` -- one image file (tifffile for TIFF, scikit-image for the
+  other formats of :data:`IMAGE_SUFFIXES`);
+* :class:`FrameSource` / :func:`open_stack` -- the frames of a stack, read on
+  demand: a (T, H, W) array, a multi-page TIFF file, a folder of images or a
+  list of image files;
+* :func:`image_files` and :func:`natural_key` -- the images of a folder in
+  natural order (``img_2`` before ``img_10``);
+* :func:`grey_frame` -- colour frames as grey values (for display).
+
+Every error names the file: :class:`FileNotFoundError` for a missing path,
+:class:`ValueError` for anything that is not a readable image or stack.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FrameSource", "open_stack", "natural_key", "IMAGE_SUFFIXES"]
+from ..core.images import as_gray_float
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg")
+__all__ = ["FrameSource", "open_stack", "read_image", "image_files", "natural_key",
+           "grey_frame", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
+
+#: file name endings read as TIFF (with tifffile; pages can be stack frames)
+TIFF_SUFFIXES = (".tif", ".tiff")
+#: file name endings read as images (TIFF, and scikit-image for the others)
+IMAGE_SUFFIXES = TIFF_SUFFIXES + (".png", ".bmp", ".jpg", ".jpeg", ".jp2", ".pgm")
 
 
-def natural_key(name: str):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+def natural_key(name) -> list:
+    """Sort key putting ``img_2`` before ``img_10`` (case-insensitive).
+
+    ``name`` is a string, or a path whose last part (the file name) is used.
+    """
+    if isinstance(name, os.PathLike):
+        name = Path(name).name
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", str(name))]
+
+
+def image_files(folder) -> list[Path]:
+    """The image files (:data:`IMAGE_SUFFIXES`) of ``folder``, in natural order."""
+    folder = Path(folder)
+    return sorted((p for p in folder.iterdir()
+                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=natural_key)
+
+
+def _image_file(path) -> Path:
+    """``path`` as a Path, checked to be an existing file."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no such file: {path}")
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder; expected an image file")
+    return path
+
+
+def read_image(path) -> np.ndarray:
+    """Read one image file as an array, keeping its data type.
+
+    TIFF files (:data:`TIFF_SUFFIXES`) are read with tifffile, other files with
+    scikit-image. A multi-page TIFF gives all its pages (use
+    :class:`FrameSource` to read a stack frame by frame).
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no file at ``path``.
+    ValueError
+        If ``path`` is a folder or no reader understands the file; the
+        message names the file and the reader's reason.
+    """
+    path = _image_file(path)
+    try:
+        with warnings.catch_warnings():  # the readers' own deprecation chatter
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", FutureWarning)
+            if path.suffix.lower() in TIFF_SUFFIXES:
+                import tifffile
+
+                return np.asarray(tifffile.imread(path))
+            from skimage import io as skio
+
+            return np.asarray(skio.imread(path))
+    except Exception as exc:  # any reader failure is a bad input file
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ValueError(f"cannot read image {path}: {first}") from None
+
+
+def grey_frame(frame) -> np.ndarray:
+    """An RGB(A) frame as float32 grey values (ITU-R BT.709 luminance, no
+    warning); a grey frame is returned as it is (its data type kept)."""
+    arr = np.asarray(frame)
+    if arr.ndim == 3 and arr.shape[-1] in (3, 4):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return as_gray_float(arr)
+    return arr
+
+
+def _one_frame(img: np.ndarray, path: Path) -> np.ndarray:
+    """Reject a file holding several frames where one image is expected
+    (grey and RGB(A) images pass)."""
+    if img.ndim > 3 or (img.ndim == 3 and img.shape[-1] not in (3, 4)):
+        raise ValueError(f"{path} holds {img.shape[0]} frames (shape {img.shape}); a folder "
+                         "or list of image files needs one image per file (give a stack on "
+                         "its own)")
+    return img
 
 
 class FrameSource:
-    """Read-on-demand access to the frames of a stack.
+    """The frames of a stack, read one at a time when asked for.
 
-    Accepts a (T, H, W) NumPy or dask array, a multi-page TIFF path (one page
-    read per request with ``tifffile``) or a folder of
-    BMP/PNG/TIF/JPG images sorted naturally (``img_2`` before ``img_10``).
+    ``FrameSource(stack)`` takes
+
+    * a (T, H, W) NumPy or dask array (or any array-like with ``ndim == 3``);
+    * the path of a multi-page TIFF file: the frames of its first series
+      (leading axes, e.g. time and depth, are flattened into frames); when
+      every frame is one page, one page is read per request;
+    * the path of a folder of images (:data:`IMAGE_SUFFIXES`), in natural
+      order (``img_2`` before ``img_10``);
+    * a list of image file paths, one frame each, in the order given (a list
+      holding one path is that path).
+
+    ``len(src)`` is the number of frames (at least two), ``src[k]`` reads
+    frame ``k``, ``src.frame_name(k)`` names it. Use it as a context manager,
+    or call :meth:`close`, to release an open TIFF file early.
+
+    Attributes
+    ----------
+    name : str or None
+        The path given (None for arrays and lists of files).
+    shape : tuple
+        ``(frames, rows, cols)``.
+    frame_shape : tuple
+        Shape of one frame: ``(rows, cols)``, or ``(rows, cols, channels)``
+        for colour frames.
+    series_shape : tuple or None
+        Shape of the TIFF series as stored in the file (None for other sources).
     """
 
     def __init__(self, stack):
-        self.name = None
-        self._files = None
-        self._tiff = None
-        if isinstance(stack, (str, os.PathLike)):
-            path = Path(stack)
-            self.name = str(path)
-            if path.is_dir():
-                files = sorted((p for p in path.iterdir()
-                                if p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: natural_key(p.name))
-                if len(files) < 2:
-                    raise ValueError(f"folder {path} holds {len(files)} image(s); a sequence "
-                                     "needs at least two (BMP, PNG, TIF or JPG)")
-                self._files = files
-                first = self._read_file(files[0])
-                self.shape = (len(files),) + first.shape[:2]
-                self._arr = None
-            elif path.exists():
-                import tifffile
-
-                with tifffile.TiffFile(path) as tf:
-                    shape = tuple(tf.series[0].shape)
-                if len(shape) == 2:
-                    raise ValueError(f"{path} holds a single image; a sequence needs a stack")
-                if len(shape) != 3:
-                    raise ValueError(f"{path}: expected a (frames, rows, cols) stack, got "
-                                     f"shape {shape}")
-                self._tiff = path  # pages are read one at a time in __getitem__
-                self._arr = None
-                self.shape = shape
+        self.name: str | None = None
+        self.series_shape: tuple | None = None
+        self._files: list[Path] | None = None
+        self._tiff: Path | None = None
+        self._pages = False  # TIFF: one page per frame
+        self._whole = None  # TIFF series read at once (frames are not single pages)
+        self._arr = None
+        self._handle = None
+        self._lock = threading.Lock()
+        if isinstance(stack, (list, tuple)) and stack and \
+                all(isinstance(p, (str, os.PathLike)) for p in stack):
+            if len(stack) == 1:
+                stack = stack[0]
             else:
-                raise FileNotFoundError(f"no image stack at {path}")
+                self._use_files([_image_file(p) for p in stack])
+        if isinstance(stack, (str, os.PathLike)):
+            self._open_path(Path(stack))
+        elif self._files is None:
+            self._use_array(stack)
+        if len(self) < 2:
+            raise ValueError(f"a sequence needs at least two frames; {self.name or 'the stack'} "
+                             f"holds {len(self)}")
+
+    # ------------------------------------------------------------ opening
+    def _open_path(self, path: Path) -> None:
+        self.name = str(path)
+        if path.is_dir():
+            files = image_files(path)
+            if len(files) < 2:
+                raise ValueError(f"folder {path} holds {len(files)} image(s); a sequence needs "
+                                 "a reference and at least one deformed image ("
+                                 f"{', '.join(s[1:] for s in IMAGE_SUFFIXES)})")
+            self._use_files(files)
+        elif not path.exists():
+            raise FileNotFoundError(f"no image stack at {path} (no such file or folder)")
+        elif path.suffix.lower() in TIFF_SUFFIXES:
+            self._open_tiff(path)
         else:
-            arr = stack
-            if not hasattr(arr, "ndim"):
-                arr = np.asarray(arr)
-            if arr.ndim != 3:
-                raise ValueError(f"a stack must be 3-D (frames, rows, cols); got shape {arr.shape}")
-            self._arr = arr
-            self.shape = tuple(arr.shape)
-        if self.shape[0] < 2:
-            raise ValueError("a sequence needs at least two frames")
+            raise ValueError(f"{path} is a single image; a sequence needs a multi-page TIFF "
+                             "stack, a folder of images or several image files")
 
-    @staticmethod
-    def _read_file(p: Path) -> np.ndarray:
-        if p.suffix.lower() in (".tif", ".tiff"):
-            import tifffile
+    def _use_files(self, files: list[Path]) -> None:
+        self._files = files
+        self.frame_shape = tuple(self._read_file(0).shape)
+        self.shape = (len(files),) + self.frame_shape[:2]
 
-            return tifffile.imread(p)
-        from skimage import io
+    def _use_array(self, stack) -> None:
+        arr = stack if hasattr(stack, "ndim") else np.asarray(stack)
+        if arr.ndim != 3:
+            raise ValueError(f"a stack must be 3-D (frames, rows, cols); got shape {arr.shape}")
+        self._arr = arr
+        self.shape = tuple(int(s) for s in arr.shape)
+        self.frame_shape = self.shape[1:]
 
-        return io.imread(p)
+    def _open_tiff(self, path: Path) -> None:
+        import tifffile
 
+        try:
+            with tifffile.TiffFile(path) as tf:
+                series = tf.series[0]
+                shape, axes = tuple(series.shape), str(series.axes)
+                n_pages = len(series.pages)
+                page_shape = tuple(series.pages[0].shape) if n_pages else None
+        except Exception as exc:
+            raise ValueError(f"cannot read TIFF stack {path}: {exc}") from None
+        frame_axes = len(shape) - (3 if axes.endswith("S") else 2)
+        n = int(np.prod(shape[:frame_axes])) if frame_axes > 0 else 1
+        if n < 2:
+            raise ValueError(f"{path} holds a single frame (shape {shape}); a sequence needs "
+                             "a reference and at least one deformed frame")
+        self._tiff = path
+        self.series_shape = shape
+        self.frame_shape = shape[frame_axes:]
+        self.shape = (n,) + self.frame_shape[:2]
+        self._pages = n_pages == n and page_shape == self.frame_shape
+
+    # ------------------------------------------------------------ reading
     def __len__(self) -> int:
         return int(self.shape[0])
 
+    def __getitem__(self, k: int) -> np.ndarray:
+        n = len(self)
+        if not -n <= k < n:
+            raise IndexError(f"frame {k} out of range for {n} frames")
+        k = int(k) % n
+        if self._files is not None:
+            return self._read_file(k)
+        if self._tiff is not None:
+            return self._read_tiff(k)
+        return np.asarray(self._arr[k])
+
+    def _read_file(self, k: int) -> np.ndarray:
+        return _one_frame(read_image(self._files[k]), self._files[k])
+
+    def _read_tiff(self, k: int) -> np.ndarray:
+        import tifffile
+
+        try:
+            with self._lock:  # one open file, shared by the threads reading frames
+                if not self._pages:
+                    if self._whole is None:
+                        self._whole = tifffile.imread(self._tiff, series=0).reshape(
+                            len(self), *self.frame_shape)
+                    return self._whole[k]
+                if self._handle is None:
+                    self._handle = tifffile.TiffFile(self._tiff)
+                return self._handle.asarray(series=0, key=k)
+        except Exception as exc:
+            raise ValueError(f"cannot read frame {k} of {self._tiff}: {exc}") from None
+
     def frame_name(self, k: int) -> str:
-        """A readable name of frame ``k`` (file name, or stack path and page)."""
+        """A readable name of frame ``k``: its file, ``STACK.tif[k]`` or ``frame k``."""
         if self._files is not None:
             return str(self._files[k])
         if self._tiff is not None:
-            return f"{self._tiff}[page {k}]"
+            return f"{self._tiff}[{k}]"
         return f"frame {k}"
 
-    def __getitem__(self, k: int) -> np.ndarray:
-        if not -len(self) <= k < len(self):
-            raise IndexError(f"frame {k} out of range for {len(self)} frames")
-        if self._files is not None:
-            return self._read_file(self._files[k])
-        if self._tiff is not None:
-            import tifffile
+    # ------------------------------------------------------------ lifetime
+    def close(self) -> None:
+        """Release the open TIFF file (it is opened again when needed)."""
+        with self._lock:
+            if self._handle is not None:
+                self._handle.close()
+                self._handle = None
 
-            with tifffile.TiffFile(self._tiff) as tf:
-                return tf.asarray(series=0, key=k % len(self))
-        return np.asarray(self._arr[k])
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            if self._handle is not None:
+                self._handle.close()
+        except Exception:
+            pass
+
+    def __getstate__(self) -> dict:  # for worker processes: no file handle, no lock
+        state = dict(self.__dict__)
+        state.update(_handle=None, _lock=None, _whole=None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
 
 
 def open_stack(stack) -> FrameSource:
-    """A :class:`FrameSource` for an array, a TIFF stack path or an image folder."""
+    """A :class:`FrameSource` for an array, a TIFF stack path, an image folder
+    or a list of image files (a FrameSource is returned as it is)."""
     return stack if isinstance(stack, FrameSource) else FrameSource(stack)
-
-

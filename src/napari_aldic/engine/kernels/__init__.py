@@ -1,1 +1,15 @@
-"""Numba kernels (numpy/numba only)."""
+"""Every Numba kernel of the engine (numpy/numba only).
+
+Each module groups the kernels of one role; the Python wrappers that
+validate inputs, allocate outputs and call them live in ``dic/`` (and
+``synthetic/``):
+
+* ``flags``    the compilation options, defined once (fast-math set, cache, ...);
+* ``bspline``  B-spline weights and samplers (float64 points, float32 IC-GN taps),
+  spline gradients at the pixel centres;
+* ``subset``   a node's subset: work buffers, gathering its pixels, noise model;
+* ``icgn``     the affine and the penalised-translation IC-GN solvers;
+* ``sums``     integral images and window sums;
+* ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
+* ``speckle``  the analytic speckle intensity of the synthetic images.
+"""

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
+
+from ..kernels.speckle import speckle_intensity
 
 __all__ = [
     "SpecklePattern",
@@ -138,7 +139,7 @@ class Affine(DisplacementField):
 
     @classmethod
     def strain_rotation(cls, exx=0.0, eyy=0.0, exy=0.0, angle_deg=0.0,
-                        center=(0.0, 0.0), t=(0.0, 0.0)) -> "Affine":
+                        center=(0.0, 0.0), t=(0.0, 0.0)) -> Affine:
         """Stretch ``diag(1+exx, 1+eyy)`` with tensor shear ``exy``, then rotate.
 
         The deformation gradient is ``R(angle) @ (I + E)``; the displacement
@@ -181,6 +182,19 @@ class Sinusoid(DisplacementField):
                 self.amplitude_v * np.sin(k * sv + self.phase))
 
 
+def _polar(X, Y, centre) -> tuple[np.ndarray, np.ndarray]:
+    """Polar coordinates ``(r, theta)`` of reference points about ``centre``
+    (theta from +x towards +y, in ``(-pi, pi]``)."""
+    dX = np.asarray(X, float) - centre[0]
+    dY = np.asarray(Y, float) - centre[1]
+    return np.hypot(dX, dY), np.arctan2(dY, dX)
+
+
+def _kolosov(nu: float) -> float:
+    """Kolosov constant of plane stress, ``kappa = (3 - nu) / (1 + nu)``."""
+    return (3 - nu) / (1 + nu)
+
+
 @dataclass
 class ModeICrack(DisplacementField):
     """Mode-I LEFM near-tip displacement field around a straight crack.
@@ -205,11 +219,8 @@ class ModeICrack(DisplacementField):
     t: tuple = (0.0, 0.0)
 
     def displacement(self, X, Y):
-        dX = np.asarray(X, float) - self.tip[0]
-        dY = np.asarray(Y, float) - self.tip[1]
-        r = np.hypot(dX, dY)
-        th = np.arctan2(dY, dX)
-        kappa = (3 - self.nu) / (1 + self.nu)
+        r, th = _polar(X, Y, self.tip)
+        kappa = _kolosov(self.nu)
         a = self.amplitude * np.sqrt(r)
         u = a * np.cos(th / 2) * (kappa - 1 + 2 * np.sin(th / 2) ** 2)
         v = a * np.sin(th / 2) * (kappa + 1 - 2 * np.cos(th / 2) ** 2)
@@ -218,8 +229,7 @@ class ModeICrack(DisplacementField):
     def opening(self, X) -> np.ndarray:
         """Crack opening (v jump, pixels) at abscissa X behind the tip."""
         r = np.maximum(self.tip[0] - np.asarray(X, float), 0.0)
-        kappa = (3 - self.nu) / (1 + self.nu)
-        return 2 * self.amplitude * np.sqrt(r) * (kappa + 1)
+        return 2 * self.amplitude * np.sqrt(r) * (_kolosov(self.nu) + 1)
 
 
 @dataclass
@@ -246,12 +256,10 @@ class PlateWithHole(DisplacementField):
     t: tuple = (0.0, 0.0)
 
     def displacement(self, X, Y):
-        dX = np.asarray(X, float) - self.center[0]
-        dY = np.asarray(Y, float) - self.center[1]
-        r = np.maximum(np.hypot(dX, dY), 1e-9)
-        th = np.arctan2(dY, dX)
+        r, th = _polar(X, Y, self.center)
+        r = np.maximum(r, 1e-9)
         a, A = self.radius, self.amplitude
-        kappa = (3 - self.nu) / (1 + self.nu)
+        kappa = _kolosov(self.nu)
         c2, s2 = np.cos(2 * th), np.sin(2 * th)
         ur = A * (r * ((kappa - 1) / 2 + c2) + a**2 / r * (1 + (1 + kappa) * c2)
                   - a**4 / r**3 * c2)
@@ -353,34 +361,6 @@ def make_pattern(shape, speckle_radius: float = 2.0, density: float = 0.5,
                           (x0, y0), (nbx, nby))
 
 
-@nb.njit(cache=True, parallel=True, fastmath=True)
-def _eval_pattern(X, Y, bx, by, sg, amp, start, x0, y0, bin_size, nbx, nby, lo, hi, out):
-    for k in nb.prange(X.size):
-        xq = X[k]
-        yq = Y[k]
-        if np.isnan(xq) or np.isnan(yq):
-            out[k] = np.nan
-            continue
-        ix = int(np.floor((xq - x0) / bin_size))
-        iy = int(np.floor((yq - y0) / bin_size))
-        s = 0.0
-        for jy in range(iy - 1, iy + 2):
-            if jy < 0 or jy >= nby:
-                continue
-            for jx in range(ix - 1, ix + 2):
-                if jx < 0 or jx >= nbx:
-                    continue
-                b = jy * nbx + jx
-                for m in range(start[b], start[b + 1]):
-                    dx = xq - bx[m]
-                    dy = yq - by[m]
-                    r2 = dx * dx + dy * dy
-                    s2 = sg[m] * sg[m]
-                    if r2 < 16.0 * s2:
-                        s += amp[m] * np.exp(-0.5 * r2 / s2)
-        out[k] = lo + (hi - lo) * (1.0 - np.exp(-s))
-
-
 def _gauss_legendre(n: int):
     t, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * t, 0.5 * w  # on [-0.5, 0.5], weights sum to 1
@@ -416,12 +396,12 @@ def render(pattern: SpecklePattern, shape, displacement: DisplacementField | Non
                 else:
                     Xq, Yq = displacement.inverse(xq, yq)
                 val = np.empty(xq.size)
-                _eval_pattern(np.ascontiguousarray(Xq, float).ravel(),
-                              np.ascontiguousarray(Yq, float).ravel(),
-                              pattern.x, pattern.y, pattern.sigma, pattern.amp,
-                              pattern.bins_start, pattern.origin[0], pattern.origin[1],
-                              pattern.bin_size, pattern.nbins[0], pattern.nbins[1],
-                              pattern.lo, pattern.hi, val)
+                speckle_intensity(np.ascontiguousarray(Xq, float).ravel(),
+                                  np.ascontiguousarray(Yq, float).ravel(),
+                                  pattern.x, pattern.y, pattern.sigma, pattern.amp,
+                                  pattern.bins_start, pattern.origin[0], pattern.origin[1],
+                                  pattern.bin_size, pattern.nbins[0], pattern.nbins[1],
+                                  pattern.lo, pattern.hi, val)
                 val = np.where(np.isnan(val), bg, val)
                 acc += wq[a] * wq[b] * val.reshape(xq.shape)
         out[r0:r1] = acc

@@ -1,12 +1,15 @@
-"""Pictures of results (matplotlib only, headless): figures, PNG/GIF/MP4, PDF report."""
+"""Pictures of results (matplotlib only, headless): style (field titles, labels, colour
+limits), figures, PNG/GIF/MP4, PDF report."""
 
-from .figures import (colour_limits, displacement_figure, field_figure, field_label,
-                      plot_displacement, truth_at_nodes)
+from .deformed import to_deformed
+from .figures import displacement_figure, field_figure, plot_displacement, truth_at_nodes
 from .media import export_gif, export_mp4, export_png
 from .report import export_report, line_profile, report_page_count
+from .style import colour_limits, field_colour_limits, field_label, field_title
 
 __all__ = [
     "displacement_figure", "plot_displacement", "truth_at_nodes", "field_figure",
-    "field_label", "colour_limits", "export_png", "export_gif", "export_mp4",
-    "export_report", "line_profile", "report_page_count",
+    "field_label", "field_title", "colour_limits", "field_colour_limits",
+    "export_png", "export_gif", "export_mp4",
+    "export_report", "line_profile", "report_page_count", "to_deformed",
 ]

@@ -9,6 +9,7 @@ worker threads.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,12 +17,27 @@ import numpy as np
 
 from ..core.results import DICResult
 from ..core.units import Units
-from ..io.columns import FIELDS, frame_columns, unit_of
+from ..io.columns import frame_columns
 from ..io.runs import Frame, collect_frames
 from ..io.vtk import result_cells
+from .style import (
+    DIVERGING,
+    SEQUENTIAL,
+    check_field,
+    colour_limits,
+    field_colour_limits,
+    field_label,
+    field_title,
+    frame_title,
+    label_axes,
+    needs_strain,
+    transparent_cmap,
+    unknown_field,
+)
 
-__all__ = ["displacement_figure", "plot_displacement", "truth_at_nodes", "field_figure",
-           "field_label", "field_values", "colour_limits", "draw_field", "frame_title"]
+__all__ = ["displacement_figure", "plot_displacement", "truth_at_nodes", "result_title",
+           "field_figure", "field_values", "draw_field", "triangulation", "figure_size",
+           "FieldSeries", "prepare_series", "frame_figure"]
 
 
 def truth_at_nodes(result, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -52,10 +68,90 @@ def _lattice_extent(result) -> tuple[float, float, float, float]:
     return (xs[0] - dx / 2, xs[-1] + dx / 2, ys[-1] + dy / 2, ys[0] - dy / 2)
 
 
-def _symmetric_limit(values: np.ndarray) -> float:
-    finite = values[np.isfinite(values)]
-    lim = float(np.abs(finite).max()) if finite.size else 0.0
-    return lim if lim > 0 else 1.0
+def _displacement_panels(result, truth) -> list[dict[str, Any]]:
+    """The three maps of :func:`displacement_figure`: u, v and the error
+    against ``truth`` (or the ZNCC without it), with colours and labels."""
+    panels: list[dict[str, Any]] = []
+    for name in ("u", "v"):
+        grid = result.to_grid(name)
+        lim = colour_limits(grid, "symmetric", percentile=100, fallback=1.0)[1]
+        panels.append(dict(data=grid, cmap=transparent_cmap(DIVERGING), vmin=-lim, vmax=lim,
+                           label=f"{name} (px)", title=f"{name} displacement", extend="neither"))
+    panels.append(_error_panel(result, truth) if truth is not None else _zncc_panel(result))
+    return panels
+
+
+def _error_panel(result, truth) -> dict[str, Any]:
+    """Map of ``|(u, v) - truth|`` at the trusted nodes, capped at its 99th percentile."""
+    ut, vt = truth_at_nodes(result, truth)
+    err = np.hypot(result.u - ut, result.v - vt)
+    sel = result.valid & np.isfinite(err)
+    rmse = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else float("nan")
+    grid = np.full(result.grid_shape, np.nan)
+    grid[result.grid_iy[sel], result.grid_ix[sel]] = err[sel]
+    top = float(np.percentile(err[sel], 99)) if sel.any() else 1.0
+    top = top if top > 0 else 1.0
+    return dict(data=grid, cmap=transparent_cmap("magma"), vmin=0.0, vmax=top,
+                label="error |(u, v) - truth| (px)",
+                title=f"error vs truth (RMSE {rmse:.4f} px)",
+                extend="max" if float(np.nanmax(grid, initial=0.0)) > top else "neither")
+
+
+def _zncc_panel(result) -> dict[str, Any]:
+    """Map of the ZNCC of every node (untrusted ones too), from its 1st percentile
+    (at most 0.99) up to 1."""
+    grid = result.to_grid("zncc", invalid=None)
+    finite = grid[np.isfinite(grid)]
+    lo = min(float(np.percentile(finite, 1)), 0.99) if finite.size else 0.0
+    clipped = finite.size and float(finite.min()) < lo
+    return dict(data=grid, cmap=transparent_cmap(SEQUENTIAL), vmin=lo, vmax=1.0, label="ZNCC",
+                title="correlation quality", extend="min" if clipped else "neither")
+
+
+def _panel_grid(n: int, rows: int, cols: int):
+    """Figure and ``n`` axes sized so that each map keeps the image aspect with
+    room for its colour bar: stacked for wide images, side by side otherwise."""
+    from matplotlib.figure import Figure
+
+    if cols > 1.6 * rows:
+        ax_w = 8.0
+        ax_h = ax_w * rows / cols
+        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.6), layout="constrained")
+        axes = fig.subplots(n, 1, sharex=True, sharey=True)
+    else:
+        ax_h = min(7.0, 4.2 * rows / cols)
+        ax_w = ax_h * cols / rows
+        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.3), layout="constrained")
+        axes = fig.subplots(1, n, sharex=True, sharey=True)
+    return fig, np.atleast_1d(axes)
+
+
+def _draw_panel(fig, ax, panel: dict[str, Any], result, image) -> None:
+    """One map on the node lattice over the optional image, flagged nodes
+    marked with x, with its colour bar."""
+    rows, cols = (int(s) for s in result.image_shape)
+    ax.set_facecolor("0.85")
+    if image is not None:
+        ax.imshow(np.asarray(image), cmap="gray", extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
+                  interpolation="nearest")
+    im = ax.imshow(panel["data"], cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"],
+                   extent=_lattice_extent(result), interpolation="nearest")
+    bad = ~np.asarray(result.valid, bool)
+    if bad.any():
+        ax.plot(result.x[bad], result.y[bad], linestyle="none", marker="x", markersize=3,
+                color="k", alpha=0.6, label="flagged node")
+    ax.set_xlim(-0.5, cols - 0.5)
+    ax.set_ylim(rows - 0.5, -0.5)
+    ax.set_title(panel["title"], fontsize=10)
+    label_axes(ax, "px")
+    fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
+
+
+def result_title(result) -> str:
+    """One line on a result: nodes (valid), subset, step and method."""
+    p = result.params
+    return (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "
+            f"step {p.step} px, {p.method}")
 
 
 def displacement_figure(result, truth=None, image=None, title: str | None = None):
@@ -81,78 +177,12 @@ def displacement_figure(result, truth=None, image=None, title: str | None = None
     -------
     matplotlib.figure.Figure
     """
-    import matplotlib
-    from matplotlib.figure import Figure
-
     rows, cols = (int(s) for s in result.image_shape)
-    extent = _lattice_extent(result)
-    diverging = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0, 0, 0, 0))
-    sequential = matplotlib.colormaps["viridis"].with_extremes(bad=(0, 0, 0, 0))
-
-    panels: list[dict[str, Any]] = []
-    for name in ("u", "v"):
-        grid = result.to_grid(name)
-        lim = _symmetric_limit(grid)
-        panels.append(dict(data=grid, cmap=diverging, vmin=-lim, vmax=lim,
-                           label=f"{name} (px)", title=f"{name} displacement", extend="neither"))
-    if truth is not None:
-        ut, vt = truth_at_nodes(result, truth)
-        err = np.hypot(result.u - ut, result.v - vt)
-        sel = result.valid & np.isfinite(err)
-        rmse = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else float("nan")
-        grid = np.full(result.grid_shape, np.nan)
-        grid[result.grid_iy[sel], result.grid_ix[sel]] = err[sel]
-        top = float(np.percentile(err[sel], 99)) if sel.any() else 1.0
-        top = top if top > 0 else 1.0
-        panels.append(dict(data=grid, cmap=matplotlib.colormaps["magma"].with_extremes(
-            bad=(0, 0, 0, 0)), vmin=0.0, vmax=top, label="error |(u, v) - truth| (px)",
-            title=f"error vs truth (RMSE {rmse:.4f} px)",
-            extend="max" if float(np.nanmax(grid, initial=0.0)) > top else "neither"))
-    else:
-        grid = result.to_grid("zncc", invalid=None)
-        finite = grid[np.isfinite(grid)]
-        lo = min(float(np.percentile(finite, 1)), 0.99) if finite.size else 0.0
-        clipped = finite.size and float(finite.min()) < lo
-        panels.append(dict(data=grid, cmap=sequential, vmin=lo, vmax=1.0, label="ZNCC",
-                           title="correlation quality", extend="min" if clipped else "neither"))
-
-    # size the figure so each map keeps the image aspect with room for its colour bar
-    n = len(panels)
-    wide = cols > 1.6 * rows
-    if wide:
-        ax_w = 8.0
-        ax_h = ax_w * rows / cols
-        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.6), layout="constrained")
-        axes = fig.subplots(n, 1, sharex=True, sharey=True)
-    else:
-        ax_h = min(7.0, 4.2 * rows / cols)
-        ax_w = ax_h * cols / rows
-        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.3), layout="constrained")
-        axes = fig.subplots(1, n, sharex=True, sharey=True)
-    axes = np.atleast_1d(axes)
-
-    bad = ~np.asarray(result.valid, bool)
+    panels = _displacement_panels(result, truth)
+    fig, axes = _panel_grid(len(panels), rows, cols)
     for ax, panel in zip(axes, panels):
-        ax.set_facecolor("0.85")
-        if image is not None:
-            ax.imshow(np.asarray(image), cmap="gray", extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
-                      interpolation="nearest")
-        im = ax.imshow(panel["data"], cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"],
-                       extent=extent, interpolation="nearest")
-        if bad.any():
-            ax.plot(result.x[bad], result.y[bad], linestyle="none", marker="x", markersize=3,
-                    color="k", alpha=0.6, label="flagged node")
-        ax.set_xlim(-0.5, cols - 0.5)
-        ax.set_ylim(rows - 0.5, -0.5)
-        ax.set_title(panel["title"], fontsize=10)
-        ax.set_xlabel("x (px)")
-        ax.set_ylabel("y (px)")
-        fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
-    p = result.params
-    if title is None:
-        title = (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "
-                 f"step {p.step} px, {p.method}")
-    fig.suptitle(title, fontsize=11)
+        _draw_panel(fig, ax, panel, result, image)
+    fig.suptitle(result_title(result) if title is None else title, fontsize=11)
     return fig
 
 
@@ -169,61 +199,23 @@ def plot_displacement(result, path, truth=None, image=None, title: str | None = 
     fig.savefig(path, dpi=dpi)
     return path
 
-# =================================================================== figures
-def field_label(name: str, units: Units, info: dict | None = None) -> str:
-    if name not in FIELDS:
-        raise ValueError(f"unknown field {name!r}; choose one of {sorted(FIELDS)}")
-    title, kind = FIELDS[name]
-    unit = unit_of(kind, units)
-    if kind == "strain":
-        s = (info or {}).get("strain") or {}
-        measure = s.get("measure", "").replace("_", "-")
-        return f"{name} ({measure}, dimensionless)" if measure else f"{name} (dimensionless)"
-    if kind == "rate":
-        return f"{name} ({unit})"
-    return f"{name} ({unit})" if unit else name
-
-
+# =================================================================== field maps
 def field_values(fr: Frame, name: str, units: Units) -> np.ndarray:
+    """Values of field ``name`` at the nodes of one frame in ``units``; NaN
+    where the node (or, for strain fields, its strain) is not trusted."""
     cols = frame_columns(fr, units)
     if name not in cols:
-        if FIELDS.get(name, ("", ""))[1] in ("strain", "angle", "rate") and fr.strain is None:
+        if needs_strain(name) and fr.strain is None:
             raise ValueError(f"field {name!r} needs strain: export with strain=True")
         if name in ("vx", "vy") or name.endswith("_rate"):
             raise ValueError(f"field {name!r} needs a frame interval (units.frame_interval)")
-        raise ValueError(f"unknown field {name!r}; choose one of {sorted(FIELDS)}")
+        raise unknown_field(name)
     vals = np.asarray(cols[name][0], float).copy()
     ok = np.asarray(fr.result.valid, bool)
-    if fr.strain is not None and FIELDS[name][1] in ("strain", "angle", "rate"):
+    if fr.strain is not None and needs_strain(name):
         ok = ok & np.asarray(fr.strain.valid, bool)
     vals[~ok] = np.nan
     return vals
-
-
-def colour_limits(name: str, values: list[np.ndarray], clim=None):
-    """(cmap name, vmin, vmax) shared by all frames of an export."""
-    kind = FIELDS[name][1]
-    allv = np.concatenate([np.ravel(v) for v in values]) if values else np.empty(0)
-    fin = allv[np.isfinite(allv)]
-    if clim is not None:
-        lo, hi = float(clim[0]), float(clim[1])
-    elif fin.size:
-        lo, hi = (float(np.percentile(fin, 0.5)), float(np.percentile(fin, 99.5)))
-    else:
-        lo, hi = 0.0, 1.0
-    if name == "zncc":
-        return "viridis", (min(lo, 0.99) if clim is None else lo), (1.0 if clim is None else hi)
-    signed = kind in ("length", "velocity", "strain", "angle", "rate") and name not in (
-        "magnitude", "von_mises", "max_shear")
-    if signed and lo < 0 < hi:
-        if clim is None:
-            lim = max(abs(lo), abs(hi))
-            lo, hi = -lim, lim
-        return "RdBu_r", lo, hi
-    if hi <= lo:
-        span = abs(lo) * 0.01 or 1e-6
-        lo, hi = lo - span, hi + span
-    return "viridis", lo, hi
 
 
 def triangulation(res: DICResult, units: Units, values: np.ndarray):
@@ -242,7 +234,7 @@ def triangulation(res: DICResult, units: Units, values: np.ndarray):
 
 
 def draw_field(ax, fr: Frame, name: str, units: Units, cmap, vmin, vmax, image=None,
-                mark_flagged: bool = True):
+               mark_flagged: bool = True):
     """Draw one field of one frame on ``ax``; returns the colour mappable."""
     import matplotlib
 
@@ -274,55 +266,68 @@ def draw_field(ax, fr: Frame, name: str, units: Units, cmap, vmin, vmax, image=N
     ax.set_xlim(-0.5 * ps, (cols - 0.5) * ps)
     ax.set_ylim((rows - 0.5) * ps, -0.5 * ps)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"x ({units.unit})")
-    ax.set_ylabel(f"y ({units.unit})")
+    label_axes(ax, units.unit)
     return im
 
 
-def frame_title(fr: Frame, units: Units) -> str:
-    t = f"frame {fr.index}"
-    if units.has_time:
-        t += f", t = {units.time(fr.index):g} {units.time_unit}"
-    return t
-
-
 def figure_size(shape, width: float = 6.4) -> tuple[float, float]:
+    """Figure size (inches) for a map of an image of ``shape`` with a colour bar."""
     rows, cols = shape
     ax_w = width - 1.8  # room for the colour bar
     ax_h = max(2.0, min(8.0, ax_w * rows / max(cols, 1)))
     return width, ax_h + 1.1
 
 
+@dataclass
+class FieldSeries:
+    """Frames of one field prepared for a series of maps (PNG files, GIF, MP4)
+    with shared colour limits: the output of :func:`prepare_series`."""
+
+    frames: list[Frame]
+    field: str
+    units: Units
+    info: dict
+    cmap: str
+    vmin: float
+    vmax: float
+
+
+def prepare_series(data, field: str, frames, units, strain, clim) -> FieldSeries:
+    """Collect the frames of ``data`` and the colour limits they share
+    (:func:`~napari_aldic.engine.viz.style.field_colour_limits`)."""
+    check_field(field)
+    fr_list, units, info = collect_frames(data, frames=frames, strain=strain, units=units)
+    values = [field_values(fr, field, units) for fr in fr_list]
+    cm, lo, hi = field_colour_limits(field, values, clim)
+    return FieldSeries(list(fr_list), field, units, info, cm, lo, hi)
+
+
+def frame_figure(series: FieldSeries, fr: Frame, *, image=None, cmap=None,
+                 title: str | None = None):
+    """The figure of one frame of a :class:`FieldSeries` (see :func:`field_figure`)."""
+    from matplotlib.figure import Figure
+
+    field, units = series.field, series.units
+    fig = Figure(figsize=figure_size(fr.result.image_shape), dpi=100, layout="constrained")
+    ax = fig.add_subplot()
+    im = draw_field(ax, fr, field, units, cmap or series.cmap, series.vmin, series.vmax,
+                    image=image)
+    fig.colorbar(im, ax=ax, label=field_label(field, units, series.info), shrink=0.9)
+    ax.set_title(title or f"{field_title(field)} - {frame_title(fr, units)}", fontsize=10)
+    return fig
+
+
 def field_figure(data, field: str = "u", *, frame: int | None = None, units=None,
-                 strain=True, image=None, cmap=None, clim=None, title: str | None = None,
-                 _prepared=None):
+                 strain=True, image=None, cmap=None, clim=None, title: str | None = None):
     """A matplotlib Figure of one field of one frame, with a labelled colour bar.
 
     ``frame`` is a frame number (default: the last). Untrusted nodes are left
     blank and marked with x. Built on ``matplotlib.figure.Figure`` (no pyplot,
     no GUI backend).
     """
-    from matplotlib.figure import Figure
-
-    if _prepared is None:
-        fr_list, units, info = collect_frames(
-            data, frames=None if frame is None else [frame], strain=strain, units=units)
-        fr = fr_list[-1]
-        cm, lo, hi = colour_limits(field, [field_values(fr, field, units)], clim)
-    else:
-        fr, units, info, cm, lo, hi = _prepared
-    fig = Figure(figsize=figure_size(fr.result.image_shape), dpi=100, layout="constrained")
-    ax = fig.add_subplot()
-    im = draw_field(ax, fr, field, units, cmap or cm, lo, hi, image=image)
-    fig.colorbar(im, ax=ax, label=field_label(field, units, info), shrink=0.9)
-    ax.set_title(title or f"{FIELDS[field][0]} - {frame_title(fr, units)}", fontsize=10)
-    return fig
-
-
-def prepare_series(data, field, frames, units, strain, clim):
-    if field not in FIELDS:
-        raise ValueError(f"unknown field {field!r}; choose one of {sorted(FIELDS)}")
-    fr_list, units, info = collect_frames(data, frames=frames, strain=strain, units=units)
-    values = [field_values(fr, field, units) for fr in fr_list]
-    cm, lo, hi = colour_limits(field, values, clim)
-    return fr_list, units, info, cm, lo, hi
+    fr_list, units, info = collect_frames(
+        data, frames=None if frame is None else [frame], strain=strain, units=units)
+    fr = fr_list[-1]
+    cm, lo, hi = field_colour_limits(field, [field_values(fr, field, units)], clim)
+    series = FieldSeries([fr], field, units, info, cm, lo, hi)
+    return frame_figure(series, fr, image=image, cmap=cmap, title=title)

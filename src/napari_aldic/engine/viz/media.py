@@ -13,10 +13,13 @@ from ..core.files import (
     numbered_path,
     target_path,
 )
-from .figures import field_figure, prepare_series
+from .figures import FieldSeries, frame_figure, prepare_series
+
+__all__ = ["export_png", "export_gif", "export_mp4", "render_rgb", "series_rgb"]
 
 
 def render_rgb(fig, dpi: int) -> np.ndarray:
+    """The figure drawn at ``dpi`` as an RGB array (H, W, 3) of uint8."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     canvas = FigureCanvasAgg(fig)
@@ -34,23 +37,22 @@ def export_png(data, path, field: str = "u", *, frames=None, units=None, strain=
     frames). Returns the paths written.
     """
     path = target_path(path, (".png",))
-    fr_list, units, info, cm, lo, hi = prepare_series(data, field, frames, units, strain, clim)
+    series = prepare_series(data, field, frames, units, strain, clim)
+    fr_list = series.frames
     targets = [path] if len(fr_list) == 1 else [numbered_path(path, fr.index) for fr in fr_list]
     written = []
     for fr, target in zip(fr_list, targets):
-        fig = field_figure(None, field, image=image, cmap=cmap,
-                           _prepared=(fr, units, info, cm, lo, hi))
+        fig = frame_figure(series, fr, image=image, cmap=cmap)
         with atomic_write(target) as tmp:
             fig.savefig(tmp, format="png", dpi=dpi)
         written.append(target)
     return written
 
 
-def _frames_rgb(fr_list, field, units, info, cm, lo, hi, image, cmap, dpi):
-    for fr in fr_list:
-        fig = field_figure(None, field, image=image, cmap=cmap,
-                           _prepared=(fr, units, info, cm, lo, hi))
-        yield render_rgb(fig, dpi)
+def series_rgb(series: FieldSeries, image, cmap, dpi: int):
+    """RGB pictures (H, W, 3) of every frame of ``series``, one at a time."""
+    for fr in series.frames:
+        yield render_rgb(frame_figure(series, fr, image=image, cmap=cmap), dpi)
 
 
 def export_gif(data, path, field: str = "u", *, frames=None, units=None, strain=True,
@@ -66,10 +68,10 @@ def export_gif(data, path, field: str = "u", *, frames=None, units=None, strain=
     if not fps > 0:
         raise ValueError(f"fps={fps!r} must be > 0")
     path = target_path(path, (".gif",))
-    fr_list, units, info, cm, lo, hi = prepare_series(data, field, frames, units, strain, clim)
+    series = prepare_series(data, field, frames, units, strain, clim)
     images = [Image.fromarray(rgb).quantize(colors=256, method=Image.Quantize.MEDIANCUT,
                                             dither=Image.Dither.NONE)
-              for rgb in _frames_rgb(fr_list, field, units, info, cm, lo, hi, image, cmap, dpi)]
+              for rgb in series_rgb(series, image, cmap, dpi)]
     with atomic_write(path) as tmp:
         images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
                        duration=int(round(1000 / fps)), loop=loop, optimize=False,
@@ -105,8 +107,8 @@ def export_mp4(data, path, field: str = "u", *, frames=None, units=None, strain=
         raise ValueError(f"fps={fps!r} must be > 0")
     path = target_path(path, (".mp4",))
     ffmpeg = _ffmpeg()
-    fr_list, units, info, cm, lo, hi = prepare_series(data, field, frames, units, strain, clim)
-    rgbs = list(_frames_rgb(fr_list, field, units, info, cm, lo, hi, image, cmap, dpi))
+    series = prepare_series(data, field, frames, units, strain, clim)
+    rgbs = list(series_rgb(series, image, cmap, dpi))
     h, w = rgbs[0].shape[:2]
     H, W = -(-h // 16) * 16, -(-w // 16) * 16  # pad to whole macro blocks (no rescaling)
     with atomic_write(path) as tmp:

@@ -27,10 +27,11 @@ import numpy as np
 from ..core.files import atomic_write, target_path
 from ..core.reasons import Reason
 from ..core.units import Units
-from ..io.columns import FIELDS, software_name
+from ..io.columns import software_name
 from ..io.runs import Frame, collect_frames
 from ..io.vtk import result_cells
-from .figures import colour_limits, draw_field, field_label, field_values, frame_title
+from .figures import draw_field, field_values
+from .style import field_colour_limits, field_label, field_title, frame_title, label_axes
 
 __all__ = ["export_report", "line_profile", "report_page_count", "sample_cells"]
 
@@ -211,8 +212,7 @@ def _page_mesh(fr_list, units, info, line, image):
     ax.set_xlim(ext[0], ext[1])
     ax.set_ylim(ext[2], ext[3])
     ax.set_aspect("equal")
-    ax.set_xlabel(f"x ({units.unit})")
-    ax.set_ylabel(f"y ({units.unit})")
+    label_axes(ax, units.unit)
     p = info["params"]
     ax.set_title(f"Mesh and nodes ({frame_title(fr, units)}): {len(res)} nodes, "
                  f"{len(cells)} Q4 cells, subset {p.subset} px, step {p.step} px, "
@@ -238,7 +238,7 @@ def _page_maps(fr, units, info, limits, image):
         cm, lo, hi = limits[name]
         im = draw_field(ax, fr, name, units, cm, lo, hi, image=image)
         fig.colorbar(im, ax=ax, label=field_label(name, units, info), shrink=0.8)
-        ax.set_title(FIELDS[name][0], fontsize=9)
+        ax.set_title(field_title(name), fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes[len(names):]:
         ax.axis("off")
@@ -426,7 +426,7 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
     has_strain = shown[0].strain is not None
     limits = {}
     for name in set(_map_fields(has_strain)) | {"magnitude"}:
-        limits[name] = colour_limits(name, [field_values(f, name, units) for f in shown])
+        limits[name] = field_colour_limits(name, [field_values(f, name, units) for f in shown])
     pages = [lambda: _page_parameters(all_frames, units, info, line),
              lambda: _page_mesh(shown, units, info, line, image)]
     pages += [lambda fr=fr: _page_maps(fr, units, info, limits, image) for fr in shown]

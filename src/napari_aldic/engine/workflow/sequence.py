@@ -25,11 +25,13 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from ..core.files import atomic_write
 from ..core.params import DICParams
 from ..core.progress import Cancelled
 from ..core.results import DICResult, SequenceResult, load_result
@@ -220,97 +222,147 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     idx = list(range(len(src))) if frames is None else [int(k) for k in frames]
     if idx[0] != 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= len(src):
         raise ValueError(f"frames must start at 0, increase and stay below {len(src)}")
-
-    def roi_for(k: int):
-        if rois is None:
-            return roi
-        return rois(k) if callable(rois) else rois[k]
-
-    report = progress or (lambda k, frac, msg: None)
-    out = None
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        manifest = out / "sequence.json"
-        info = {"params": params.to_dict(), "reference": reference,
-                "update_every": update_every, "frames": idx, "source": src.name}
-        if manifest.exists():
-            old = json.loads(manifest.read_text())
-            if {k: old.get(k) for k in info} != info:
-                raise ValueError(f"{out} holds results of a different analysis; choose an "
-                                 "empty folder or the same parameters to resume")
-        else:
-            tmp = manifest.with_suffix(".json.part")
-            tmp.write_text(json.dumps(info, indent=1))
-            os.replace(tmp, manifest)
-
+    out = _open_out_dir(out_dir, {"params": params.to_dict(), "reference": reference,
+                                  "update_every": update_every, "frames": idx,
+                                  "source": src.name})
     t0 = time.perf_counter()
-    results: list = [None] * len(idx)
-    ref_img = src[0]
-    results[0] = reference_result(ref_img, roi=roi_for(0), params=params, refine=refine)
-    if out is not None and not (out / "frame_00000.npz").exists():
-        results[0].save(out / "frame_00000.npz")  # the reference: zero field, its nodes
+    run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine, out,
+                       progress or (lambda k, frac, msg: None), on_frame)
+    ref_img = run.start()
+    todo = run.load_finished()
+    if scheduler is None:
+        cancelled = run.serial(todo, ref_img, cancel)
+    else:
+        cancelled = _run_parallel(stack, src, todo, idx, run.ref_of, run.roi_for, params,
+                                  scheduler, workers, run.finish, run.results, cancel,
+                                  run.report, refine)
+    meta = {"seconds": time.perf_counter() - t0, "frames": idx, "cancelled": cancelled,
+            "update_every": update_every, "source": src.name}
+    return SequenceResult(run.results, params, reference, meta)
 
-    def ref_of(i: int) -> int:
-        k = idx[i]
-        if reference == "incremental":
-            return idx[i - 1]
-        if update_every:
-            r = (k - 1) // update_every * update_every
-            return max(j for j in idx if j <= r)
+
+def _open_out_dir(out_dir, info: dict) -> Path | None:
+    """Create ``out_dir`` and its manifest ``sequence.json`` (the analysis
+    ``info``), or check that an existing manifest describes the same analysis
+    (a rerun resumes). None without ``out_dir``."""
+    if out_dir is None:
+        return None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = out / "sequence.json"
+    if manifest.exists():
+        old = json.loads(manifest.read_text())
+        if {k: old.get(k) for k in info} != info:
+            raise ValueError(f"{out} holds results of a different analysis; choose an "
+                             "empty folder or the same parameters to resume")
+    else:
+        with atomic_write(manifest) as tmp:
+            tmp.write_text(json.dumps(info, indent=1))
+    return out
+
+
+@dataclass
+class _SequenceRun:
+    """One ``track`` run: its frames, the results so far (index ``i`` of
+    ``idx``), and how a frame's increment becomes its frame-0 result."""
+
+    src: object  # the frame source (open_stack)
+    idx: list  # analysed frame numbers, idx[0] == 0
+    reference: str
+    update_every: int | None
+    roi: object
+    rois: object
+    params: DICParams
+    refine: object
+    out: Path | None
+    report: Callable[[int, float, str], None]
+    on_frame: Callable[[int, DICResult], None] | None
+    results: list = field(init=False)
+
+    def __post_init__(self):
+        self.results = [None] * len(self.idx)
+
+    def roi_for(self, k: int):
+        """ROI of the reference image ``k``."""
+        if self.rois is None:
+            return self.roi
+        return self.rois(k) if callable(self.rois) else self.rois[k]
+
+    def ref_of(self, i: int) -> int:
+        """Reference frame of ``idx[i]``."""
+        k = self.idx[i]
+        if self.reference == "incremental":
+            return self.idx[i - 1]
+        if self.update_every:
+            r = (k - 1) // self.update_every * self.update_every
+            return max(j for j in self.idx if j <= r)
         return 0
 
-    def path_of(k: int):
-        return None if out is None else out / f"frame_{k:05d}.npz"
+    def path_of(self, k: int):
+        return None if self.out is None else self.out / f"frame_{k:05d}.npz"
 
-    def finish(i: int, inc: DICResult) -> None:
-        k, r = idx[i], ref_of(i)
-        res = inc if r == 0 else _compose(results[idx.index(r)], inc)
+    def start(self):
+        """Frame 0's result (a zero field on its nodes), saved if missing;
+        returns frame 0's image."""
+        ref_img = self.src[0]
+        self.results[0] = reference_result(ref_img, roi=self.roi_for(0), params=self.params,
+                                           refine=self.refine)
+        if self.out is not None and not (self.out / "frame_00000.npz").exists():
+            self.results[0].save(self.out / "frame_00000.npz")
+        return ref_img
+
+    def load_finished(self) -> list[int]:
+        """Load the frames already in ``out``; returns the indices still to do."""
+        todo = []
+        for i in range(1, len(self.idx)):
+            pth = self.path_of(self.idx[i])
+            if pth is not None and pth.exists():
+                self.results[i] = load_result(pth)
+                self.report(self.idx[i], i / (len(self.idx) - 1),
+                            f"frame {self.idx[i]}: loaded from {pth.name}")
+            else:
+                todo.append(i)
+        return todo
+
+    def finish(self, i: int, inc: DICResult) -> None:
+        """Compose the increment of ``idx[i]`` back to frame 0, record, save
+        and announce it."""
+        k, r = self.idx[i], self.ref_of(i)
+        res = inc if r == 0 else _compose(self.results[self.idx.index(r)], inc)
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
-        res.meta.setdefault("inputs", {"reference": src.frame_name(r),
-                                       "deformed": src.frame_name(k), "frame": k})
-        results[i] = res
-        if path_of(k) is not None:
-            res.save(path_of(k))
-        if on_frame is not None:
-            on_frame(k, res)
-        report(k, i / (len(idx) - 1), f"frame {k} done: {res.n_valid}/{len(res)} valid")
+        res.meta.setdefault("inputs", {"reference": self.src.frame_name(r),
+                                       "deformed": self.src.frame_name(k), "frame": k})
+        self.results[i] = res
+        if self.path_of(k) is not None:
+            res.save(self.path_of(k))
+        if self.on_frame is not None:
+            self.on_frame(k, res)
+        self.report(k, i / (len(self.idx) - 1),
+                    f"frame {k} done: {res.n_valid}/{len(res)} valid")
 
-    todo = []
-    for i in range(1, len(idx)):
-        pth = path_of(idx[i])
-        if pth is not None and pth.exists():
-            results[i] = load_result(pth)
-            report(idx[i], i / (len(idx) - 1), f"frame {idx[i]}: loaded from {pth.name}")
-        else:
-            todo.append(i)
-    cancelled = False
-    if scheduler is None:
-        ref_k, prev_inc = 0, None  # ref_img is frame 0, read above
+    def serial(self, todo: list[int], ref_img, cancel) -> bool:
+        """Correlate the frames of ``todo`` one after the other, each from the
+        previous increment of its reference block; ``ref_img`` is frame 0.
+        Returns True if cancelled."""
+        ref_k, prev_inc = 0, None
         solvers: dict = {}  # AL-DIC global factor, reused while the mesh stays
         for i in todo:
             if cancel is not None and cancel():
-                cancelled = True
-                break
-            r = ref_of(i)
+                return True
+            r = self.ref_of(i)
             if r != ref_k:
-                ref_k, ref_img, prev_inc = r, src[r], None
+                ref_k, ref_img, prev_inc = r, self.src[r], None
             if i - 1 not in todo and i > 1:
                 prev_inc = None  # previous frame came from disk: no increment at hand
-            report(idx[i], (i - 1) / (len(idx) - 1), f"frame {idx[i]} against frame {r}")
+            self.report(self.idx[i], (i - 1) / (len(self.idx) - 1),
+                        f"frame {self.idx[i]} against frame {r}")
             try:  # cancel also stops promptly inside a frame
-                inc = correlate(ref_img, src[idx[i]], roi=roi_for(r), params=params,
-                                guess=prev_inc, refine=refine, cancel=cancel,
-                                solver_cache=solvers)
+                inc = correlate(ref_img, self.src[self.idx[i]], roi=self.roi_for(r),
+                                params=self.params, guess=prev_inc, refine=self.refine,
+                                cancel=cancel, solver_cache=solvers)
             except Cancelled:
-                cancelled = True
-                break
+                return True
             prev_inc = inc
-            finish(i, inc)
-    else:
-        cancelled = _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler,
-                                  workers, finish, results, cancel, report, refine)
-    meta = {"seconds": time.perf_counter() - t0, "frames": idx, "cancelled": cancelled,
-            "update_every": update_every, "source": src.name}
-    return SequenceResult(results, params, reference, meta)
+            self.finish(i, inc)
+        return False

@@ -1,0 +1,130 @@
+"""The input check before a run, in words (no Qt: plain values and layers).
+
+:func:`problems` turns the panels' current choices (:class:`Choices`) into
+``(errors, warnings)``: errors keep the Run button disabled, warnings are
+shown under it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._roi import labels_mask, points_xy
+
+__all__ = ["Choices", "problems"]
+
+
+@dataclass(frozen=True)
+class Choices:
+    """What the panels say, as plain values (layers are napari layer objects)."""
+
+    image: Any  # the Image layer, or None
+    shape: tuple | None  # the image data's shape
+    subset: int
+    step: int
+    window: int  # strain window (nodes)
+    start: int
+    stop: int
+    stride: int
+    init: str
+    reference: str
+    seeds: Any = None  # Points layer
+    brush: Any = None  # Labels layer of the refine region
+    #: ``(rows, cols) -> (roi mask or None, notes)`` of the chosen ROI layers
+    roi: Callable[[tuple], tuple] | None = None
+
+
+def problems(c: Choices) -> tuple[list[str], list[str]]:
+    """(errors, warnings) of the choices ``c``, in words."""
+    img = c.image
+    if img is None:
+        return ["Choose an image stack (open a TIFF stack or a folder of images)."], []
+    stack_error = _stack_problem(img, c.shape)
+    if stack_error:
+        return [stack_error], []
+    _, rows, cols = c.shape
+    errors = _number_problems(c)
+    try:
+        roi = c.roi((rows, cols))[0] if c.roi is not None else None
+    except Exception as exc:  # a layer that cannot be read as a region
+        errors.append(f"ROI: {exc}")
+        roi = None
+    else:
+        errors += _roi_problems(roi, c.subset)
+    if c.subset + 2 > min(rows, cols):
+        errors.append(f"Subset {c.subset} px does not fit in the image ({cols} x {rows} px).")
+    if c.init == "seeds":
+        errors += _seed_problems(c.seeds, img, roi, rows, cols)
+    if c.brush is not None:
+        try:
+            labels_mask(c.brush, (rows, cols), c.start)
+        except ValueError as exc:
+            errors.append(f"Refine region: {exc}")
+        if c.reference != "accumulative":
+            errors.append("A painted refine region needs 'accumulative' tracking.")
+    warnings = []
+    if c.step > c.subset:
+        warnings.append(f"Step {c.step} px is larger than the subset: pixels between subsets "
+                        "are not used.")
+    return errors, warnings
+
+
+def _stack_problem(img, shape) -> str | None:
+    """Why the image is not a grey stack of at least two frames (None: it is)."""
+    if img.rgb:
+        return (f"'{img.name}' is RGB; DIC needs grey images (open the stack with this "
+                "plugin's reader, which converts RGB to grey).")
+    if len(shape) != 3 or shape[0] < 2:
+        return (f"'{img.name}' has shape {shape}; DIC needs a stack (frames, rows, cols) with "
+                "at least two frames. Stack reference and deformed images into one layer "
+                "(File > Open with the napari-aldic reader, or Layers > Stack).")
+    return None
+
+
+def _number_problems(c: Choices) -> list[str]:
+    """Subset and strain window parity, frame range."""
+    errors = []
+    if c.subset % 2 == 0:
+        errors.append(f"Subset {c.subset} px must be odd (e.g. {c.subset + 1}).")
+    if c.window % 2 == 0:
+        errors.append(f"Strain window {c.window} must be odd.")
+    if not c.start < c.stop:
+        errors.append(f"First frame ({c.start}) must come before the last frame ({c.stop}).")
+    elif (c.stop - c.start) < c.stride:
+        errors.append(f"Frames {c.start}..{c.stop} every {c.stride} hold only the reference "
+                      "frame.")
+    return errors
+
+
+def _roi_problems(roi: np.ndarray | None, subset: int) -> list[str]:
+    """An empty ROI, or one too small for the subset."""
+    if roi is None:
+        return []
+    if not roi.any():
+        return ["The ROI is empty: draw shapes on the material or choose other ROI layers."]
+    ys, xs = np.nonzero(roi)
+    bh, bw = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
+    if subset > min(bh, bw):
+        return [f"Subset {subset} px is larger than the ROI bounding box ({bw} x {bh} px); "
+                "reduce the subset or enlarge the ROI."]
+    return []
+
+
+def _seed_problems(seeds, img, roi, rows: int, cols: int) -> list[str]:
+    """No seed points, or seed points outside the ROI."""
+    if seeds is None or len(seeds.data) == 0:
+        return ["Initial guess 'seed points' needs a Points layer with at least one point "
+                "(choose it under 'Seeds')."]
+    xy = points_xy(seeds, img)
+    inside = [(0 <= x < cols and 0 <= y < rows
+               and (roi is None or roi[int(round(y)), int(round(x))]))
+              for x, y in xy]
+    if all(inside):
+        return []
+    bad = [f"({x:.0f}, {y:.0f})" for (x, y), ok in zip(xy, inside) if not ok]
+    return [f"Seed point(s) {', '.join(bad)} (x, y) lie outside the ROI; move them onto "
+            "analysed material."]

@@ -1,0 +1,200 @@
+"""The Mesh & correlation panel: DIC parameters, tracking and the frame range.
+
+It makes the run's :class:`~napari_aldic.engine.DICParams`; parameters the
+panel does not show (e.g. ``interpolation``, ``mu``) are kept from the last
+loaded settings file in :attr:`CorrelationPanel.extra_params`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from magicgui.widgets import ComboBox, FloatSpinBox, SpinBox
+from psygnal import Signal
+
+from ..engine import DICParams
+from .controls import Panel, Plan, put, section
+
+__all__ = ["CorrelationPanel", "PARAM_CONTROLS"]
+
+#: DICParams fields that the panel shows (the others are kept from a loaded file)
+PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth")
+
+
+class CorrelationPanel(Panel):
+    """Correlation method, subset, step, search, refinement, smoothing, initial
+    guess, tracking strategy and frame range.
+
+    Signals
+    -------
+    settings_changed
+        A parameter that the input check depends on changed.
+    """
+
+    settings_changed = Signal()
+
+    def __init__(self):
+        self._extra_params: dict[str, Any] = {}
+        super().__init__()
+
+    def _setup_ui(self) -> None:
+        self.method = ComboBox(label="Method", value="aldic",
+                               choices=[("AL-DIC", "aldic"), ("Local (IC-GN)", "local")],
+                               tooltip="AL-DIC couples the subsets to a compatible finite-"
+                                       "element field (smoother, robust); Local solves every "
+                                       "subset on its own (faster).")
+        self.subset = SpinBox(label="Subset (px)", value=31, min=7, max=2001, step=2,
+                              tooltip="Odd full width of the square correlation subset in "
+                                      "pixels (31 = 31 x 31). Larger: less noise, less "
+                                      "spatial resolution. It should hold ~3 speckles across.")
+        self.step = SpinBox(label="Step (px)", value=8, min=1, max=1000,
+                            tooltip="Node spacing in pixels.")
+        self.search = SpinBox(label="Search (px)", value=20, min=1, max=100000,
+                              tooltip="Initial half-range of the FFT cross-correlation "
+                                      "search; it widens by itself when the peak lies on "
+                                      "its border.")
+        self.refine = ComboBox(label="Refinement", value="none",
+                               choices=["none", "light", "medium", "strong"],
+                               tooltip="Adaptive quadtree preset: light = near holes/cracks; "
+                                       "medium = also the ROI outline; strong = also where "
+                                       "the correlation is poor (slower).")
+        self.smooth = ComboBox(label="AL-DIC smoothing", value="auto",
+                               choices=[("auto (from the noise)", "auto"),
+                                        ("off (plain Algorithm 1)", "off"),
+                                        ("fixed length", "fixed")],
+                               tooltip="Curvature regulariser of the AL-DIC global step "
+                                       "(never biases uniform strain). auto: the length "
+                                       "that minimises the estimated error for these "
+                                       "images (~0 for clean images); off: none; fixed: "
+                                       "the length below.")
+        self.smooth_px = FloatSpinBox(label="Smoothing length (px)", value=10.0, min=0.5,
+                                      max=10000.0, step=0.5, enabled=False,
+                                      tooltip="Displacement waves shorter than ~2 pi x this "
+                                              "length are damped (fixed smoothing only).")
+        self.init = ComboBox(label="Initial guess", value="fft",
+                             choices=[("FFT cross-correlation", "fft"),
+                                      ("Seed points", "seeds")],
+                             tooltip="FFT: automatic search. Seed points: propagate from the "
+                                     "points of the seeds layer (large or uneven motion).")
+        self._setup_tracking_ui()
+        self.extend([section("Correlation"), self.method, self.subset, self.step, self.search,
+                     self.refine, self.smooth, self.smooth_px, self.init, self.reference,
+                     self.start, self.stop, self.stride])
+
+    def _setup_tracking_ui(self) -> None:
+        self.reference = ComboBox(label="Tracking", value="accumulative",
+                                  choices=["accumulative", "incremental"],
+                                  tooltip="accumulative: every frame against the first; "
+                                          "incremental: each frame against the previous one, "
+                                          "composed back to the first (large deformation).")
+        self.start = SpinBox(label="First frame", value=0, min=0, max=0,
+                             tooltip="Reference frame: the first frame analysed.")
+        self.stop = SpinBox(label="Last frame", value=0, min=0, max=0,
+                            tooltip="Last frame analysed (inclusive).")
+        self.stride = SpinBox(label="Every n-th frame", value=1, min=1, max=100000,
+                              tooltip="Analyse every n-th frame of the range.")
+
+    def _setup_callbacks(self) -> None:
+        for w in (self.method, self.subset, self.step, self.search, self.refine, self.init,
+                  self.smooth, self.smooth_px, self.reference, self.start, self.stop,
+                  self.stride):
+            w.changed.connect(self.settings_changed.emit)
+        self.smooth.changed.connect(self._on_smooth_mode)
+        self.method.changed.connect(self._on_smooth_mode)
+
+    def _on_smooth_mode(self, *_) -> None:
+        aldic = self.method.value == "aldic"
+        self.smooth.enabled = aldic
+        self.smooth_px.enabled = aldic and self.smooth.value == "fixed"
+
+    # ------------------------------------------------------------ state
+    @property
+    def extra_params(self) -> dict[str, Any]:
+        """DICParams fields not shown in the panel, kept from a loaded file."""
+        return dict(self._extra_params)
+
+    @extra_params.setter
+    def extra_params(self, value: dict[str, Any]) -> None:
+        self._extra_params = dict(value)
+
+    @property
+    def smooth_value(self) -> float | str:
+        """The ``smooth`` parameter of the controls: "auto", 0.0 (off) or a length."""
+        mode = self.smooth.value
+        return "auto" if mode == "auto" else 0.0 if mode == "off" else float(self.smooth_px.value)
+
+    @property
+    def tracking(self) -> dict[str, Any]:
+        """The tracking strategy and frame range, as a settings file holds them."""
+        return {"reference": self.reference.value, "start": int(self.start.value),
+                "stop": int(self.stop.value), "stride": int(self.stride.value)}
+
+    def set_frame_count(self, n: int) -> None:
+        """Limit the frame range to a stack of ``n`` frames (the last frame chosen)."""
+        self.start.max = max(0, n - 2)
+        self.stop.max = n - 1
+        self.stop.value = n - 1
+        self.start.value = min(self.start.value, max(0, n - 2))
+
+    def params(self, seeds: tuple = ()) -> DICParams:
+        """The DICParams of the controls with ``seeds`` ((x, y) image pixels) and
+        the fields the panel does not show (:attr:`extra_params`)."""
+        extra = dict(self._extra_params)
+        if extra.get("search_max") is not None and extra["search_max"] < self.search.value:
+            extra["search_max"] = int(self.search.value)  # the search cannot start wider
+        return DICParams.from_dict({
+            **extra, "method": self.method.value, "subset": int(self.subset.value),
+            "step": int(self.step.value), "search": int(self.search.value),
+            "refine": None if self.refine.value == "none" else self.refine.value,
+            "smooth": self.smooth_value, "init": self.init.value, "seeds": seeds})
+
+    def summary(self) -> str:
+        """The settings in words (for the log)."""
+        return (f"method {self.method.value}, subset {self.subset.value} px, step "
+                f"{self.step.value} px, search {self.search.value} px, refinement "
+                f"{self.refine.value}, smoothing {self.smooth_value}, "
+                f"init {self.init.value}; {self.reference.value}, frames "
+                f"{self.start.value}..{self.stop.value} every {self.stride.value}")
+
+    # ------------------------------------------------------------ settings files
+    def params_plan(self, params: DICParams, plan: Plan) -> dict[str, Any]:
+        """Add the controls for ``params`` to ``plan``; return the fields the panel
+        does not show that differ from the defaults (its next :attr:`extra_params`)."""
+        put(plan, self.method, params.method, "method")
+        put(plan, self.subset, params.subset, "subset")
+        put(plan, self.step, params.step, "step")
+        put(plan, self.search, params.search, "search")
+        put(plan, self.refine, params.refine or "none", "refinement")
+        put(plan, self.init, params.init, "initial guess")
+        if params.smooth == "auto":
+            put(plan, self.smooth, "auto", "AL-DIC smoothing")
+        elif params.smooth == 0:
+            put(plan, self.smooth, "off", "AL-DIC smoothing")
+        else:
+            put(plan, self.smooth, "fixed", "AL-DIC smoothing")
+            put(plan, self.smooth_px, float(params.smooth), "smoothing length")
+        defaults = DICParams().to_dict()
+        return {k: v for k, v in params.to_dict().items()
+                if k not in PARAM_CONTROLS and k != "seeds" and v != defaults[k]}
+
+    def tracking_plan(self, tracking: dict, plan: Plan, notes: list[str],
+                      n_frames: int | None) -> None:
+        """Add the controls for a "tracking" section (checked by
+        :class:`~napari_aldic.engine.Settings`) to ``plan``; a frame range beyond
+        the stack of ``n_frames`` frames is clamped (with a note)."""
+        if "reference" in tracking:
+            put(plan, self.reference, tracking["reference"], "tracking")
+        if "stride" in tracking:
+            put(plan, self.stride, tracking["stride"], "frame stride")
+        start, stop = tracking.get("start"), tracking.get("stop")
+        if stop is None and "stop" in tracking:  # null: the last frame of the stack
+            stop = int(self.stop.max)
+        stack = f"the stack has {n_frames} frames" if n_frames else "no image stack is chosen"
+        for value, spin, what in ((start, self.start, "first"), (stop, self.stop, "last")):
+            if value is None:
+                continue
+            if value > spin.max:
+                notes.append(f"frame range: {what} frame {value} of the file is beyond the "
+                             f"stack ({stack}); using {spin.max}")
+                value = int(spin.max)
+            plan.append((spin, value))

@@ -1,0 +1,273 @@
+"""The Input panel: the image stack and the layers that shape the analysis.
+
+Shapes layers add to or cut holes in the ROI, a Labels layer restricts it, a
+Labels layer painted with the brush marks where the mesh is refined and a
+Points layer holds seed points. Layers are preselected by their names
+(:meth:`InputsPanel.auto_assign`) and the choices follow the layer list.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from magicgui.widgets import ComboBox, Select
+from psygnal import Signal
+
+from .._layers import LAYER_NAMES
+from .._roi import build_roi, labels_mask, points_xy
+from .controls import Panel, section
+
+if TYPE_CHECKING:  # pragma: no cover
+    import napari
+
+__all__ = ["InputsPanel", "is_result_layer", "SUBTRACT_WORDS"]
+
+#: Shapes layers named with one of these words are holes (subtracted from the ROI)
+SUBTRACT_WORDS = ("hole", "crack", "mask", "exclude", "subtract", "notch", "cut")
+
+
+def is_result_layer(layer) -> bool:
+    """Whether ``layer`` is one of the plugin's result layers (never an input)."""
+    return layer.name in LAYER_NAMES or "napari_aldic_analysis" in getattr(layer, "metadata", {})
+
+
+class InputsPanel(Panel):
+    """Choose the image stack, ROI shapes, holes, ROI labels, refine region and seeds.
+
+    Signals
+    -------
+    inputs_changed
+        A choice, the layer list or a chosen layer's data changed: re-check.
+    seeds_assigned
+        A Points layer named like 'seed' was chosen automatically.
+    """
+
+    inputs_changed = Signal()
+    seeds_assigned = Signal()
+
+    def __init__(self, viewer: napari.viewer.Viewer):
+        self._viewer = viewer
+        super().__init__()
+
+    # ------------------------------------------------------------ setup
+    def _layers_of(self, kind: str, optional: bool = False):
+        def choices(_widget=None):
+            import napari.layers as nl
+
+            cls = getattr(nl, kind)
+            out = [(lay.name, lay) for lay in self._viewer.layers
+                   if isinstance(lay, cls) and not is_result_layer(lay)]
+            return ([("(none)", None)] if optional else []) + out
+        return choices
+
+    def _setup_ui(self) -> None:
+        layers_of = self._layers_of
+        self.image = ComboBox(label="Image stack", choices=layers_of("Image"), nullable=True,
+                              tooltip="Image layer with a time axis (frames, rows, cols); the "
+                                      "first frame of the range is the reference.")
+        self.roi_add = Select(label="ROI (shapes)", choices=layers_of("Shapes"),
+                              tooltip="Shapes layers whose rectangles, polygons and ellipses "
+                                      "are analysed (union). None selected: whole image.\n"
+                                      "Lines and paths in any chosen layer cut the ROI "
+                                      "(cracks).")
+        self.roi_subtract = Select(label="Holes (shapes)", choices=layers_of("Shapes"),
+                                   tooltip="Shapes layers whose shapes are removed from the "
+                                           "ROI (holes, notches, background). Layers named "
+                                           "like 'hole', 'crack', 'mask' are chosen here "
+                                           "automatically.")
+        self.roi_labels = ComboBox(label="ROI labels", choices=layers_of("Labels", True),
+                                   tooltip="Labels layer: nonzero pixels are analysed "
+                                           "(intersected with the ROI shapes).")
+        self.brush = ComboBox(label="Refine region", choices=layers_of("Labels", True),
+                              tooltip="Labels layer painted with the brush: the mesh is "
+                                      "refined where it is nonzero (quadtree).")
+        self.seeds = ComboBox(label="Seeds (points)", choices=layers_of("Points", True),
+                              tooltip="Points layer of seed points for the 'seed points' "
+                                      "initial guess: at least one per connected ROI "
+                                      "region, on well-textured material.")
+        self.extend([section("Input"), self.image, self.roi_add, self.roi_subtract,
+                     self.roi_labels, self.brush, self.seeds])
+        for sel in (self.roi_add, self.roi_subtract):
+            sel.native.setMaximumHeight(64)
+        from qtpy.QtWidgets import QComboBox
+
+        for combo in (self.image, self.roi_labels, self.brush, self.seeds):
+            # long layer names must not widen the dock beyond the window
+            combo.native.setSizeAdjustPolicy(
+                QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
+            combo.native.setMinimumContentsLength(12)
+
+    def _setup_callbacks(self) -> None:
+        layers = self._viewer.layers
+        layers.events.inserted.connect(self._on_inserted)
+        layers.events.removed.connect(self._on_layers_changed)
+        layers.events.moved.connect(self._on_layers_changed)
+        for lay in list(layers):
+            self._watch(lay)
+        for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds):
+            w.changed.connect(self.inputs_changed.emit)
+
+    def assign_existing_layers(self) -> None:
+        """Preselect inputs among the layers already in the viewer."""
+        for lay in list(self._viewer.layers):
+            self.auto_assign(lay)
+
+    def disconnector(self) -> Callable[[], None]:
+        """A function that stops following the viewer's layers (the widget is
+        closed). It holds what it needs, so it works while the panel is torn down."""
+        layers = self._viewer.layers
+        on_inserted, on_changed, on_data = (self._on_inserted, self._on_layers_changed,
+                                            self._emit_changed)
+
+        def disconnect() -> None:
+            for emitter, slot in ((layers.events.inserted, on_inserted),
+                                  (layers.events.removed, on_changed),
+                                  (layers.events.moved, on_changed)):
+                emitter.disconnect(slot)
+            for lay in list(layers):
+                lay.events.name.disconnect(on_changed)
+                if hasattr(lay.events, "data"):
+                    lay.events.data.disconnect(on_data)
+        return disconnect
+
+    # ------------------------------------------------------------ layer list
+    def _emit_changed(self, *_) -> None:
+        self.inputs_changed.emit()
+
+    def _watch(self, layer) -> None:
+        layer.events.name.connect(self._on_layers_changed)
+        if layer.__class__.__name__ in ("Shapes", "Labels", "Points"):
+            layer.events.data.connect(self._emit_changed)
+
+    def _on_inserted(self, event=None) -> None:
+        layer = getattr(event, "value", None)
+        if layer is not None:
+            self._watch(layer)
+            if is_result_layer(layer):
+                return  # never an input: nothing to update
+        self.reset_choices()
+        if layer is not None:
+            self.auto_assign(layer)
+        if self.image.value is None:
+            self.choose_first_image()
+        self.inputs_changed.emit()
+
+    def _on_layers_changed(self, event=None) -> None:
+        layer = getattr(event, "value", None)
+        if layer is not None and is_result_layer(layer) and getattr(event, "type", "") == \
+                "removed":
+            return
+        self.reset_choices()
+        self.inputs_changed.emit()
+
+    def auto_assign(self, layer) -> None:
+        """Preselect inputs by layer name: Shapes named 'hole'/'crack'/... -> subtract,
+        other Shapes -> ROI; Labels 'roi' -> ROI labels, 'refine'/'brush' -> refinement
+        region; Points 'seed' -> seeds."""
+        kind = layer.__class__.__name__
+        name = layer.name.lower()
+        if kind == "Shapes":
+            # holes by name; every other Shapes layer (e.g. a new "Shapes") adds to the ROI
+            target = (self.roi_subtract if any(w in name for w in SUBTRACT_WORDS)
+                      else self.roi_add)
+            if layer not in target.value:
+                target.value = [*target.value, layer]
+        elif kind == "Labels":
+            if ("refine" in name or "brush" in name) and self.brush.value is None:
+                self.brush.value = layer
+            elif "roi" in name and self.roi_labels.value is None:
+                self.roi_labels.value = layer
+        elif kind == "Points" and "seed" in name and self.seeds.value is None:
+            self.seeds.value = layer
+            self.seeds_assigned.emit()
+
+    def choose_first_image(self) -> bool:
+        """Choose the first image layer when none is chosen; True if one was."""
+        if self.image.value is not None:
+            return False
+        candidates = [c for c in self.image.choices if c is not None]
+        if candidates:
+            self.image.value = candidates[0]
+        return bool(candidates)
+
+    # ------------------------------------------------------------ state
+    @property
+    def image_layer(self):
+        """The chosen image layer (``None``: none chosen)."""
+        return self.image.value
+
+    @property
+    def stack_data(self):
+        """The image data (its full-resolution level when multiscale), or ``None``."""
+        img = self.image.value
+        if img is None:
+            return None
+        return img.data[0] if img.multiscale else img.data
+
+    @property
+    def stack_shape(self) -> tuple | None:
+        """Shape of the chosen image's data, ``None`` without an image."""
+        data = self.stack_data
+        return None if data is None else tuple(data.shape)
+
+    @property
+    def input_layers(self) -> list:
+        """The image and every chosen input layer, each once."""
+        out = [self.image.value, *self.roi_add.value, *self.roi_subtract.value,
+               self.roi_labels.value, self.brush.value, self.seeds.value]
+        seen, uniq = set(), []
+        for lay in out:
+            if lay is not None and id(lay) not in seen:
+                seen.add(id(lay))
+                uniq.append(lay)
+        return uniq
+
+    def roi(self, image_shape, frame: int = 0) -> tuple[np.ndarray | None, list[str]]:
+        """The analysis ROI of the chosen layers (``None``: whole image) and notes."""
+        return build_roi(self.image.value, image_shape, add_shapes=list(self.roi_add.value),
+                         subtract_shapes=list(self.roi_subtract.value),
+                         labels=self.roi_labels.value, frame=frame)
+
+    def brush_mask(self, image_shape, frame: int = 0) -> np.ndarray | None:
+        """The painted refine region (``None``: no layer or nothing painted)."""
+        if self.brush.value is None:
+            return None
+        mask = labels_mask(self.brush.value, image_shape, frame)
+        return mask if mask.any() else None
+
+    def seed_points(self) -> tuple:
+        """Seed points ``(x, y)`` in image pixels (``ValueError`` without points)."""
+        layer = self.seeds.value
+        if layer is None or len(layer.data) == 0:
+            raise ValueError("the initial guess 'Seed points' needs a Points layer with at "
+                             "least one point (choose it under 'Seeds (points)')")
+        img = self.image.value
+        xy = (points_xy(layer, img) if img is not None
+              else np.asarray(layer.data, float)[:, -2:][:, ::-1])
+        return tuple((float(x), float(y)) for x, y in xy)
+
+    def restore_seeds(self, seeds, notes: list[str]) -> None:
+        """Seed points ``(x, y)`` in image pixels as a new Points layer, unless a
+        seeds layer with points is chosen already (a note says which)."""
+        layer = self.seeds.value
+        if layer is not None and len(layer.data):
+            notes.append(f"the file's {len(seeds)} seed point(s) were not added: the seeds "
+                         f"layer '{layer.name}' is used")
+            return
+        img = self.image.value
+        rc = np.array([(y, x) for x, y in seeds], float)
+        kwargs: dict[str, Any] = {}
+        if img is not None:  # the image's pixel grid (its current scale and offset)
+            kwargs = {"scale": tuple(img.scale)[-2:], "translate": tuple(img.translate)[-2:]}
+        new = self._viewer.add_points(rc, name="seeds (loaded)", size=6, face_color="cyan",
+                                      **kwargs)
+        if img is not None:
+            try:
+                new.units = [str(u) for u in img.units][-2:]
+            except Exception:  # units are cosmetic here; the scale is what counts
+                pass
+        self.seeds.value = new
+        notes.append(f"{len(seeds)} seed point(s) from the file added as the Points layer "
+                     f"'{new.name}'")

@@ -1,0 +1,76 @@
+"""The Strain panel: how strain is computed from each frame's displacement field."""
+
+from __future__ import annotations
+
+from magicgui.widgets import ComboBox, SpinBox
+from psygnal import Signal
+
+from .._analysis import StrainSettings
+from .controls import Panel, Plan, put, section
+
+__all__ = ["StrainPanel"]
+
+
+
+class StrainPanel(Panel):
+    """Strain window, method and measure.
+
+    Signals
+    -------
+    settings_changed
+        The window changed (the input check depends on it).
+    """
+
+    settings_changed = Signal()
+
+    def _setup_ui(self) -> None:
+        self.strain_window = SpinBox(label="Strain window", value=5, min=3, max=101, step=2,
+                                     tooltip="Odd number of nodes across the plane fit; the "
+                                             "virtual strain gauge is (window - 1) * step + "
+                                             "subset pixels.")
+        self.strain_method = ComboBox(label="Strain method", value="plane_fit",
+                                      choices=[("plane fit", "plane_fit"),
+                                               ("FE gradients", "fem")],
+                                      tooltip="Local least-squares plane fit over the window, "
+                                              "or gradients of the bilinear element field.")
+        self.strain_measure = ComboBox(label="Strain measure", value="green_lagrange",
+                                       choices=[("Green-Lagrange", "green_lagrange"),
+                                                ("infinitesimal", "infinitesimal"),
+                                                ("Euler-Almansi", "euler_almansi")],
+                                       tooltip="Finite-strain measure of exx, eyy, exy.")
+        self.extend([section("Strain"), self.strain_window, self.strain_method,
+                     self.strain_measure])
+
+    def _setup_callbacks(self) -> None:
+        self.strain_window.changed.connect(self.settings_changed.emit)
+
+    @property
+    def settings(self) -> StrainSettings:
+        """The strain settings of the controls."""
+        return StrainSettings(window=int(self.strain_window.value),
+                              method=self.strain_method.value,
+                              measure=self.strain_measure.value)
+
+    @settings.setter
+    def settings(self, value: StrainSettings) -> None:
+        self.strain_window.value = value.window
+        self.strain_method.value = value.method
+        self.strain_measure.value = value.measure
+
+    def as_dict(self) -> dict:
+        """The settings as a settings file's "strain" section."""
+        s = self.settings
+        return {"window": s.window, "method": s.method, "measure": s.measure}
+
+    def summary(self) -> str:
+        """The settings in words (for the log)."""
+        s = self.settings
+        return f"strain {s.method}, window {s.window}, {s.measure}"
+
+    def strain_plan(self, strain: dict, plan: Plan) -> None:
+        """Add the controls for a "strain" section (checked by
+        :class:`~napari_aldic.engine.Settings`) to ``plan``."""
+        for key, control in (("window", self.strain_window), ("method", self.strain_method),
+                             ("measure", self.strain_measure)):
+            if key in strain:
+                put(plan, control, strain[key], f"strain {key}")

@@ -1,0 +1,40 @@
+"""``main``: parse the command line, run the command, turn errors into one line."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+from .console import PROG, CLIError, print_error, show_warning, silence_stdout
+from .demo import demo_command
+from .export import export_command
+from .params import params_command
+from .parser import build_parser
+from .run import run_command
+
+#: command name -> function(args) returning the exit code (None: 0)
+COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
+            "params": params_command}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``napari-aldic`` console script; returns the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return int(exc.code or 0)
+    with warnings.catch_warnings():
+        warnings.showwarning = show_warning
+        try:
+            return COMMANDS[args.command](args) or 0
+        except BrokenPipeError:  # stdout piped into a program that stopped reading
+            silence_stdout()
+            return 1
+        except (CLIError, ValueError, OSError, NotImplementedError) as exc:
+            missing = isinstance(exc, FileNotFoundError) and exc.filename
+            print_error(f"no such file: {exc.filename}" if missing else str(exc))
+            return 2
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted (results already written are kept)", file=sys.stderr)
+            return 130

@@ -1,0 +1,100 @@
+"""What the command line prints: errors, warnings, progress bars, result summaries."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import numpy as np
+
+PROG = "napari-aldic"
+
+
+class CLIError(Exception):
+    """A user-facing error: printed as one line, no traceback."""
+
+
+def one_line(message: str) -> str:
+    """``message`` with its lines joined into one."""
+    return " ".join(line.strip() for line in message.splitlines() if line.strip())
+
+
+def print_error(message: str) -> None:
+    print(f"{PROG}: error: {one_line(message)}", file=sys.stderr)
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the CLI: one line, no source location."""
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+def silence_stdout() -> None:
+    """Send further output to the null device (stdout's reader has gone)."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def progress_bar(prefix: str):
+    """A progress callback drawing a bar on an interactive stderr, else None."""
+    if not sys.stderr.isatty():
+        return None
+
+    def report(frac: float, msg: str) -> None:
+        n = int(round(30 * frac))
+        end = "\n" if frac >= 1 else ""
+        print(f"\r{prefix} [{'#' * n}{'.' * (30 - n)}] {frac:4.0%} {msg:<40.40}", end=end,
+              file=sys.stderr, flush=True)
+
+    return report
+
+
+def sequence_progress(n_frames: int):
+    """Progress bar over frames with the estimated time left (interactive stderr)."""
+    if not sys.stderr.isatty():
+        return None
+    t0 = time.perf_counter()
+
+    def report(k: int, frac: float, msg: str) -> None:
+        el = time.perf_counter() - t0
+        left = el * (1 - frac) / frac if frac > 0 else float("nan")
+        eta = "--:--" if not np.isfinite(left) else f"{int(left) // 60:02d}:{int(left) % 60:02d}"
+        done = int(round(frac * n_frames))
+        bar = int(round(30 * frac))
+        print(f"\r  [{'#' * bar}{'.' * (30 - bar)}] {done}/{n_frames} frames, "
+              f"{el:5.1f} s, {eta} left  {msg:<28.28}", end="", file=sys.stderr, flush=True)
+
+    return report
+
+
+def clear_bar() -> None:
+    """Erase a progress bar before printing a line."""
+    if sys.stderr.isatty():
+        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
+
+
+def counts_line(res) -> str:
+    """Nodes, valid nodes, time and speed of one result."""
+    total = float(res.meta.get("timing", {}).get("total", float("nan")))
+    pct = 100.0 * res.n_valid / max(len(res), 1)
+    return (f"{len(res)} nodes, {res.n_valid} valid ({pct:.1f} %), {total:.3f} s "
+            f"({len(res) / max(total, 1e-9):,.0f} POI/s)")
+
+
+def frame_summary(res) -> list[str]:
+    """Lines describing one result: counts, time, displacement range, flags."""
+    lines = [counts_line(res)]
+    v = res.valid
+    if v.any():
+        lines.append(f"u mean {res.u[v].mean():+.4f} px [{res.u[v].min():+.3f}, "
+                     f"{res.u[v].max():+.3f}]; v mean {res.v[v].mean():+.4f} px "
+                     f"[{res.v[v].min():+.3f}, {res.v[v].max():+.3f}]; "
+                     f"median ZNCC {np.median(res.zncc[v]):.4f}")
+    if res.aldic_summary():
+        lines.append(res.aldic_summary())
+    flagged = {k: c for k, c in res.reason_counts().items() if k != "converged"}
+    if flagged:
+        lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))
+    return lines

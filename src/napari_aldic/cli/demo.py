@@ -1,0 +1,71 @@
+"""``napari-aldic demo``: a synthetic speckle pair, its analysis, the error
+against the exact truth, and the files to analyse it again."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..engine import correlate
+from ..engine.synthetic import make_case
+from ..engine.viz import plot_displacement
+from .console import PROG, CLIError, counts_line, progress_bar
+
+
+def demo_command(args) -> None:
+    """``napari-aldic demo``: synthetic pair, analysis, error report, files."""
+    out = args.out.expanduser().resolve()
+    case = make_case(args.field, (args.size, args.size), noise=args.noise, seed=args.seed)
+    print(f"{PROG} demo: {args.size} x {args.size} synthetic speckle pair, 8-bit, "
+          f"noise {args.noise:g} grey levels")
+    print(f"  field: {case.description}")
+    res = correlate(case.reference, case.deformed, roi=case.roi, subset=args.subset,
+                    step=args.step, method=args.method, progress=progress_bar("  correlate"))
+    print("  " + counts_line(res))
+    stats = _errors(res, case)
+    print(f"  error against the exact truth over the {res.n_valid} valid nodes:")
+    print(f"    u: RMSE {stats['rmse_u']:.4f} px, max {stats['max_u']:.4f} px")
+    print(f"    v: RMSE {stats['rmse_v']:.4f} px, max {stats['max_v']:.4f} px")
+    res.meta["demo"] = {"field": args.field, "description": case.description,
+                        "size": args.size, "noise": args.noise, "seed": args.seed, **stats}
+    written, roi_opt = _write_files(out, case, res, args.field)
+    print(f"  wrote {', '.join(written)} to")
+    print(f"  {out}")
+    print(f"  analyse them again with: {PROG} run {out / 'reference.tif'} "
+          f"{out / 'deformed.tif'}{roi_opt} --params {out / 'params.json'} -o result.npz")
+
+
+def _errors(res, case) -> dict[str, float]:
+    """RMSE and largest error of u and v over the valid nodes, in pixels."""
+    ut, vt = case.field.displacement(res.x, res.y)
+    sel = res.valid
+    if not sel.any():
+        raise CLIError("no node converged; nothing to compare with the truth")
+    eu, ev = res.u[sel] - ut[sel], res.v[sel] - vt[sel]
+    return {"rmse_u": float(np.sqrt(np.mean(eu**2))), "max_u": float(np.abs(eu).max()),
+            "rmse_v": float(np.sqrt(np.mean(ev**2))), "max_v": float(np.abs(ev).max())}
+
+
+def _write_files(out, case, res, field: str) -> tuple[list[str], str]:
+    """Images, ROI, result, parameters and figure into ``out``: (names written,
+    the ``--roi`` option of the command that analyses them again)."""
+    import tifffile
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, img in (("reference.tif", case.reference), ("deformed.tif", case.deformed)):
+        tifffile.imwrite(out / name, img, photometric="minisblack")
+        written.append(name)
+    roi_opt = ""
+    if case.roi is not None:
+        tifffile.imwrite(out / "roi.tif", case.roi.astype(np.uint8) * 255,
+                         photometric="minisblack")
+        written.append("roi.tif")
+        roi_opt = f" --roi {out / 'roi.tif'}"
+    res.save(out / "result.npz")
+    (out / "params.json").write_text(json.dumps(res.params.to_dict(), indent=2) + "\n")
+    plot_displacement(res, out / "displacement.png", truth=case.field, image=case.reference,
+                      title=f"demo '{field}': {case.description}")
+    written += ["result.npz", "params.json", "displacement.png"]
+    return written, roi_opt

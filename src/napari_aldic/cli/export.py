@@ -1,0 +1,111 @@
+"""``napari-aldic export``: results to MAT, CSV, VTU, DaVis text, PNG, GIF,
+MP4 and PDF, each format written on its own (one failing does not stop the rest)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..engine import EncoderNotFoundError, export_result
+from ..engine.io import collect_frames
+from .console import PROG, CLIError
+from .parser import EXPORT_FORMATS
+from .settings import settings_from_args
+
+#: file name ending of each format
+SUFFIX = {"mat": ".mat", "csv": ".csv", "vtu": ".vtu", "davis": ".txt", "png": ".png",
+          "gif": ".gif", "mp4": ".mp4", "pdf": ".pdf"}
+IMAGE_FORMATS = ("png", "gif", "mp4")
+
+
+def export_command(args) -> int:
+    """``napari-aldic export``: every requested format; returns the exit code."""
+    formats = _formats(args.formats)
+    data = _input(args.inputs)
+    settings = settings_from_args(args, args.settings)
+    strain = False if args.no_strain else (settings.strain or True)
+    # read the results (and compute strain) once for every format
+    frames, units, _ = collect_frames(data, strain=strain, units=settings.units)
+    base = _export_base(list(args.inputs), args.output)
+    single = len(formats) == 1 and base.suffix.lower() in SUFFIX.values()
+    if base.suffix.lower() in SUFFIX.values() and not single:
+        base = base.with_suffix("")
+    print(f"{PROG} export: {len(frames)} frame(s) ({frames[0].index} to {frames[-1].index}); "
+          f"{units.describe()}")
+    failed = 0
+    for fmt in formats:
+        for target, opts in _jobs(fmt, base, single, args):
+            if fmt != "davis":
+                opts.update(units=units, strain=strain)
+            failed += not _write(frames, target, fmt, opts)
+    return 2 if failed else 0
+
+
+def _formats(items: list[str]) -> list[str]:
+    """The formats of ``--to`` (comma or space separated), checked."""
+    formats = [f.strip().lower() for item in items for f in item.split(",") if f.strip()]
+    bad = [f for f in formats if f not in EXPORT_FORMATS]
+    if bad:
+        raise CLIError(f"unknown export format(s) {bad}; choose from {', '.join(EXPORT_FORMATS)}")
+    return formats
+
+
+def _input(inputs: list[Path]):
+    """One result file or run folder, or a list of result files."""
+    for p in inputs:
+        if not p.expanduser().exists():
+            raise CLIError(f"no such file or folder: {p}")
+    if len(inputs) == 1:
+        return inputs[0].expanduser()
+    if any(p.is_dir() for p in inputs):
+        raise CLIError("give one run folder, or one or more result files")
+    return [p.expanduser() for p in inputs]
+
+
+def _export_base(inputs: list[Path], output: Path | None) -> Path:
+    """Output name without format suffix (see the ``-o`` help)."""
+    if output is not None:
+        out = output.expanduser()
+        return out / "export" if out.is_dir() else out
+    first = inputs[0].expanduser()
+    if len(inputs) == 1 and first.is_dir():
+        return first / "export"
+    if len(inputs) == 1:
+        return first.with_suffix("")
+    return first.parent / "export"
+
+
+def _jobs(fmt: str, base: Path, single: bool, args) -> list[tuple[Path, dict]]:
+    """(target, export_result options) of every file of one format: one per
+    field for the image formats, else one."""
+    if fmt in IMAGE_FORMATS:
+        fields = args.field or ["u"]
+        jobs = []
+        for field in fields:
+            target = base if single and len(fields) == 1 else \
+                base.with_name(f"{base.name}_{field}{SUFFIX[fmt]}")
+            opts = {"field": field, "frames": args.frames}
+            opts.update({"dpi": args.dpi} if fmt == "png" else {"fps": args.fps})
+            jobs.append((target, opts))
+        return jobs
+    opts = {"frames": args.frames}
+    if fmt == "pdf" and args.line is not None:
+        opts["line"] = tuple(args.line)
+    if fmt == "vtu":
+        opts["encoding"] = args.encoding
+    return [(base if single else base.with_name(base.name + SUFFIX[fmt]), opts)]
+
+
+def _write(frames, target: Path, fmt: str, opts: dict) -> bool:
+    """Export one file (or one file series); print what was written or the
+    error. Returns False on an error."""
+    try:
+        out = export_result(frames, target, to=fmt, **opts)
+    except (EncoderNotFoundError, ValueError, OSError) as exc:
+        print(f"{PROG}: error: {fmt}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return False
+    paths = out if isinstance(out, list) else [out]
+    shown = paths if len(paths) <= 3 else [paths[0], f"... ({len(paths)} files)", paths[-1]]
+    for p in shown:
+        print(f"  {fmt}: {p.resolve() if isinstance(p, Path) else p}")
+    return True

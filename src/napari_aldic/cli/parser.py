@@ -1,0 +1,195 @@
+"""The argument parser of ``napari-aldic``: one function per command, one per
+group of shared options."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .. import __version__
+from ..engine.synthetic import CASES
+from .console import PROG
+
+#: run/params options that override fields of the parameter file (dest = DICParams field)
+OVERRIDES = ("subset", "step", "search", "search_max", "method", "interpolation", "n_threads",
+             "smooth", "second_order_warp")
+EXPORT_FORMATS = ("mat", "csv", "vtu", "davis", "png", "gif", "mp4", "pdf")
+REFERENCE_MODES = ("accumulative", "incremental")
+#: help line and description of every command
+TEXTS = {
+    "demo": (
+        "analyse a synthetic speckle pair with exact truth",
+        "Render a synthetic speckle pair with a known displacement field, "
+        "correlate it, report the error against the truth and write the "
+        "images, the result and a figure into a folder."),
+    "run": (
+        "analyse an image pair, a TIFF stack or a folder of images",
+        "Correlate images against a reference. INPUT is either REF DEF "
+        "[DEF ...] (one image per file), or one multi-page TIFF stack or one "
+        "folder of images (natural sort order); frame 0 is the reference."),
+    "params": (
+        "write a parameter file (defaults, a file, and options)",
+        "Write the analysis settings as readable JSON: the defaults, or "
+        "--params FILE, with the options below applied. Use the file with "
+        "'napari-aldic run --params FILE', 'export --settings FILE' or the "
+        "napari widget's 'Load parameters'."),
+    "export": (
+        "export results to MAT, CSV, VTU, DaVis text, PNG, GIF, MP4, PDF",
+        "Export results: one result .npz, several, a .mat written by "
+        "export, or a run folder (written by 'run -o FOLDER' or track). "
+        "Outputs are named OUT.<ext> (images OUT_<field>.png, one per frame "
+        "for a sequence: OUT_<field>_frame#####.png). See docs/exports.md."),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``napari-aldic``."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="2-D digital image correlation (napari-aldic engine).")
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    add_demo(sub)
+    add_run(sub)
+    add_params(sub)
+    add_export(sub)
+    return parser
+
+
+# ----------------------------------------------------------------- commands
+def _command(sub, name: str) -> argparse.ArgumentParser:
+    """The parser of command ``name`` (texts from ``TEXTS``)."""
+    help_line, description = TEXTS[name]
+    return sub.add_parser(name, help=help_line, description=description)
+
+
+def add_demo(sub) -> None:
+    demo = _command(sub, "demo")
+    demo.add_argument("--out", type=Path, default=Path("aldic_demo"),
+                      help="output folder (default: ./aldic_demo)")
+    demo.add_argument("--size", type=int, default=512, help="image size N for N x N (default 512)")
+    demo.add_argument("--noise", type=float, default=1.0, metavar="GL",
+                      help="Gaussian noise std in grey levels, 8-bit images (default 1)")
+    demo.add_argument("--field", choices=CASES, default=CASES[0],
+                      help="displacement field (default: strain = 1%% strain + 0.5 deg "
+                           "rotation + sub-pixel translation)")
+    demo.add_argument("--subset", type=int, default=31, help="subset full width, px (default 31)")
+    demo.add_argument("--step", type=int, default=8, help="node spacing, px (default 8)")
+    demo.add_argument("--method", choices=("local", "aldic"), default="local")
+    demo.add_argument("--seed", type=int, default=0, help="speckle pattern seed (default 0)")
+
+
+def add_run(sub) -> None:
+    run = _command(sub, "run")
+    run.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                     help="REF DEF [DEF ...], or STACK.tif, or FOLDER")
+    run.add_argument("--roi", type=Path, metavar="MASK",
+                     help="ROI mask: image file (nonzero = analysed) or .npy array")
+    add_param_options(run)
+    run.add_argument("-o", "--output", type=Path, metavar="OUT",
+                     help="OUT.npz (a stack writes OUT_frame###.npz) or a folder "
+                          "(writes frame###.npz); default ./aldic_result.npz")
+    run.add_argument("--plot", action="store_true",
+                     help="also write a PNG figure of u and v beside each result")
+    run.add_argument("--reference", choices=REFERENCE_MODES, default="accumulative",
+                     help="stacks: correlate every frame against frame 0 (accumulative) "
+                          "or against the previous frame, composed back to frame 0 "
+                          "(incremental); results always refer to frame 0")
+    run.add_argument("--params-out", type=Path, metavar="FILE.json", dest="params_out",
+                     help="also write the complete parameters used (file and options "
+                          "merged) to FILE.json, for --params of a later run")
+    add_unit_options(run)
+
+
+def add_params(sub) -> None:
+    prm = _command(sub, "params")
+    prm.add_argument("output", type=Path, metavar="OUT.json", help="file to write")
+    add_param_options(prm)
+    add_unit_options(prm)
+    add_strain_options(prm)
+    prm.add_argument("--reference", choices=REFERENCE_MODES,
+                     help="tracking of stacks (the 'tracking' section; see 'run --reference')")
+
+
+def add_export(sub) -> None:
+    exp = _command(sub, "export")
+    exp.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                     help="RESULT.npz [RESULT.npz ...], RESULT.mat or RUN_FOLDER")
+    exp.add_argument("--to", nargs="+", required=True, metavar="FORMAT", dest="formats",
+                     help=f"one or more of: {', '.join(EXPORT_FORMATS)} (comma or space "
+                          "separated)")
+    exp.add_argument("-o", "--output", type=Path, metavar="OUT",
+                     help="output name without extension, or a folder (default: "
+                          "RUN_FOLDER/export or RESULT without .npz)")
+    exp.add_argument("--field", nargs="+", default=None, metavar="FIELD",
+                     help="field(s) drawn in png/gif/mp4 (default u): u, v, magnitude, "
+                          "exx, eyy, exy, e1, e2, max_shear, von_mises, rotation, zncc, "
+                          "vx, vy, exx_rate, eyy_rate, exy_rate")
+    exp.add_argument("--frames", nargs="+", type=int, metavar="K",
+                     help="frame numbers to export (default all; the report picks up to 4)")
+    exp.add_argument("--line", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
+                     help="profile line for the PDF report, in pixels")
+    add_unit_options(exp)
+    exp.add_argument("--settings", type=Path, metavar="FILE.json",
+                     help="take units and strain settings from a parameter file")
+    exp.add_argument("--no-strain", action="store_true", dest="no_strain",
+                     help="do not compute strain")
+    add_strain_options(exp)
+    exp.add_argument("--fps", type=float, default=4.0, help="GIF/MP4 frames per second")
+    exp.add_argument("--encoding", choices=("binary", "ascii"), default="binary",
+                     help="VTU data encoding (default binary = base64)")
+    exp.add_argument("--dpi", type=int, default=150, help="PNG resolution (default 150)")
+
+
+# ----------------------------------------------------------------- shared options
+def add_unit_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pixel-size", type=float, dest="pixel_size", metavar="S",
+                   help="length of one pixel in --unit (e.g. 0.05 with --unit um)")
+    p.add_argument("--unit", help="length unit name (default px)")
+    p.add_argument("--frame-interval", type=float, dest="frame_interval", metavar="DT",
+                   help="time between frames in --time-unit (adds time, velocity and "
+                        "strain-rate columns)")
+    p.add_argument("--time-unit", dest="time_unit", help="time unit name (default s)")
+
+
+def add_strain_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--strain-window", type=int, dest="strain_window", metavar="N",
+                   help="strain window in nodes, odd >= 3 (default 5)")
+    p.add_argument("--strain-method", choices=("plane_fit", "fem"), dest="strain_method")
+    p.add_argument("--strain-measure", dest="strain_measure",
+                   choices=("green_lagrange", "infinitesimal", "euler_almansi"))
+
+
+def add_param_options(p: argparse.ArgumentParser) -> None:
+    """Options overriding fields of the parameter file (see ``OVERRIDES``)."""
+    p.add_argument("--params", type=Path, metavar="FILE.json",
+                   help="parameter file (JSON: DICParams fields, or a file written by "
+                        "'napari-aldic params' / --params-out); options below override it")
+    p.add_argument("--subset", type=int, help="subset full width in px, odd (default 31)")
+    p.add_argument("--step", type=int, help="node spacing in px (default 8)")
+    p.add_argument("--search", type=int, help="initial search half-range in px (default 20)")
+    p.add_argument("--search-max", type=int, dest="search_max",
+                   help="largest search half-range in px (default: automatic)")
+    p.add_argument("--method", choices=("local", "aldic"), help="solver (default local)")
+    p.add_argument("--interpolation", choices=("auto", "cubic", "quintic"),
+                   help="B-spline order (default cubic)")
+    p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
+    p.add_argument("--smooth", type=smooth_arg, metavar="auto|PX",
+                   help="AL-DIC thin-plate smoothing length in px; 'auto' (default) picks it "
+                        "from the image noise, 0 = the paper's plain Algorithm 1")
+    p.add_argument("--affine-warp", action="store_const", const=False,
+                   dest="second_order_warp",
+                   help="AL-DIC: never bend subsets with the global field's curvature")
+
+
+def smooth_arg(text: str):
+    """``--smooth``: ``"auto"`` or a length in pixels >= 0."""
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--smooth {text!r}: give 'auto' or a length in "
+                                         "pixels (e.g. 8)") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"--smooth {text!r}: the length must be >= 0 px")
+    return value

@@ -1,0 +1,590 @@
+"""Inverse-compositional Gauss-Newton (IC-GN) kernels.
+
+Two solvers share one skeleton (:mod:`.gauss_newton`): per chunk of ``CHUNK``
+nodes (one parallel task) the work buffers are allocated once; per node the
+subset is gathered (:func:`~.subset.gather_subset`), its reference sums are built once
+(inverse composition linearises the *reference* subset), and the node runs
+Gauss-Newton steps until the update is below ``tol``, the subset leaves the
+image or has no texture, the solution wanders off by more than a subset
+width, or ``max_iter`` is reached. Each step samples the warped subset in the
+deformed image (:func:`~.gauss_newton.gn_step`, one pass of nine sums).
+
+* :func:`icgn_affine`: the six affine parameters ``(u, ux, uy, v, vx, vy)``
+  (Local DIC);
+* :func:`icgn_translation`: the displacement only, gradient held fixed, with
+  the AL-DIC penalty towards a target (the local step of ADMM).
+
+References: S. Baker, I. Matthews, "Lucas-Kanade 20 years on", IJCV 56, 2004;
+B. Pan, K. Li, W. Tong, "Fast, robust and accurate DIC calculation without
+redundant computations", Exp. Mech. 53, 2013.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .flags import FASTMATH, INLINE, PARALLEL
+from .gauss_newton import (
+    CHUNK,
+    DIVERGED,
+    NO_TEXTURE,
+    NOT_CONVERGED,
+    OK,
+    chunk_layout,
+    gn_step,
+    store_node,
+)
+from .subset import gather_subset, subset_buffers
+
+__all__ = ["icgn_affine", "icgn_translation", "cholesky6", "chol_solve6",
+           "affine_reference_sums", "inverse_compose", "affine_step",
+           "translation_reference_sums", "curvature_offsets", "penalty_system",
+           "translation_step"]
+
+
+@nb.njit(**INLINE)
+def cholesky6(H, L):
+    """In-place lower Cholesky factor of a 6 x 6 symmetric matrix.
+
+    Parameters
+    ----------
+    H : (6, 6) float64
+        Symmetric matrix.
+    L : (6, 6) float64
+        Receives the factor (lower triangle).
+
+    Returns
+    -------
+    bool
+        False if a pivot is not clearly positive (``H`` not positive
+        definite to working precision: a subset without texture).
+    """
+    for i in range(6):
+        for j in range(i + 1):
+            s = H[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if s <= 1e-12 * (abs(H[i, i]) + 1e-300):
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    return True
+
+
+@nb.njit(**INLINE)
+def chol_solve6(L, b, x):
+    """Solve ``L L^T x = b`` by forward and back substitution.
+
+    Parameters
+    ----------
+    L : (6, 6) float64
+        Factor from :func:`cholesky6`.
+    b : (6,) float64
+        Right-hand side.
+    x : (6,) float64
+        Receives the solution.
+    """
+    y = np.empty(6)
+    for i in range(6):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    for i in range(5, -1, -1):
+        s = y[i]
+        for k in range(i + 1, 6):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
+# ------------------------------------------------------------- affine IC-GN
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def affine_reference_sums(dxs, dys, gx, gy, fs, m, fm, H):
+    """Gauss-Newton Hessian and sums of the reference subset (affine warp).
+
+    With the steepest-descent images ``J = (gx, gx dx, gx dy, gy, gy dx,
+    gy dy)`` one pass accumulates ``H = sum J J^T`` (lower triangle, then
+    mirrored), ``sum J`` and ``sum J (f - fm)``.
+
+    Parameters
+    ----------
+    dxs, dys, gx, gy, fs : 1-D float64
+        The gathered subset.
+    m : int
+        Subset pixels.
+    fm : float
+        Mean of the reference subset.
+    H : (6, 6) float64
+        Receives the Hessian.
+
+    Returns
+    -------
+    sj0, sj1, sj2, sj3, sj4, sj5 : float
+        ``sum J``.
+    b00, b01, b02, b03, b04, b05 : float
+        ``sum J (f - fm)``.
+    """
+    for i in range(6):
+        for j in range(6):
+            H[i, j] = 0.0
+    sj0 = sj1 = sj2 = sj3 = sj4 = sj5 = 0.0
+    b00 = b01 = b02 = b03 = b04 = b05 = 0.0
+    for q in range(m):
+        dx = dxs[q]
+        dy = dys[q]
+        ja = gx[q]
+        jd = gy[q]
+        J0 = ja
+        J1 = ja * dx
+        J2 = ja * dy
+        J3 = jd
+        J4 = jd * dx
+        J5 = jd * dy
+        fv = fs[q] - fm
+        sj0 += J0
+        sj1 += J1
+        sj2 += J2
+        sj3 += J3
+        sj4 += J4
+        sj5 += J5
+        b00 += J0 * fv
+        b01 += J1 * fv
+        b02 += J2 * fv
+        b03 += J3 * fv
+        b04 += J4 * fv
+        b05 += J5 * fv
+        H[0, 0] += J0 * J0
+        H[1, 0] += J1 * J0
+        H[1, 1] += J1 * J1
+        H[2, 0] += J2 * J0
+        H[2, 1] += J2 * J1
+        H[2, 2] += J2 * J2
+        H[3, 0] += J3 * J0
+        H[3, 1] += J3 * J1
+        H[3, 2] += J3 * J2
+        H[3, 3] += J3 * J3
+        H[4, 0] += J4 * J0
+        H[4, 1] += J4 * J1
+        H[4, 2] += J4 * J2
+        H[4, 3] += J4 * J3
+        H[4, 4] += J4 * J4
+        H[5, 0] += J5 * J0
+        H[5, 1] += J5 * J1
+        H[5, 2] += J5 * J2
+        H[5, 3] += J5 * J3
+        H[5, 4] += J5 * J4
+        H[5, 5] += J5 * J5
+    for i in range(6):
+        for j in range(i + 1, 6):
+            H[i, j] = H[j, i]
+    return sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def inverse_compose(p, du, dux, duy, dv, dvx, dvy):
+    """Inverse-compositional update ``W(p) <- W(p) o W(dp)^-1``.
+
+    Parameters
+    ----------
+    p : 6-tuple of float
+        Current ``(u, ux, uy, v, vx, vy)``.
+    du, dux, duy, dv, dvx, dvy : float
+        The Gauss-Newton increment ``dp`` (already negated: ``-H^-1 b``).
+
+    Returns
+    -------
+    6-tuple of float
+        The composed parameters.
+    """
+    u, ux, uy, v, vx, vy = p
+    a11 = 1.0 + dux
+    a12 = duy
+    a21 = dvx
+    a22 = 1.0 + dvy
+    det = a11 * a22 - a12 * a21
+    i11 = a22 / det
+    i12 = -a12 / det
+    i21 = -a21 / det
+    i22 = a11 / det
+    it1 = -(i11 * du + i12 * dv)
+    it2 = -(i21 * du + i22 * dv)
+    m11 = 1.0 + ux
+    m12 = uy
+    m21 = vx
+    m22 = 1.0 + vy
+    n11 = m11 * i11 + m12 * i21
+    n12 = m11 * i12 + m12 * i22
+    n21 = m21 * i11 + m22 * i21
+    n22 = m21 * i12 + m22 * i22
+    return (m11 * it1 + m12 * it2 + u, n11 - 1.0, n12,
+            m21 * it1 + m22 * it2 + v, n21, n22 - 1.0)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm, dfn,
+                xw, yw, gv, xmax, ymax, sj, bf, L, b, dp, h, span, start, tol, zn):
+    """One affine IC-GN step of a node.
+
+    Samples the warped subset (:func:`~.gauss_newton.gn_step`), forms
+    ``b = sum J [(f - fm) - (df/dg)(g - gm)]``, solves ``H dp = -b`` with the
+    Cholesky factor ``L`` and composes the inverse increment into ``p``.
+
+    Parameters
+    ----------
+    c1, stride, coef, order, x0, y0, dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv
+        As :func:`~.gauss_newton.gn_step`.
+    xmax, ymax
+        As :func:`~.gauss_newton.gn_step`.
+    p : 6-tuple of float
+        Current parameters.
+    sj, bf : 6-tuples of float
+        Reference sums from :func:`affine_reference_sums`.
+    L : (6, 6) float64
+        Cholesky factor of the reference Hessian.
+    b, dp : (6,) float64
+        Work arrays.
+    h, span : int
+        Subset half-width and width.
+    start : (float, float)
+        Starting ``(u, v)`` (divergence test).
+    tol : float
+        Convergence tolerance on the increment (pixels).
+    zn : float
+        ZNCC of the previous step.
+
+    Returns
+    -------
+    status : int
+        ``NOT_CONVERGED`` to go on, ``OK`` when the increment norm
+        ``|du|^2 + |dv|^2 + h^2 |dF|^2`` is below ``tol^2``, else the failure.
+    zn : float
+        ZNCC of this step (unchanged if the step failed).
+    p : 6-tuple of float
+        Updated parameters (unchanged if the step failed).
+    """
+    u, ux, uy, v, vx, vy = p
+    st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
+        c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, False, xw, yw)
+    if st != OK:
+        return st, zn, p
+    # b = sum J [(f - fm) - (df/dg)(g - gm)];  H dp = -b
+    b[0] = bf[0] - r * (t0 - gm * sj[0])
+    b[1] = bf[1] - r * (t1 - gm * sj[1])
+    b[2] = bf[2] - r * (t2 - gm * sj[2])
+    b[3] = bf[3] - r * (t3 - gm * sj[3])
+    b[4] = bf[4] - r * (t4 - gm * sj[4])
+    b[5] = bf[5] - r * (t5 - gm * sj[5])
+    chol_solve6(L, b, dp)
+    du = -dp[0]
+    dux = -dp[1]
+    duy = -dp[2]
+    dv = -dp[3]
+    dvx = -dp[4]
+    dvy = -dp[5]
+    p = inverse_compose(p, du, dux, duy, dv, dvx, dvy)
+    nrm = du * du + dv * dv + h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
+    if abs(p[0] - start[0]) > span or abs(p[3] - start[1]) > span or not np.isfinite(nrm):
+        return DIVERGED, zn_k, p
+    if nrm < tol * tol:
+        return OK, zn_k, p
+    return NOT_CONVERGED, zn_k, p
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
+def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
+                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out):
+    """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
+
+    Per node: gather the subset, build the reference Hessian and its Cholesky
+    factor (a node without texture is stored as ``NO_TEXTURE`` with its
+    initial parameters), then iterate :func:`affine_step` while it reports
+    ``NOT_CONVERGED`` and ``max_iter`` allows.
+
+    Parameters
+    ----------
+    f, fgx, fgy : (H, W) float32
+        Reference image and its spline gradients.
+    coef : (H + 2 PAD, W + 2 PAD) float32
+        Deformed-image B-spline coefficients; ``order`` 3 or 5.
+    nx, ny : (n,) int64
+        Node pixels.
+    p_init : (n, 6) float64
+        Initial ``(u, ux, uy, v, vx, vy)``.
+    active : (n,) bool
+        Nodes to solve; the others are left untouched.
+    slot, masks
+        Mask slot per node and the component masks of the cut nodes.
+    h, max_iter, tol
+        Subset half-width, iteration cap, convergence tolerance.
+    p_out, zncc_out, iters_out, reason_out : (n, 6), (n,), (n,), (n,)
+        Receive parameters, ZNCC, iterations and status.
+    """
+    n = nx.size
+    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
+    for c in nb.prange(nchunks):
+        dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        H = np.empty((6, 6))
+        L = np.zeros((6, 6))
+        b = np.empty(6)
+        dp = np.empty(6)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if not active[k]:
+                continue
+            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
+                                               dxs, dys, gx, gy, fs)
+            sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05 = affine_reference_sums(
+                dxs, dys, gx, gy, fs, m, fm, H)
+            sj = (sj0, sj1, sj2, sj3, sj4, sj5)
+            bf = (b00, b01, b02, b03, b04, b05)
+            p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
+                 p_init[k, 5])
+            if df2 <= 1e-6 * m or not cholesky6(H, L):
+                store_node(k, p, np.nan, 0, NO_TEXTURE, p_out, zncc_out, iters_out, reason_out)
+                continue
+            dfn = np.sqrt(df2)
+            start = (p[0], p[3])
+            status, zn, it = NOT_CONVERGED, np.nan, 0
+            while status == NOT_CONVERGED and it < max_iter:
+                it += 1
+                status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
+                                            gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
+                                            bf, L, b, dp, h, span, start, tol, zn)
+            store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
+
+
+# ------------------------------------------------------------- translation IC-GN
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def translation_reference_sums(gx, gy, fs, m, fm):
+    """Gauss-Newton sums of the reference subset for the displacement only.
+
+    Parameters
+    ----------
+    gx, gy, fs : 1-D float64
+        Reference gradients and values of the gathered subset.
+    m : int
+        Subset pixels.
+    fm : float
+        Mean of the reference subset.
+
+    Returns
+    -------
+    h00, h01, h11 : float
+        The 2 x 2 Hessian ``sum [gx gy]^T [gx gy]``.
+    sj0, sj3 : float
+        ``sum gx``, ``sum gy``.
+    b0, b3 : float
+        ``sum gx (f - fm)``, ``sum gy (f - fm)``.
+    """
+    h00 = h01 = h11 = sj0 = sj3 = b0 = b3 = 0.0
+    for q in range(m):
+        a1 = gx[q]
+        a2 = gy[q]
+        fv = fs[q] - fm
+        h00 += a1 * a1
+        h01 += a1 * a2
+        h11 += a2 * a2
+        sj0 += a1
+        sj3 += a2
+        b0 += a1 * fv
+        b3 += a2 * fv
+    return h00, h01, h11, sj0, sj3, b0, b3
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def curvature_offsets(curv, k, dxs, dys, m, qx, qy):
+    """Fixed second-order part of node ``k``'s warp, from the global field.
+
+    Parameters
+    ----------
+    curv : (n, 6) float64
+        ``(uxx, uxy, uyy, vxx, vxy, vyy)`` per node (1/px).
+    k : int
+        Node index.
+    dxs, dys : 1-D float64
+        Subset pixel offsets.
+    m : int
+        Subset pixels.
+    qx, qy : 1-D float64
+        Receive ``0.5 dX^T (grad grad u) dX`` and the same for ``v``.
+    """
+    for q in range(m):
+        dx = dxs[q]
+        dy = dys[q]
+        qx[q] = 0.5 * curv[k, 0] * dx * dx + curv[k, 1] * dx * dy \
+            + 0.5 * curv[k, 2] * dy * dy
+        qy[q] = 0.5 * curv[k, 3] * dx * dx + curv[k, 4] * dx * dy \
+            + 0.5 * curv[k, 5] * dy * dy
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def penalty_system(h00, h01, h11, ux, uy, vx, vy, mu):
+    """Normal matrix of the penalised displacement step, constant per node.
+
+    ``A = I + F`` maps a reference-frame shift to a deformed-frame shift; the
+    penalty stiffness ``mu (h00 + h11) / 2`` scales ``mu`` to the data term.
+
+    Parameters
+    ----------
+    h00, h01, h11 : float
+        Reference 2 x 2 Hessian.
+    ux, uy, vx, vy : float
+        The fixed displacement gradient.
+    mu : float
+        Dimensionless penalty weight.
+
+    Returns
+    -------
+    a11, a12, a21, a22 : float
+        ``A``.
+    pen : float
+        Penalty stiffness.
+    m00, m01, m11 : float
+        ``H + pen A^T A`` (symmetric).
+    det : float
+        Its determinant.
+    """
+    a11 = 1.0 + ux
+    a12 = uy
+    a21 = vx
+    a22 = 1.0 + vy
+    pen = mu * 0.5 * (h00 + h11)  # penalty stiffness, scaled to the data term
+    # normal matrix (H + pen A^T A), constant over the iterations
+    m00 = h00 + pen * (a11 * a11 + a21 * a21)
+    m01 = h01 + pen * (a11 * a12 + a21 * a22)
+    m11 = h11 + pen * (a12 * a12 + a22 * a22)
+    det = m00 * m11 - m01 * m01
+    return a11, a12, a21, a22, pen, m00, m01, m11, det
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs, m, fm,
+                     dfn, xw, yw, gv, xmax, ymax, quad, qx, qy, node, span, tol, zn):
+    """One penalised IC-GN step of a node's displacement (gradient fixed).
+
+    Samples the warped subset (:func:`~.gauss_newton.gn_step`) and solves
+    ``(H + pen A^T A) d = -g + pen A^T (u - t)`` for the reference-frame
+    increment ``d``; the displacement moves by ``A d``.
+
+    Parameters
+    ----------
+    c1, stride, coef, order, x0, y0, dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv
+        As :func:`~.gauss_newton.gn_step`.
+    xmax, ymax, quad, qx, qy
+        As :func:`~.gauss_newton.gn_step`.
+    u, v : float
+        Current displacement.
+    node : tuple of float
+        The node's constants: fixed gradient ``(ux, uy, vx, vy)``, reference
+        sums ``(sj0, sj3, b0, b3)`` (:func:`translation_reference_sums`), the
+        penalised system (:func:`penalty_system`), the penalty target
+        ``(tu, tv)`` and the starting displacement ``(u0, v0)`` (divergence test).
+    span, tol : int, float
+        Subset width; convergence tolerance (pixels).
+    zn : float
+        ZNCC of the previous step.
+
+    Returns
+    -------
+    status : int
+        ``NOT_CONVERGED`` to go on, ``OK`` when ``|A d| < tol``,
+        else the failure.
+    zn : float
+        ZNCC of this step (unchanged if the step failed).
+    u, v : float
+        Updated displacement (unchanged if the step failed).
+    """
+    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m11, det,
+     tu, tv, u0, v0) = node
+    st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
+        c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
+        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, quad, qx, qy)
+    if st != OK:
+        return st, zn, u, v
+    g0 = b0 - r * (t0 - gm * sj0)
+    g3 = b3 - r * (t3 - gm * sj3)
+    # (H + pen A^T A) d = -g + pen A^T (u - t)
+    eu = u - tu
+    ev = v - tv
+    r0 = -g0 + pen * (a11 * eu + a21 * ev)
+    r1 = -g3 + pen * (a12 * eu + a22 * ev)
+    d0 = (m11 * r0 - m01 * r1) / det
+    d1 = (m00 * r1 - m01 * r0) / det
+    du = a11 * d0 + a12 * d1
+    dv = a21 * d0 + a22 * d1
+    u -= du
+    v -= dv
+    if abs(u - u0) > span or abs(v - v0) > span or not np.isfinite(u + v):
+        return DIVERGED, zn_k, u, v
+    if du * du + dv * dv < tol * tol:
+        return OK, zn_k, u, v
+    return NOT_CONVERGED, zn_k, u, v
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
+def icgn_translation(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, target, mu,
+                     active, slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out,
+                     reason_out):
+    """Penalised IC-GN of the displacement at the ``active`` nodes (AL-DIC).
+
+    Per node: gather the subset, add the fixed second-order warp offsets when
+    ``curv`` has a row per node, build the 2 x 2 reference sums (a node
+    without texture is stored as ``NO_TEXTURE`` with its initial
+    displacement) and the constant penalised normal matrix, then iterate
+    :func:`translation_step` while it reports ``NOT_CONVERGED`` and
+    ``max_iter`` allows.
+
+    Parameters
+    ----------
+    f, fgx, fgy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+        As :func:`icgn_affine`.
+    uv_init : (n, 2) float64
+        Starting displacements.
+    grad : (n, 4) float64
+        Fixed gradients ``(ux, uy, vx, vy)``.
+    curv : (n, 6) or (0, 6) float64
+        Second derivatives of the warp, or no rows for an affine warp.
+    target : (n, 2) float64
+        Penalty targets.
+    mu : float
+        Dimensionless penalty weight.
+    uv_out, zncc_out, iters_out, reason_out : (n, 2), (n,), (n,), (n,)
+        Receive displacement, ZNCC, iterations and status.
+    """
+    n = nx.size
+    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
+    quad = curv.shape[0] == n
+    for c in nb.prange(nchunks):
+        dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        qx = np.zeros(npx)
+        qy = np.zeros(npx)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if not active[k]:
+                continue
+            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
+                                               dxs, dys, gx, gy, fs)
+            if quad:
+                curvature_offsets(curv, k, dxs, dys, m, qx, qy)
+            h00, h01, h11, sj0, sj3, b0, b3 = translation_reference_sums(gx, gy, fs, m, fm)
+            start = (uv_init[k, 0], uv_init[k, 1])
+            if df2 <= 1e-6 * m or h00 * h11 - h01 * h01 <= 1e-12 * (h00 + h11) ** 2:
+                store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
+                           reason_out)
+                continue
+            dfn = np.sqrt(df2)
+            ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
+            a11, a12, a21, a22, pen, m00, m01, m11, det = penalty_system(
+                h00, h01, h11, ux, uy, vx, vy, mu)
+            u, v = start
+            node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m11,
+                    det, target[k, 0], target[k, 1], u, v)
+            status, zn, it = NOT_CONVERGED, np.nan, 0
+            while status == NOT_CONVERGED and it < max_iter:
+                it += 1
+                status, zn, u, v = translation_step(
+                    c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs, m, fm, dfn,
+                    xw, yw, gv, xmax, ymax, quad, qx, qy, node, span, tol, zn)
+            store_node(k, (u, v), zn, it, status, uv_out, zncc_out, iters_out, reason_out)
