@@ -32,8 +32,14 @@ def test_moved_names_still_import_with_a_warning_naming_the_new_home(name, home)
 def test_old_user_imports_keep_working_without_warnings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        from napari_aldic.engine import (compute_strain, correlate,  # noqa: F401
-                                         export_result, load_result, synthetic, track)
+        from napari_aldic.engine import (  # noqa: F401
+            compute_strain,
+            correlate,
+            export_result,
+            load_result,
+            synthetic,
+            track,
+        )
     assert callable(synthetic.speckle_pair)
 
 
