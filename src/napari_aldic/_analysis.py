@@ -20,7 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from .engine import DICParams, DICResult, Refinement, compute_strain, resolve_refinement, track
+from .engine import (
+    DICParams,
+    DICResult,
+    Refinement,
+    TrackError,
+    compute_strain,
+    resolve_refinement,
+    track,
+)
 
 __all__ = ["Analysis", "StrainSettings", "Job", "run_analysis", "run_in_thread", "zero_field",
            "brush_refinement", "describe_fields"]
@@ -53,6 +61,9 @@ class Analysis:
     n_frames : int or None
         Length of the image's time axis; ``None`` for a single pair shown
         without a time axis (e.g. a result file opened on its own).
+    error : str
+        Why the run stopped early at a frame that could not be analysed (the
+        frames finished before it are kept); empty when it did not.
     """
 
     results: list
@@ -65,6 +76,7 @@ class Analysis:
     cancelled: bool = False
     seconds: float = 0.0
     source: str = ""
+    error: str = ""
 
     @property
     def n_done(self) -> int:
@@ -146,8 +158,16 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
         if reference != "accumulative":
             raise ValueError("a brush refinement region needs accumulative tracking")
         refine = brush_refinement(params.refine, brush)  # replaces the preset
-    seq = track(sub, roi=roi, params=params, reference=reference, frames=rel, refine=refine,
-                progress=rel_report, cancel=cancel)
+    error = ""
+    try:
+        seq = track(sub, roi=roi, params=params, reference=reference, frames=rel,
+                    refine=refine, progress=rel_report, cancel=cancel)
+    except TrackError as exc:  # a bad frame: show the frames finished before it
+        if not any(r is not None for r in exc.partial.frames[1:]):
+            raise
+        seq, error = exc.partial, str(exc)
+        rel_report(exc.frame, 1.0, f"stopped at a bad frame, finished frames kept (done "
+                                   f"before it): {error}")
     results, cancelled = list(seq.frames), bool(seq.meta.get("cancelled", False))
     for k, r in zip(frames, results):
         if r is not None:
@@ -162,7 +182,8 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     return Analysis(results=results, strains=strains, frames=frames, n_frames=n,
                     params=params, reference=reference,
                     strain=strain if strain is not None else StrainSettings(),
-                    cancelled=cancelled, seconds=time.perf_counter() - t0, source=source)
+                    cancelled=cancelled, seconds=time.perf_counter() - t0, source=source,
+                    error=error)
 
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["shape_mask", "shapes_masks", "labels_mask", "points_xy", "to_image_pixels",
-           "build_roi", "CUT_TYPES"]
+__all__ = ["shape_mask", "shapes_masks", "labels_mask", "labels_fit", "points_xy",
+           "to_image_pixels", "build_roi", "CUT_TYPES"]
 
 #: open shapes (lines and paths) cut the ROI along their length: cracks
 CUT_TYPES = ("line", "path")
@@ -96,20 +96,67 @@ def shapes_masks(layer, image, image_shape) -> tuple[np.ndarray, np.ndarray]:
     return areas, cuts
 
 
-def labels_mask(layer, image_shape, frame: int = 0) -> np.ndarray:
-    """Nonzero pixels of a Labels layer of the image's size (a 3-D labels
-    stack gives its slice ``frame``)."""
+def _plane(layer, frame: int) -> np.ndarray:
+    """The 2-D plane of a Labels layer's data (frame ``frame`` of a 3-D stack)."""
     data = layer.data
     if getattr(layer, "multiscale", False):
         data = data[0]
-    if tuple(data.shape[-2:]) != tuple(image_shape):
-        raise ValueError(f"labels layer '{layer.name}' is {data.shape[-2]} x {data.shape[-1]} px "
-                         f"but the image is {image_shape[0]} x {image_shape[1]} px")
     if data.ndim == 3:
-        data = data[min(frame, data.shape[0] - 1)]
-    elif data.ndim != 2:
+        return np.asarray(data[min(frame, data.shape[0] - 1)])
+    if data.ndim != 2:
         raise ValueError(f"labels layer '{layer.name}' has {data.ndim} axes; use a 2-D one")
-    return np.asarray(data) != 0
+    return np.asarray(data)
+
+
+def _same_grid(layer, image, shape, image_shape) -> bool:
+    """Whether the labels' pixels are the image's pixels (same size and placement)."""
+    return (tuple(shape) == tuple(image_shape)
+            and np.allclose(np.asarray(layer.scale)[-2:], np.asarray(image.scale)[-2:])
+            and np.allclose(np.asarray(layer.translate)[-2:],
+                            np.asarray(image.translate)[-2:]))
+
+
+def _through_world(layer, image, plane: np.ndarray, image_shape, frame: int) -> np.ndarray:
+    """``plane`` (labels pixels) sampled at every image pixel through world
+    coordinates (nearest labels pixel; 0 outside the labels)."""
+    h, w = int(image_shape[0]), int(image_shape[1])
+    lead = [float(frame)] * (image.ndim - 2)
+    corners = [np.asarray(layer.world_to_data(image.data_to_world([*lead, r, c])),
+                          float)[-2:] for r, c in ((0, 0), (1, 0), (0, 1))]
+    o, dr, dc = corners[0], corners[1] - corners[0], corners[2] - corners[0]
+    rr, cc = np.mgrid[0:h, 0:w].astype(float)  # the map is affine: 3 points give it
+    lr = np.rint(o[0] + rr * dr[0] + cc * dc[0]).astype(np.int64)
+    lc = np.rint(o[1] + rr * dr[1] + cc * dc[1]).astype(np.int64)
+    inside = (lr >= 0) & (lr < plane.shape[0]) & (lc >= 0) & (lc < plane.shape[1])
+    out = np.zeros((h, w), bool)
+    out[inside] = plane[lr[inside], lc[inside]] != 0
+    return out
+
+
+def labels_fit(layer, image) -> bool:
+    """Whether a Labels layer covers exactly the pixels of the image layer
+    ``image`` (same frame size, scale and offset): made for that image."""
+    data = layer.data[0] if getattr(layer, "multiscale", False) else layer.data
+    img = image.data[0] if getattr(image, "multiscale", False) else image.data
+    return _same_grid(layer, image, tuple(data.shape[-2:]), tuple(img.shape[-2:]))
+
+
+def labels_mask(layer, image_shape, frame: int = 0, image=None) -> np.ndarray:
+    """Nonzero pixels of a Labels layer on the image's pixel grid (a 3-D labels
+    stack gives its slice ``frame``).
+
+    With the image layer ``image`` the labels are matched to it through world
+    coordinates, so a labels layer of another size or offset (e.g. napari's
+    'New labels layer' made while a Shapes layer was active) still lands on the
+    right pixels; without it the labels must have the image's size.
+    """
+    plane = _plane(layer, frame)
+    if image is not None and not _same_grid(layer, image, plane.shape, image_shape):
+        return _through_world(layer, image, plane, image_shape, frame)
+    if tuple(plane.shape) != tuple(image_shape):
+        raise ValueError(f"labels layer '{layer.name}' is {plane.shape[0]} x {plane.shape[1]} "
+                         f"px but the image is {image_shape[0]} x {image_shape[1]} px")
+    return plane != 0
 
 
 def points_xy(layer, image) -> np.ndarray:
@@ -140,15 +187,15 @@ def build_roi(image, image_shape, add_shapes=(), subtract_shapes=(), labels=None
     for layer in add_shapes:
         a, c = shapes_masks(layer, image, (h, w))
         cut |= c
-        if a.any() or len(layer.data):
-            any_add = any_add or a.any()
+        # drawn areas restrict the ROI even where they miss the image (then it is empty)
+        any_add = any_add or any(k not in CUT_TYPES for k in layer.shape_type)
         added |= a
         notes.append(f"+ shapes '{layer.name}' ({len(layer.data)} shapes)")
     if any_add:
         roi &= added
         restricted = True
     if labels is not None:
-        roi &= labels_mask(labels, (h, w), frame)
+        roi &= labels_mask(labels, (h, w), frame, image)
         restricted = True
         notes.append(f"& labels '{labels.name}' (nonzero)")
     for layer in subtract_shapes:

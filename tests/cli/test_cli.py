@@ -119,12 +119,12 @@ def test_run_pair_reproduces_demo(demo, tmp_path):
 
 def test_run_stack_writes_one_result_per_frame(stack_case, tmp_path):
     path, frames, fields = stack_case
-    out = tmp_path / "res.npz"
+    out = tmp_path / "res.npz"  # a stack: the run folder res/
     rc, text, err = _run(["run", path, "-o", out, "--step", 12])
     assert rc == 0, err
     assert "frame 1/2" in text and "frame 2/2" in text
     for k, field in enumerate(fields, start=1):
-        res = load_result(tmp_path / f"res_frame{k:03d}.npz")
+        res = load_result(tmp_path / "res" / f"frame_{k:05d}.npz")
         assert res.params.step == 12
         # only nodes whose subset moves out of the image may be flagged
         inner = (res.x > 20) & (res.x < 108) & (res.y > 20) & (res.y < 108)
@@ -140,7 +140,9 @@ def test_run_stack_into_folder_with_plot(stack_case, tmp_path):
     rc, _, err = _run(["run", path, "-o", tmp_path / "results", "--step", 16, "--plot"])
     assert rc == 0, err
     names = sorted(p.name for p in (tmp_path / "results").iterdir())
-    assert names == ["frame001.npz", "frame001.png", "frame002.npz", "frame002.png"]
+    assert names[:-2] == ["frame_00000.npz", "frame_00001.npz", "frame_00001.png",
+                          "frame_00002.npz", "frame_00002.png"]
+    assert names[-2].startswith("roi_") and names[-1] == "sequence.json"
 
 
 def test_run_folder_in_natural_order(stack_case, tmp_path):
@@ -154,7 +156,7 @@ def test_run_folder_in_natural_order(stack_case, tmp_path):
         skio.imsave(folder / name, img, check_contrast=False)
     rc, _, err = _run(["run", folder, "-o", tmp_path / "out", "--step", 16])
     assert rc == 0, err
-    res = load_result(tmp_path / "out" / "frame002.npz")
+    res = load_result(tmp_path / "out" / "frame_00002.npz")
     assert res.meta["inputs"]["reference"].endswith("img_2.png")
     assert res.meta["inputs"]["deformed"].endswith("img_100.png")
     assert np.median(res.u[res.valid]) == pytest.approx(fields[1].u, abs=0.02)
@@ -344,7 +346,7 @@ def test_run_stack_incremental_matches_truth(stack_case, tmp_path):
     rc, text, err = _run(["run", path, "-o", out, "--step", 12, "--reference", "incremental"])
     assert rc == 0, err
     assert "reference incremental" in text
-    res = load_result(out / "frame002.npz")
+    res = load_result(out / "frame_00002.npz")
     # results refer to frame 0 even though frame 2 was matched against frame 1
     assert np.abs(res.u[res.valid] - fields[1].u).max() < 0.02
     assert np.abs(res.v[res.valid] - fields[1].v).max() < 0.02
@@ -357,7 +359,7 @@ def test_run_several_files_track_against_the_first(demo, tmp_path):
     rc, text, err = _run(["run", ref, dfm, dfm, "-o", tmp_path / "seq", "--step", 16])
     assert rc == 0, err
     assert "frame 2/2" in text and "2 frames in" in text
-    a, b = (load_result(tmp_path / "seq" / f"frame00{k}.npz") for k in (1, 2))
+    a, b = (load_result(tmp_path / "seq" / f"frame_0000{k}.npz") for k in (1, 2))
     assert a.meta["inputs"]["deformed"] == b.meta["inputs"]["deformed"] == str(dfm)
     assert b.meta["inputs"]["reference"] == str(ref)
     np.testing.assert_allclose(a.u[a.valid & b.valid], b.u[a.valid & b.valid], atol=1e-3)

@@ -109,7 +109,7 @@ def test_params_command_run_params_out_and_units_in_results(tmp_path, export_sta
     assert doc["params"]["step"] == 16 and doc["params"]["subset"] == 21
     assert doc["units"] == {"pixel_size": 0.25, "unit": "mm", "frame_interval": None,
                             "time_unit": "s"}
-    res = load_result(tmp_path / "res" / "frame002.npz")
+    res = load_result(tmp_path / "res" / "frame_00002.npz")
     assert res.meta["units"]["unit"] == "mm"
     rc, out, err = _run(["export", tmp_path / "res", "--to", "csv", "--no-strain"])
     assert rc == 0, err

@@ -45,13 +45,13 @@ UM = Units(pixel_size=0.5, unit="µm", frame_interval=0.2, time_unit="s")
 #: the names docs/exports.md promises in a .mat file
 MAT_TOP = {"format", "format_version", "software", "pixel_size", "unit", "frame_interval",
            "time_unit", "frame", "time", "image_shape", "params_json", "params",
-           "strain_settings", "reason_codes", "source", "frames"}
+           "strain_settings", "reason_codes", "source", "untrusted_rule", "frames"}
 MAT_FRAME = {"frame", "time", "x_px", "y_px", "u_px", "v_px", "x", "y", "u", "v", "magnitude",
              "vx", "vy", "dudx", "dudy", "dvdx", "dvdy", "zncc", "valid", "reason",
              "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys", "exx", "eyy", "exy",
              "e1", "e2", "max_shear", "von_mises", "rotation", "exx_rate", "eyy_rate",
              "exy_rate", "strain_valid", "u_local", "v_local", "elements", "faces", "hanging",
-             "meta_json"}
+             "meta_json", "u_attempt", "v_attempt"}
 RESULT_FIELDS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc", "reason",
                  "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys", "u_local",
                  "v_local", "elements", "hanging", "roi")

@@ -4,11 +4,13 @@ Rules (issue 10):
 
 * import directions inside the engine: kernels -> kernels (+ numpy/numba/math);
   core -> core; dic -> core, kernels; io -> core, dic; viz -> core, io;
-  synthetic -> core, kernels; workflow -> any engine subpackage (each also its own);
+  synthetic -> core, kernels; probes -> core, io, dic, viz;
+  workflow -> any engine subpackage (each also its own);
 * the engine never imports napari, Qt bindings, magicgui, vispy, superqt, the plugin
   modules (``napari_aldic._*``), the CLI or anything else outside ``napari_aldic.engine``;
 * the CLI and the plugin modules use the engine's public API only:
-  ``napari_aldic.engine``, ``.engine.io``, ``.engine.viz``, ``.engine.synthetic``;
+  ``napari_aldic.engine``, ``.engine.io``, ``.engine.viz``, ``.engine.synthetic``,
+  ``.engine.probes``;
 * no module imports another module's ``_private`` name;
 * no import cycles among the package's modules (module-level imports);
 * no file over 600 lines (GUI files of the plugin: 400); no function over 80 lines
@@ -40,6 +42,7 @@ ENGINE_DEPS = {
     "io": {"core", "dic"},
     "viz": {"core", "io"},
     "synthetic": {"core", "kernels"},
+    "probes": {"core", "io", "dic", "viz"},
     "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic"},
 }
 #: the only outside packages the numba kernels may use
@@ -48,7 +51,8 @@ GUI_PACKAGES = {"napari", "qtpy", "PyQt5", "PyQt6", "PySide2", "PySide6", "magic
                 "superqt"}
 GUI_TOOLKITS = GUI_PACKAGES - {"napari", "vispy"}
 #: what the CLI and the plugin modules may import from the engine
-PUBLIC_ENGINE = {ENGINE, f"{ENGINE}.io", f"{ENGINE}.viz", f"{ENGINE}.synthetic"}
+PUBLIC_ENGINE = {ENGINE, f"{ENGINE}.io", f"{ENGINE}.viz", f"{ENGINE}.synthetic",
+                 f"{ENGINE}.probes"}
 
 MAX_FILE_LINES = 600
 MAX_GUI_FILE_LINES = 400

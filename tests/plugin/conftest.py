@@ -178,3 +178,45 @@ def save_screenshot():
     """``save_screenshot(viewer, path)``: full-window screenshot (dock widgets included)
     as a compact 256-colour PNG."""
     return _save_screenshot
+
+
+# ------------------------------------------------------------------ widget helpers
+@pytest.fixture(autouse=True)
+def _own_config_dir(tmp_path_factory, monkeypatch):
+    """Every test remembers its widget settings in a folder of its own (never the
+    user's configuration folder), so no test sees another one's last parameters."""
+    monkeypatch.setenv("NAPARI_ALDIC_CONFIG_DIR", str(tmp_path_factory.mktemp("config")))
+
+
+def _small_analysis():
+    from napari_aldic._analysis import run_analysis
+    from napari_aldic.engine import DICParams
+
+    stack = _render_stack(3, SHAPE)
+    roi = np.zeros(SHAPE, bool)
+    x0, y0, x1, y1 = ROI_RECT
+    roi[y0:y1, x0:x1] = True
+    return run_analysis(stack, roi, DICParams(method="local", subset=21, step=8), source="speckle")
+
+
+@pytest.fixture(scope="session")
+def small_analysis():
+    """A 3-frame Analysis of the (3, 192, 192) speckle stack inside ROI_RECT (local,
+    subset 21, step 8); read-only."""
+    return _small_analysis()
+
+
+def field_layer(viewer, key: str):
+    """The result layer of field ``key`` ("u", "exx", "displacement" ...), found by
+    its metadata (its name carries the unit)."""
+    from napari_aldic._qt.results import find_result_layer
+
+    layer = find_result_layer(viewer.layers, key)
+    assert layer is not None, f"no result layer {key!r} in {[lay.name for lay in viewer.layers]}"
+    return layer
+
+
+@pytest.fixture(scope="session")
+def result_layer():
+    """``result_layer(viewer, key)``: the result layer of field ``key``."""
+    return field_layer

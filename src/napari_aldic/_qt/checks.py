@@ -61,7 +61,7 @@ def problems(c: Choices) -> tuple[list[str], list[str]]:
         errors += _seed_problems(c.seeds, img, roi, rows, cols)
     if c.brush is not None:
         try:
-            labels_mask(c.brush, (rows, cols), c.start)
+            labels_mask(c.brush, (rows, cols), c.start, img)
         except ValueError as exc:
             errors.append(f"Refine region: {exc}")
         if c.reference != "accumulative":
@@ -80,8 +80,9 @@ def _stack_problem(img, shape) -> str | None:
                 "plugin's reader, which converts RGB to grey).")
     if len(shape) != 3 or shape[0] < 2:
         return (f"'{img.name}' has shape {shape}; DIC needs a stack (frames, rows, cols) with "
-                "at least two frames. Stack reference and deformed images into one layer "
-                "(File > Open with the napari-aldic reader, or Layers > Stack).")
+                "at least two frames. Open the reference and deformed images as one stack: "
+                "File > Open Files as Stack... (choose the napari-aldic reader), or "
+                "File > Open Folder... for a folder of images.")
     return None
 
 

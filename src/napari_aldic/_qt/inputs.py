@@ -9,14 +9,15 @@ Points layer holds seed points. Layers are preselected by their names
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import ExitStack
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from magicgui.widgets import ComboBox, Select
+from magicgui.widgets import ComboBox, Container, PushButton, Select
 from psygnal import Signal
 
-from .._layers import LAYER_NAMES
-from .._roi import build_roi, labels_mask, points_xy
+from .._layers import is_result_name
+from .._roi import build_roi, labels_fit, labels_mask, points_xy
 from .controls import Panel, section
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -30,7 +31,24 @@ SUBTRACT_WORDS = ("hole", "crack", "mask", "exclude", "subtract", "notch", "cut"
 
 def is_result_layer(layer) -> bool:
     """Whether ``layer`` is one of the plugin's result layers (never an input)."""
-    return layer.name in LAYER_NAMES or "napari_aldic_analysis" in getattr(layer, "metadata", {})
+    meta = getattr(layer, "metadata", {}) or {}
+    return ("napari_aldic_analysis" in meta or "field" in (meta.get("napari_aldic") or {})
+            or is_result_name(layer.name))
+
+
+class OptionalLayer(ComboBox):
+    """A layer choice that may be empty; choosing "(none)" is a change like any other
+    (magicgui does not report a change to ``None`` unless the choice is nullable)."""
+
+    null_string = "(none)"
+
+    def __init__(self, **kwargs):
+        super().__init__(nullable=True, **kwargs)
+
+
+#: the panel's layer choices: attribute -> (layer kind, what it is for)
+ROLES = {"roi_add": "Shapes", "roi_subtract": "Shapes", "roi_labels": "Labels",
+         "brush": "Labels", "seeds": "Points"}
 
 
 class InputsPanel(Panel):
@@ -52,14 +70,13 @@ class InputsPanel(Panel):
         super().__init__()
 
     # ------------------------------------------------------------ setup
-    def _layers_of(self, kind: str, optional: bool = False):
+    def _layers_of(self, kind: str):
         def choices(_widget=None):
             import napari.layers as nl
 
             cls = getattr(nl, kind)
-            out = [(lay.name, lay) for lay in self._viewer.layers
-                   if isinstance(lay, cls) and not is_result_layer(lay)]
-            return ([("(none)", None)] if optional else []) + out
+            return [(lay.name, lay) for lay in self._viewer.layers
+                    if isinstance(lay, cls) and not is_result_layer(lay)]
         return choices
 
     def _setup_ui(self) -> None:
@@ -77,18 +94,30 @@ class InputsPanel(Panel):
                                            "ROI (holes, notches, background). Layers named "
                                            "like 'hole', 'crack', 'mask' are chosen here "
                                            "automatically.")
-        self.roi_labels = ComboBox(label="ROI labels", choices=layers_of("Labels", True),
-                                   tooltip="Labels layer: nonzero pixels are analysed "
-                                           "(intersected with the ROI shapes).")
-        self.brush = ComboBox(label="Refine region", choices=layers_of("Labels", True),
-                              tooltip="Labels layer painted with the brush: the mesh is "
-                                      "refined where it is nonzero (quadtree).")
-        self.seeds = ComboBox(label="Seeds (points)", choices=layers_of("Points", True),
-                              tooltip="Points layer of seed points for the 'seed points' "
-                                      "initial guess: at least one per connected ROI "
-                                      "region, on well-textured material.")
-        self.extend([section("Input"), self.image, self.roi_add, self.roi_subtract,
-                     self.roi_labels, self.brush, self.seeds])
+        self.roi_labels = OptionalLayer(label="ROI labels", choices=layers_of("Labels"),
+                                        tooltip="Labels layer: nonzero pixels are analysed "
+                                                "(intersected with the ROI shapes). It is "
+                                                "matched to the image through world "
+                                                "coordinates.")
+        self.brush = OptionalLayer(label="Refine region", choices=layers_of("Labels"),
+                                   tooltip="Labels layer painted with the brush: the mesh is "
+                                           "refined where it is nonzero (quadtree).")
+        self.seeds = OptionalLayer(label="Seeds (points)", choices=layers_of("Points"),
+                                   tooltip="Points layer of seed points for the 'seed "
+                                           "points' initial guess: at least one per "
+                                           "connected ROI region, on well-textured "
+                                           "material.")
+        self.new_roi_labels = PushButton(text="New ROI labels",
+                                         tooltip="A Labels layer of the image's size to "
+                                                 "paint the analysed region in.")
+        self.new_refine = PushButton(text="New refine region",
+                                     tooltip="A Labels layer of the image's size to paint "
+                                             "where the mesh is refined.")
+        buttons = Container(widgets=[self.new_roi_labels, self.new_refine],
+                            layout="horizontal", labels=False)
+        buttons.margins = (0, 0, 0, 0)
+        self.extend([self.image, self.roi_add, self.roi_subtract, self.roi_labels,
+                     self.brush, self.seeds, buttons])
         for sel in (self.roi_add, self.roi_subtract):
             sel.native.setMaximumHeight(64)
         from qtpy.QtWidgets import QComboBox
@@ -107,7 +136,9 @@ class InputsPanel(Panel):
         for lay in list(layers):
             self._watch(lay)
         for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds):
-            w.changed.connect(self.inputs_changed.emit)
+            w.changed.connect(self._emit_changed)
+        self.new_roi_labels.changed.connect(lambda *_: self.new_labels("roi_labels"))
+        self.new_refine.changed.connect(lambda *_: self.new_labels("brush"))
 
     def assign_existing_layers(self) -> None:
         """Preselect inputs among the layers already in the viewer."""
@@ -118,8 +149,8 @@ class InputsPanel(Panel):
         """A function that stops following the viewer's layers (the widget is
         closed). It holds what it needs, so it works while the panel is torn down."""
         layers = self._viewer.layers
-        on_inserted, on_changed, on_data = (self._on_inserted, self._on_layers_changed,
-                                            self._emit_changed)
+        on_inserted, on_changed, on_data, on_renamed = (
+            self._on_inserted, self._on_layers_changed, self._emit_changed, self._on_renamed)
 
         def disconnect() -> None:
             for emitter, slot in ((layers.events.inserted, on_inserted),
@@ -127,7 +158,7 @@ class InputsPanel(Panel):
                                   (layers.events.moved, on_changed)):
                 emitter.disconnect(slot)
             for lay in list(layers):
-                lay.events.name.disconnect(on_changed)
+                lay.events.name.disconnect(on_renamed)
                 if hasattr(lay.events, "data"):
                     lay.events.data.disconnect(on_data)
         return disconnect
@@ -137,7 +168,7 @@ class InputsPanel(Panel):
         self.inputs_changed.emit()
 
     def _watch(self, layer) -> None:
-        layer.events.name.connect(self._on_layers_changed)
+        layer.events.name.connect(self._on_renamed)
         if layer.__class__.__name__ in ("Shapes", "Labels", "Points"):
             layer.events.data.connect(self._emit_changed)
 
@@ -147,7 +178,7 @@ class InputsPanel(Panel):
             self._watch(layer)
             if is_result_layer(layer):
                 return  # never an input: nothing to update
-        self.reset_choices()
+        self.refresh_choices()
         if layer is not None:
             self.auto_assign(layer)
         if self.image.value is None:
@@ -159,22 +190,66 @@ class InputsPanel(Panel):
         if layer is not None and is_result_layer(layer) and getattr(event, "type", "") == \
                 "removed":
             return
-        self.reset_choices()
+        self.refresh_choices()
         self.inputs_changed.emit()
 
-    def auto_assign(self, layer) -> None:
+    def _on_renamed(self, event=None) -> None:
+        """A layer was renamed: the choices follow the layer object, and a name that
+        now says what the layer is for (e.g. 'hole', 'refine') is read again."""
+        layer = getattr(event, "source", None)
+        if layer is not None and is_result_layer(layer):
+            return
+        self.refresh_choices()
+        if layer is not None:
+            self.auto_assign(layer, renamed=True)
+        self.inputs_changed.emit()
+
+    def refresh_choices(self) -> None:
+        """Rebuild the choices from the layer list, keeping every chosen layer that is
+        still there (magicgui matches choices by name, which a rename changes)."""
+        layers = list(self._viewer.layers)
+
+        def present(lay) -> bool:
+            return any(lay is other for other in layers)
+
+        combos = (self.image, self.roi_labels, self.brush, self.seeds)
+        selects = (self.roi_add, self.roi_subtract)
+        before = {w: w.value for w in combos} | {w: list(w.value) for w in selects}
+        with ExitStack() as stack:
+            for w in (*combos, *selects):
+                stack.enter_context(w.changed.blocked())
+            self.reset_choices()
+            for w in combos:
+                if before[w] is not None and present(before[w]):
+                    w.value = before[w]
+            for w in selects:
+                w.value = [lay for lay in before[w] if present(lay)]
+        for w in (*combos, *selects):
+            now = w.value if w in combos else list(w.value)
+            if now is not before[w] and now != before[w]:
+                w.changed.emit(now)
+
+    def auto_assign(self, layer, renamed: bool = False) -> None:
         """Preselect inputs by layer name: Shapes named 'hole'/'crack'/... -> subtract,
         other Shapes -> ROI; Labels 'roi' -> ROI labels, 'refine'/'brush' -> refinement
-        region; Points 'seed' -> seeds."""
+        region (only labels that fit the chosen image); Points 'seed' -> seeds.
+
+        ``renamed``: the layer was renamed; a Shapes layer of the ROI renamed like a
+        hole moves to the holes, and no new Shapes layer is added to the ROI."""
         kind = layer.__class__.__name__
         name = layer.name.lower()
         if kind == "Shapes":
-            # holes by name; every other Shapes layer (e.g. a new "Shapes") adds to the ROI
-            target = (self.roi_subtract if any(w in name for w in SUBTRACT_WORDS)
-                      else self.roi_add)
-            if layer not in target.value:
-                target.value = [*target.value, layer]
+            hole = any(w in name for w in SUBTRACT_WORDS)
+            if hole and layer not in self.roi_subtract.value:
+                self.roi_add.value = [lay for lay in self.roi_add.value if lay is not layer]
+                self.roi_subtract.value = [*self.roi_subtract.value, layer]
+            elif not hole and not renamed and layer not in self.roi_add.value:
+                # every other new Shapes layer (e.g. a new "Shapes") adds to the ROI
+                self.roi_add.value = [*self.roi_add.value, layer]
         elif kind == "Labels":
+            img = self.image.value
+            if img is not None and not labels_fit(layer, img):
+                return  # another image's labels (e.g. of a second sample)
             if ("refine" in name or "brush" in name) and self.brush.value is None:
                 self.brush.value = layer
             elif "roi" in name and self.roi_labels.value is None:
@@ -182,6 +257,35 @@ class InputsPanel(Panel):
         elif kind == "Points" and "seed" in name and self.seeds.value is None:
             self.seeds.value = layer
             self.seeds_assigned.emit()
+
+    def match_image(self) -> None:
+        """The chosen image changed: labels that do not fit it are let go, and the
+        ones named for it that fit are chosen."""
+        img = self.image.value
+        if img is None:
+            return
+        for combo in (self.roi_labels, self.brush):
+            if combo.value is not None and not labels_fit(combo.value, img):
+                combo.value = None
+        for lay in list(self._viewer.layers):
+            if lay.__class__.__name__ == "Labels" and not is_result_layer(lay):
+                self.auto_assign(lay, renamed=True)
+
+    def new_labels(self, role: str):
+        """A new Labels layer of the chosen image's size and placement, chosen as the
+        ROI labels (``role="roi_labels"``) or the refine region (``"brush"``)."""
+        img = self.image.value
+        if img is None:
+            raise ValueError("choose an image stack first")
+        shape = tuple(self.stack_data.shape[-2:])
+        name = "ROI labels" if role == "roi_labels" else "refine region"
+        layer = self._viewer.add_labels(np.zeros(shape, np.uint8), name=name,
+                                        scale=tuple(img.scale)[-2:],
+                                        translate=tuple(img.translate)[-2:], opacity=0.4)
+        getattr(self, role).value = layer
+        layer.mode = "paint"
+        self._viewer.layers.selection.active = layer
+        return layer
 
     def choose_first_image(self) -> bool:
         """Choose the first image layer when none is chosen; True if one was."""
@@ -234,7 +338,7 @@ class InputsPanel(Panel):
         """The painted refine region (``None``: no layer or nothing painted)."""
         if self.brush.value is None:
             return None
-        mask = labels_mask(self.brush.value, image_shape, frame)
+        mask = labels_mask(self.brush.value, image_shape, frame, self.image.value)
         return mask if mask.any() else None
 
     def seed_points(self) -> tuple:

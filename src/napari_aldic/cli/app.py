@@ -10,11 +10,12 @@ from .demo import demo_command
 from .export import export_command
 from .params import params_command
 from .parser import build_parser
+from .probe import probe_command
 from .run import run_command
 
 #: command name -> function(args) returning the exit code (None: 0)
 COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
-            "params": params_command}
+            "params": params_command, "probe": probe_command}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,6 +4,7 @@ against the exact truth, and the files to analyse it again."""
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 
@@ -20,9 +21,12 @@ def demo_command(args) -> None:
     print(f"{PROG} demo: {args.size} x {args.size} synthetic speckle pair, 8-bit, "
           f"noise {args.noise:g} grey levels")
     print(f"  field: {case.description}")
+    warm = _warm_up(args)
+    print(f"  warm-up: {warm:.1f} s (Numba compiles the kernels on a first run, later runs "
+          "load them from its cache; not part of the analysis time)")
     res = correlate(case.reference, case.deformed, roi=case.roi, subset=args.subset,
                     step=args.step, method=args.method, progress=progress_bar("  correlate"))
-    print("  " + counts_line(res))
+    print("  analysis: " + counts_line(res))
     stats = _errors(res, case)
     print(f"  error against the exact truth over the {res.n_valid} valid nodes:")
     print(f"    u: RMSE {stats['rmse_u']:.4f} px, max {stats['max_u']:.4f} px")
@@ -34,6 +38,17 @@ def demo_command(args) -> None:
     print(f"  {out}")
     print(f"  analyse them again with: {PROG} run {out / 'reference.tif'} "
           f"{out / 'deformed.tif'}{roi_opt} --params {out / 'params.json'} -o result.npz")
+
+
+def _warm_up(args) -> float:
+    """Correlate a small pair of the same kind with the same settings, so that
+    compiling (or loading) the kernels is timed apart from the analysis; seconds."""
+    size = max(4 * args.subset, 128)
+    small = make_case(args.field, (size, size), noise=args.noise, seed=args.seed + 1)
+    t0 = time.perf_counter()
+    correlate(small.reference, small.deformed, roi=small.roi, subset=args.subset,
+              step=args.step, method=args.method)
+    return time.perf_counter() - t0
 
 
 def _errors(res, case) -> dict[str, float]:

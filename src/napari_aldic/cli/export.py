@@ -6,11 +6,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..engine import EncoderNotFoundError, export_result
+from ..engine import EncoderNotFoundError, Units, export_result
 from ..engine.io import collect_frames
 from .console import PROG, CLIError
 from .parser import EXPORT_FORMATS
-from .settings import settings_from_args
+from .settings import UNIT_OPTIONS, settings_file, settings_from_args, units_from_args
 
 #: file name ending of each format
 SUFFIX = {"mat": ".mat", "csv": ".csv", "vtu": ".vtu", "davis": ".txt", "png": ".png",
@@ -25,7 +25,8 @@ def export_command(args) -> int:
     settings = settings_from_args(args, args.settings)
     strain = False if args.no_strain else (settings.strain or True)
     # read the results (and compute strain) once for every format
-    frames, units, _ = collect_frames(data, strain=strain, units=settings.units)
+    frames, _, _ = collect_frames(data, strain=strain)
+    units = _units(args, Units.from_meta(frames[0].result.meta))
     base = _export_base(list(args.inputs), args.output)
     single = len(formats) == 1 and base.suffix.lower() in SUFFIX.values()
     if base.suffix.lower() in SUFFIX.values() and not single:
@@ -39,6 +40,28 @@ def export_command(args) -> int:
                 opts.update(units=units, strain=strain)
             failed += not _write(frames, target, fmt, opts)
     return 2 if failed else 0
+
+
+def _units(args, stored: Units | None) -> Units:
+    """The units of the export: those stored in the result, with the units of
+    ``--settings`` and the unit options applied over them; a warning line says
+    when they replace what the result says."""
+    file_units = settings_file(args.settings).units
+    units = units_from_args(args, file_units if file_units is not None else stored) or Units()
+    if stored is None:
+        return units
+    changed = [k for k in ("pixel_size", "unit") if getattr(units, k) != getattr(stored, k)]
+    if stored.has_time:  # a frame interval added to a result without one replaces nothing
+        changed += [k for k in ("frame_interval", "time_unit")
+                    if getattr(units, k) != getattr(stored, k)]
+    if changed:
+        given = [f"--{k.replace('_', '-')}" for k in UNIT_OPTIONS
+                 if getattr(args, k, None) is not None]
+        by = ", ".join(given + (["--settings"] if file_units is not None else []))
+        print(f"{PROG}: warning: {by} override the units stored in the result "
+              f"({stored.describe()}); exporting with {units.describe()}",
+              file=sys.stderr, flush=True)
+    return units
 
 
 def _formats(items: list[str]) -> list[str]:

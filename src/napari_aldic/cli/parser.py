@@ -26,7 +26,8 @@ TEXTS = {
         "analyse an image pair, a TIFF stack or a folder of images",
         "Correlate images against a reference. INPUT is either REF DEF "
         "[DEF ...] (one image per file), or one multi-page TIFF stack or one "
-        "folder of images (natural sort order); frame 0 is the reference."),
+        "folder of images (natural sort order); frame 0 is the reference. A "
+        "stack writes a run folder (the format of track), resumed by rerunning."),
     "params": (
         "write a parameter file (defaults, a file, and options)",
         "Write the analysis settings as readable JSON: the defaults, or "
@@ -39,6 +40,13 @@ TEXTS = {
         "export, or a run folder (written by 'run -o FOLDER' or track). "
         "Outputs are named OUT.<ext> (images OUT_<field>.png, one per frame "
         "for a sequence: OUT_<field>_frame#####.png). See docs/exports.md."),
+    "probe": (
+        "line gauges, crack opening, points, areas and stress over the frames",
+        "Measure probes at every frame of RUN (a run folder or a result file), in "
+        "reference-image pixels: line gauges (strain, true strain, elongation, crack "
+        "opening/sliding), points and areas; with --load, the testing machine's load "
+        "and the engineering stress. Writes one CSV row per frame (and OUT.json: units "
+        "and probes). See docs/probes.md."),
 }
 
 
@@ -52,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_run(sub)
     add_params(sub)
     add_export(sub)
+    add_probe(sub)
     return parser
 
 
@@ -86,8 +95,11 @@ def add_run(sub) -> None:
                      help="ROI mask: image file (nonzero = analysed) or .npy array")
     add_param_options(run)
     run.add_argument("-o", "--output", type=Path, metavar="OUT",
-                     help="OUT.npz (a stack writes OUT_frame###.npz) or a folder "
-                          "(writes frame###.npz); default ./aldic_result.npz")
+                     help="a pair: OUT.npz (default ./aldic_result.npz); a stack, or a "
+                          "folder given here: a run folder (sequence.json + "
+                          "frame_#####.npz; OUT.npz means the folder OUT; default "
+                          "./aldic_result) that the same command resumes and that is "
+                          "refused when it holds another analysis")
     run.add_argument("--plot", action="store_true",
                      help="also write a PNG figure of u and v beside each result")
     run.add_argument("--reference", choices=REFERENCE_MODES, default="accumulative",
@@ -138,6 +150,42 @@ def add_export(sub) -> None:
     exp.add_argument("--encoding", choices=("binary", "ascii"), default="binary",
                      help="VTU data encoding (default binary = base64)")
     exp.add_argument("--dpi", type=int, default=150, help="PNG resolution (default 150)")
+
+
+def add_probe(sub) -> None:
+    prb = _command(sub, "probe")
+    prb.add_argument("run", type=Path, metavar="RUN", help="run folder or result file")
+    xy = {"type": float, "action": "append"}
+    prb.add_argument("--line", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
+                     help="line gauge between two points, px (repeat for more)")
+    prb.add_argument("--point", nargs=2, metavar=("X", "Y"), **xy, help="point probe, px")
+    prb.add_argument("--area", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
+                     help="rectangular area probe, px")
+    prb.add_argument("--circle", nargs=3, metavar=("CX", "CY", "R"), **xy,
+                     help="circular area probe, px")
+    prb.add_argument("--probes", type=Path, metavar="FILE.json",
+                     help="probes from a file (e.g. the OUT.json of an earlier probe run)")
+    prb.add_argument("--field", nargs="+", dest="fields", metavar="FIELD",
+                     help="fields of point and area probes (default u v exx eyy exy)")
+    prb.add_argument("--load", type=Path, metavar="LOAD.csv", help="testing-machine CSV")
+    prb.add_argument("--load-column", dest="load_column", metavar="NAME",
+                     help="name of the load column (default: found by name)")
+    prb.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
+                     help="cross-section in mm² (stress = load / A in MPa)")
+    prb.add_argument("--sync", choices=("frame", "time"),
+                     help="match load rows to frames by a frame column, or by time = "
+                          "frame / fps + offset (default: frame when the file has one)")
+    prb.add_argument("--fps", type=float, metavar="F", help="camera frames per second")
+    prb.add_argument("--offset", type=float, default=0.0, metavar="S",
+                     help="time of frame 0 on the load file's clock, s (default 0)")
+    prb.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.csv")
+    prb.add_argument("--plot", nargs="+", choices=("png", "pdf"),
+                     help="also write the curves (and stress-strain) as OUT.png/OUT.pdf")
+    prb.add_argument("--kymograph", nargs="+", metavar="FIELD",
+                     help="also write FIELD along each line at every frame "
+                          "(OUT_line<i>_<FIELD>.csv)")
+    add_unit_options(prb)
+    add_strain_options(prb)
 
 
 # ----------------------------------------------------------------- shared options

@@ -1,5 +1,7 @@
 """``napari-aldic run``: correlate a pair, a TIFF stack or a folder of images
-against frame 0 and write one result file per deformed frame."""
+against frame 0. A pair given ``-o OUT.npz`` writes one result file; a stack
+(or any input given ``-o FOLDER``) writes a run folder in ``track``'s format
+(``sequence.json``, ``frame_#####.npz``), which the same command resumes."""
 
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from .settings import settings_from_args
 
 
 def run_command(args) -> None:
-    """``napari-aldic run``: every frame against frame 0, one result file each."""
+    """``napari-aldic run``: every frame against frame 0."""
     settings = settings_from_args(args, args.params)
     params, units = settings.params, settings.units
     roi = read_mask(args.roi) if args.roi is not None else None
@@ -25,36 +27,74 @@ def run_command(args) -> None:
         print(f"parameters written to {write_settings(args.params_out, used).resolve()}")
     with FrameSource(args.inputs) as src:
         n = len(src)
-        outputs = output_paths(args.output, list(range(1, n)), stack=n > 2)
+        folder = run_folder_of(args.output, pair=n == 2 and args.reference == "accumulative")
         print(f"{PROG} run: reference {src.frame_name(0)}, {n - 1} deformed frame(s); subset "
               f"{params.subset} px, step {params.step} px, method {params.method}, "
               f"reference {args.reference}")
-        t0 = time.perf_counter()
-
-        def save(k: int, res) -> None:
-            res.meta["inputs"] = {"reference": src.frame_name(0), "deformed": src.frame_name(k),
-                                  "frame": k, "roi": None if args.roi is None else str(args.roi)}
+        if folder is None:
+            out = Path("aldic_result.npz") if args.output is None else args.output.expanduser()
+            res = correlate(src[0], src[1], roi=roi, params=params,
+                            progress=progress_bar("  frame 1/1"))
+            res.meta["inputs"] = {"reference": src.frame_name(0),
+                                  "deformed": src.frame_name(1), "frame": 1,
+                                  "roi": None if args.roi is None else str(args.roi)}
             if units is not None:  # carried with the result into every export
                 res.meta["units"] = units.to_dict()
-            _save_result(res, outputs[k], f"frame {k}/{n - 1} ({src.frame_name(k)})",
-                         src if args.plot else None)
-
-        if n == 2 and args.reference == "accumulative":
-            save(1, correlate(src[0], src[1], roi=roi, params=params,
-                              progress=progress_bar("  frame 1/1")))
-        else:
-            # a sequence: results refer to frame 0; the previous frame is the guess
-            track(src, roi=roi, params=params, reference=args.reference,
-                  progress=sequence_progress(n - 1), on_frame=save)
-        if n > 2:
-            clear_bar()
-            print(f"{n - 1} frames in {time.perf_counter() - t0:.2f} s")
+            _report(res, _save(res, out), f"frame 1/1 ({src.frame_name(1)})",
+                    src if args.plot else None)
+            return
+        _run_folder(src, folder, roi, params, units, args)
 
 
-def _save_result(res, path: Path, title: str, plot_src=None) -> None:
-    """Save one result, print its summary and (given the frames) its figure."""
+def _run_folder(src, folder: Path, roi, params, units, args) -> None:
+    """Track the stack into the run folder ``folder`` (resuming it)."""
+    n = len(src)
+    print(f"  run folder {folder.resolve()} (rerun the same command to resume)")
+    loaded: list[int] = []
+    bar = sequence_progress(n - 1)
+
+    def progress(k: int, frac: float, msg: str) -> None:
+        if "loaded from" in msg:
+            loaded.append(k)
+        if bar is not None:
+            bar(k, frac, msg)
+
+    def show(k: int, res) -> None:
+        path = folder / f"frame_{k:05d}.npz"
+        _report(res, path, f"frame {k}/{n - 1} ({src.frame_name(k)})",
+                src if args.plot else None)
+
+    t0 = time.perf_counter()
+    track(src, roi=roi, params=params, reference=args.reference, out_dir=folder,
+          meta={"units": units.to_dict()} if units is not None else None,
+          progress=progress, on_frame=show)
+    clear_bar()
+    done = n - 1 - len(loaded)
+    print(f"{done} frames in {time.perf_counter() - t0:.2f} s"
+          + (f"; {len(loaded)} finished frame(s) resumed from {folder}" if loaded else ""))
+
+
+def run_folder_of(output: Path | None, pair: bool) -> Path | None:
+    """The run folder of ``-o`` (``None``: a pair written to one ``.npz``):
+    ``FOLDER`` as given, ``OUT.npz`` of a stack becomes the folder ``OUT``,
+    no ``-o`` the folder ``./aldic_result`` (``./aldic_result.npz`` for a pair)."""
+    if output is None:
+        return None if pair else Path("aldic_result")
+    out = output.expanduser()
+    if out.suffix.lower() == ".npz":
+        return None if pair else out.with_suffix("")
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"output {out} exists and is not a folder; give OUT.npz or a folder")
+    return out
+
+
+def _save(res, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path = res.save(path)
+    return res.save(path)
+
+
+def _report(res, path: Path, title: str, plot_src=None) -> None:
+    """Print one saved result's summary and (given the frames) write its figure."""
     clear_bar()
     print(f"{title}:")
     for line in frame_summary(res):
@@ -65,19 +105,6 @@ def _save_result(res, path: Path, title: str, plot_src=None) -> None:
         png = plot_displacement(res, path.with_suffix(".png"), image=plot_src[0],
                                 title=f"frame {k}: {plot_src.frame_name(k)}")
         print(f"  -> {png.resolve()}")
-
-
-def output_paths(output: Path | None, frames: list[int], stack: bool) -> dict[int, Path]:
-    """Result file of every deformed frame (see the ``-o`` help); folders are
-    created only when a result is saved."""
-    out = Path("aldic_result.npz") if output is None else output.expanduser()
-    if out.suffix.lower() == ".npz":
-        if not stack:
-            return {frames[0]: out}
-        return {k: out.with_name(f"{out.stem}_frame{k:03d}.npz") for k in frames}
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"output {out} exists and is not a folder; give OUT.npz or a folder")
-    return {k: out / f"frame{k:03d}.npz" for k in frames}
 
 
 def read_mask(path: Path) -> np.ndarray:

@@ -25,8 +25,8 @@ from __future__ import annotations
 import importlib
 import warnings
 
-from . import io, synthetic, viz
-from .core.files import EncoderNotFoundError, ExportError
+from . import io, probes, synthetic, viz
+from .core.files import EncoderNotFoundError, ExportError, RunFolderError
 from .core.params import DICParams
 from .core.progress import Cancelled
 from .core.reasons import Reason
@@ -41,7 +41,7 @@ from .io.settings_file import load_params, save_params
 from .io.stack import open_stack
 from .viz.report import export_report
 from .workflow.export import export_result
-from .workflow.sequence import track
+from .workflow.sequence import TrackError, track
 
 __all__ = [
     # analysis
@@ -52,9 +52,9 @@ __all__ = [
     "load_run", "open_stack",
     # files
     "export_result", "export_report", "save_params", "load_params",
-    "ExportError", "EncoderNotFoundError",
+    "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
     # subpackages
-    "io", "viz", "synthetic",
+    "io", "viz", "synthetic", "probes",
 ]
 
 #: names this module exported before the engine was split into subpackages;

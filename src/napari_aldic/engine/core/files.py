@@ -1,13 +1,23 @@
-"""Errors and atomic writes shared by every file the engine writes."""
+"""Errors and atomic writes shared by every file the engine writes; the lock,
+temporary-file cleanup and content digests of run folders."""
 
 from __future__ import annotations
 
 import errno
+import hashlib
+import json
 import os
+import secrets
+import socket
+import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from contextlib import contextmanager
+from functools import lru_cache
 from pathlib import Path
+
+import numpy as np
 
 
 # =================================================================== errors
@@ -28,6 +38,18 @@ class ExportError(OSError):
 
 class EncoderNotFoundError(RuntimeError):
     """The video encoder (ffmpeg through ``imageio-ffmpeg``) is not available."""
+
+
+class RunFolderError(ValueError):
+    """A run folder cannot be used for this run: it holds another analysis,
+    an input changed since its frames were computed, its manifest is from an
+    older version, or another process is writing it (``owner`` then describes
+    that process: pid, host, start time, command). ``folder`` is the folder."""
+
+    def __init__(self, message: str, folder=None, owner: dict | None = None):
+        super().__init__(message)
+        self.folder = None if folder is None else str(folder)
+        self.owner = owner
 
 
 def explain_os_error(exc: OSError, path: Path) -> ExportError:
@@ -107,10 +129,16 @@ def atomic_write(path):
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
     except OSError as exc:
         raise explain_os_error(exc, path) from None
+    made = os.fstat(fd)
     os.close(fd)
     tmp = Path(tmp)
     try:
         yield tmp
+        now = os.lstat(tmp)
+        if (now.st_ino, now.st_dev) != (made.st_ino, made.st_dev):
+            # swapped for another file or a link while we wrote: never rename it
+            raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
+                              "replaced by another program during the write", path)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600
         os.replace(tmp, path)
     except ExportError:
@@ -127,3 +155,206 @@ def atomic_write(path):
 def numbered_path(path: Path, k: int) -> Path:
     """``path`` with ``_frame#####`` before the suffix: one file per frame."""
     return path.with_name(f"{path.stem}_frame{k:05d}{path.suffix}")
+
+
+# =================================================================== digests
+def array_digest(arr) -> str:
+    """SHA-256 (hex) of an array's dtype, shape and values: equal digests mean
+    equal arrays (used to identify ROIs, refinement brushes and frames)."""
+    a = np.ascontiguousarray(arr)
+    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+    h.update(memoryview(a.reshape(-1).view(np.uint8)))
+    return h.hexdigest()
+
+
+# =================================================================== ROI files
+ROI_FORMAT = "napari-aldic-roi"
+
+
+def write_roi_file(folder, roi) -> dict:
+    """Store ``roi`` once in ``folder`` as ``roi_<digest>.npz`` (bit-packed;
+    named by its content, so an existing file is reused) and return the
+    reference a result file keeps instead of its own copy:
+    ``{"file": name, "sha256": digest}``."""
+    roi = np.asarray(roi, bool)
+    digest = array_digest(roi)
+    path = Path(folder) / f"roi_{digest[:16]}.npz"
+    if not path.is_file():
+        head = json.dumps({"format": ROI_FORMAT, "sha256": digest, "shape": list(roi.shape)})
+        with atomic_write(path) as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(fh, header=np.array(head), roi_packed=np.packbits(roi, axis=None))
+    return {"file": path.name, "sha256": digest}
+
+
+def read_roi_file(path, digest: str, shape) -> np.ndarray:
+    """The ROI stored by :func:`write_roi_file` (read-only; results of one run
+    share one array). Raises ``ValueError`` naming the file when it is
+    missing, unreadable or not the ROI ``digest`` the result refers to."""
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError:
+        raise ValueError(f"the ROI file {path} that this result refers to is missing; keep "
+                         f"result files together with the roi_*.npz files of their run "
+                         "folder") from None
+    return _read_roi(str(path), st.st_mtime_ns, st.st_size, digest, tuple(shape))
+
+
+@lru_cache(maxsize=4)
+def _read_roi(path: str, mtime_ns: int, size: int, digest: str, shape: tuple) -> np.ndarray:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            bits = np.unpackbits(z["roi_packed"], count=int(np.prod(shape)))
+        roi = bits.reshape(shape).astype(bool)
+    except Exception as exc:  # any damage: the file is named below
+        raise ValueError(f"cannot read the ROI file {path}: {exc}") from None
+    if array_digest(roi) != digest:
+        raise ValueError(f"the ROI file {path} does not hold the ROI its results were "
+                         "computed with (damaged or replaced)")
+    roi.flags.writeable = False
+    return roi
+
+
+# =================================================================== run folders
+LOCK_NAME = ".napari-aldic.lock"
+#: an empty or unreadable lock older than this (s) was left by a process killed
+#: between creating and filling it
+_UNREADABLE_LOCK_AGE = 30.0
+#: tokens of the locks this process holds (a lock naming our pid but none of
+#: these was left by an earlier process that had the same pid)
+_HELD: set[str] = set()
+
+
+def clean_temporaries(folder) -> list[str]:
+    """Remove the temporaries (``*.part``, files or links) that killed runs
+    left in the run ``folder``; call it while holding the folder's lock (no
+    write of another process can then be in progress). Returns their names."""
+    gone = []
+    for entry in os.scandir(folder):
+        if entry.name.endswith(".part") and not entry.is_dir(follow_symlinks=False):
+            _remove(Path(entry.path))  # unlink: a planted link is removed, never followed
+            gone.append(entry.name)
+    return gone
+
+
+@contextmanager
+def folder_lock(folder):
+    """Hold the exclusive lock of a run ``folder`` for the ``with`` block.
+
+    The lock is the file ``.napari-aldic.lock``, created atomically
+    (``O_CREAT | O_EXCL``) with the owner's pid, host, start time and command.
+    A lock whose process has died on this host is taken over; any other
+    existing lock raises :class:`RunFolderError` naming the folder and the
+    owner. The lock is removed when the block ends.
+    """
+    path = Path(folder) / LOCK_NAME
+    me = {"pid": os.getpid(), "host": socket.gethostname(),
+          "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+          "command": " ".join(sys.argv)[:300], "token": secrets.token_hex(8)}
+    _acquire(path, me)
+    _HELD.add(me["token"])
+    try:
+        yield
+    finally:
+        _HELD.discard(me["token"])
+        owner, _ = _read_lock(path)
+        if owner is not None and owner.get("token") == me["token"]:
+            _remove(path)
+
+
+def _acquire(path: Path, me: dict) -> None:
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+    for _ in range(5):
+        try:
+            fd = os.open(path, flags, 0o644)
+        except FileExistsError:
+            owner, raw = _read_lock(path)
+            if not _stale(path, owner):
+                raise _in_use(path, owner) from None
+            _take_over(path, raw)
+            continue
+        except OSError as exc:
+            raise explain_os_error(exc, path) from None
+        with os.fdopen(fd, "w") as fh:
+            json.dump(me, fh)
+        return
+    raise RunFolderError(f"cannot lock the run folder {path.parent}: its lock file {path.name} "
+                         "keeps changing (several runs starting at once?)", path.parent)
+
+
+def _read_lock(path: Path) -> tuple[dict | None, bytes | None]:
+    """The lock's owner (None if empty or unreadable) and its raw bytes."""
+    try:
+        raw = path.read_bytes()
+    except OSError:
+        return None, None
+    try:
+        owner = json.loads(raw)
+    except ValueError:
+        return None, raw
+    return (owner if isinstance(owner, dict) else None), raw
+
+
+def _alive(pid: int) -> bool:
+    if os.name == "nt":  # os.kill would stop the process there: never assume it dead
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process
+        return True
+    return True
+
+
+def _stale(path: Path, owner: dict | None) -> bool:
+    """Was the lock left by a process that no longer runs?"""
+    if owner is None:  # being written right now, or its writer was killed at once
+        try:
+            return time.time() - path.stat().st_mtime > _UNREADABLE_LOCK_AGE
+        except OSError:
+            return True  # gone meanwhile: try again
+    pid = owner.get("pid")
+    if owner.get("host") != socket.gethostname() or not isinstance(pid, int):
+        return False  # a process on another computer cannot be checked from here
+    if pid == os.getpid():
+        return owner.get("token") not in _HELD
+    return not _alive(pid)
+
+
+def _take_over(path: Path, raw: bytes | None) -> None:
+    """Remove the stale lock ``path`` if it still holds ``raw``: it is moved
+    aside first (atomic), and put back if another process has replaced it."""
+    aside = path.with_name(f"{path.name}.{secrets.token_hex(4)}.part")
+    try:
+        os.rename(path, aside)
+    except FileNotFoundError:
+        return  # another process removed it first
+    except OSError as exc:
+        raise explain_os_error(exc, path) from None
+    try:
+        if raw is None or aside.read_bytes() != raw:  # a fresh lock: restore it
+            try:
+                os.link(aside, path)
+            except FileExistsError:
+                pass
+            except OSError:
+                if not path.exists():
+                    os.rename(aside, path)
+    finally:
+        _remove(aside)
+
+
+def _in_use(path: Path, owner: dict | None) -> RunFolderError:
+    folder = path.parent
+    if owner is None:
+        who = "a process that is starting now"
+    else:
+        who = (f"process {owner.get('pid')} on host {owner.get('host')}, started "
+               f"{owner.get('started')}")
+        if owner.get("command"):
+            who += f": {owner['command']}"
+    return RunFolderError(
+        f"the run folder {folder} is in use by another napari-aldic run ({who}). Wait for "
+        f"it to finish or choose another folder; if that run is no longer active (e.g. it "
+        f"ran on another computer and crashed), delete {path}", folder, owner)

@@ -19,8 +19,8 @@ def as_gray_float(image, name: str = "image") -> np.ndarray:
     Raises
     ------
     ValueError
-        If the array is not 2-D (or 3-D with 3/4 channels), is empty, or
-        holds NaN/inf values.
+        If the array is not 2-D (or 3-D with 3/4 channels), is empty, holds
+        NaN/inf values, or (wider floats) values outside the float32 range.
     """
     arr = np.asarray(image)
     if arr.dtype == bool or not (
@@ -29,6 +29,15 @@ def as_gray_float(image, name: str = "image") -> np.ndarray:
         raise ValueError(
             f"{name} has dtype {arr.dtype}; expected an integer or float greyscale image"
         )
+    if np.issubdtype(arr.dtype, np.floating) and arr.size:
+        nbad = int(np.count_nonzero(~np.isfinite(arr)))
+        if nbad:
+            raise ValueError(
+                f"{name} contains {nbad} NaN or infinite pixel(s); replace them (e.g. "
+                "interpolate) and exclude the area from the ROI"
+            )
+        if arr.dtype.itemsize > 4:
+            _check_float32_range(arr, name)
     if arr.ndim == 3 and arr.shape[-1] in (3, 4):
         warnings.warn(
             f"{name} looks like an RGB{'A' if arr.shape[-1] == 4 else ''} image "
@@ -45,14 +54,26 @@ def as_gray_float(image, name: str = "image") -> np.ndarray:
         )
     if arr.size == 0 or min(arr.shape) < 2:
         raise ValueError(f"{name} is empty or degenerate (shape {arr.shape})")
-    out = np.ascontiguousarray(arr, dtype=np.float32)
-    if np.issubdtype(arr.dtype, np.floating) and not np.isfinite(out).all():
-        nbad = int(np.count_nonzero(~np.isfinite(out)))
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _check_float32_range(arr: np.ndarray, name: str) -> None:
+    """Refuse finite wide-float values that float32 (what the engine
+    correlates) would turn into infinity or flush towards zero."""
+    f32 = np.finfo(np.float32)
+    top = max(abs(float(arr.max())), abs(float(arr.min())))
+    if top > float(f32.max):
         raise ValueError(
-            f"{name} contains {nbad} NaN or infinite pixel(s); replace them (e.g. "
-            "interpolate) and exclude the area from the ROI"
+            f"{name} holds values up to {top:.3g}, beyond the float32 range "
+            f"(|value| <= {float(f32.max):.3g}) the correlation computes in; rescale the "
+            "image (DIC does not depend on a linear grey-level scaling)"
         )
-    return out
+    if 0 < top < float(f32.tiny):
+        raise ValueError(
+            f"{name} holds only values below {float(f32.tiny):.3g} in magnitude (largest "
+            f"{top:.3g}), under the float32 range the correlation computes in; rescale the "
+            "image (DIC does not depend on a linear grey-level scaling)"
+        )
 
 
 def validate_pair(reference, deformed) -> tuple[np.ndarray, np.ndarray]:

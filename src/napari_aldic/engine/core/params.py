@@ -6,10 +6,20 @@ Every length is in pixels of the reference image; every tolerance states its uni
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from numbers import Integral, Real
+from typing import Any, Literal, NoReturn
 
-__all__ = ["DICParams"]
+import numpy as np
+
+__all__ = ["DICParams", "MAX_ITER_CAP", "ADMM_ITER_CAP"]
+
+#: caps on the iteration counts: more never helps, and a huge value would make
+#: a failing node (or ADMM loop) look like a hung program
+MAX_ITER_CAP = 10_000
+ADMM_ITER_CAP = 1_000
 
 Method = Literal["local", "aldic"]
 Init = Literal["fft", "seeds"]
@@ -38,7 +48,8 @@ class DICParams:
         Seed points in pixels (x = column, y = row) for ``init="seeds"``.
     search : int, default 20
         Initial half-range of the cross-correlation search in pixels: shifts
-        in ``[-search, search]`` along each axis are tested first.
+        in ``[-search, search]`` along each axis are tested first. ``correlate``
+        clips it (and ``search_max``) to the image's larger side.
     search_max : int or None, default None
         Largest half-range the search may widen to (pixels) when a peak lies
         on the border of the tested range or is too weak. ``None`` means a
@@ -56,7 +67,8 @@ class DICParams:
         autocorrelation half-width under 1.8 px), where cubic splines leave a
         sub-pixel bias of 0.005-0.01 px; the choice is in ``res.meta``.
     max_iter : int, default 40
-        Iteration cap of the IC-GN solver per node.
+        Iteration cap of the IC-GN solver per node (at most
+        :data:`MAX_ITER_CAP`).
     tol : float, default 1e-3
         Convergence tolerance in pixels on the IC-GN parameter update
         ``sqrt(du^2 + dv^2 + (h*d(du/dx))^2 + ...)`` (gradient terms scaled by
@@ -65,12 +77,19 @@ class DICParams:
         Nodes whose final zero-normalised cross-correlation is lower are
         retried from an individual cross-correlation guess and, if still
         lower, flagged unreliable (``valid=False``).
-    zncc_rel : float, default 10.0
-        Relative correlation test: a node is also flagged when its
-        ``1 - ZNCC`` exceeds ``zncc_rel`` times the median ``1 - ZNCC`` of the
-        converged nodes (and 0.1), i.e. it matches far worse than the rest of
-        the image; this catches spurious matches of material that left the
-        field of view. ``0`` disables it.
+    zncc_rel : float, default 3.0
+        Relative correlation test: a node is also flagged (``POOR_MATCH``)
+        when ``1 - ZNCC > 0.1 + zncc_rel * s2 / V``, with ``V`` the grey-level
+        variance of its subset and ``s2`` the residual per pixel of a correct
+        match (the median over converged nodes, at most twice the image noise
+        variance measured in the images): it matches far worse than image
+        noise allows, as spurious matches of material that left the field of
+        view or moved beyond the search range do. ``0`` disables it.
+    max_uncertainty : float or None, default 0.1
+        Largest standard uncertainty (pixels, one sigma) of ``u`` or ``v`` of
+        a valid node, predicted from the subset's Gauss-Newton matrix and its
+        match residual; noisier nodes are flagged ``UNCERTAIN`` (at 0.1 px an
+        error over 0.5 px is a five-sigma event). ``None`` disables the test.
     min_component : float, default 0.5
         Smallest fraction of the full subset area that the mask-connected
         component containing the node must keep; smaller ones are flagged.
@@ -104,13 +123,20 @@ class DICParams:
         pays (``meta["regularisation"]["second_order_warp"]``); with a fixed
         ``smooth`` it is used as set. ``False`` keeps the paper's affine warp.
     admm_max_iter : int, default 8
-        Cap on ADMM iterations.
+        Cap on ADMM iterations (at most :data:`ADMM_ITER_CAP`).
     admm_tol : float, default 1e-3
         ADMM stops when the RMS change of the global displacement between
         iterations is below this (pixels).
     n_threads : int or None, default None
         Threads for the Numba kernels; ``None`` uses Numba's default (all
         cores).
+
+    Raises
+    ------
+    ValueError
+        ``Invalid DIC parameter: ...`` for any field of the wrong type (text
+        where a number belongs, a bool, a malformed seed list), NaN or
+        infinity, or a value out of its range; the message names the field.
     """
 
     subset: int = 31
@@ -125,7 +151,8 @@ class DICParams:
     max_iter: int = 40
     tol: float = 1e-3
     zncc_min: float = 0.6
-    zncc_rel: float = 10.0
+    zncc_rel: float = 3.0
+    max_uncertainty: float | None = 0.1
     min_component: float = 0.5
     refine: str | None = None
     mu: float = 0.1
@@ -138,66 +165,68 @@ class DICParams:
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        def bad(msg: str) -> None:
-            raise ValueError(f"Invalid DIC parameter: {msg}")
-
         for name in ("subset", "step", "search", "max_iter", "admm_max_iter"):
-            val = getattr(self, name)
-            if isinstance(val, bool) or not isinstance(val, int):
-                # accept integral floats from JSON/CLI, reject anything else
-                if isinstance(val, float) and val.is_integer():
-                    object.__setattr__(self, name, int(val))
-                else:
-                    bad(f"{name}={val!r} must be an integer")
-        if self.subset < 7 or self.subset % 2 == 0:
-            bad(f"subset={self.subset} must be an odd full width >= 7 pixels (e.g. 31)")
-        if self.step < 1:
-            bad(f"step={self.step} must be >= 1 pixel")
-        if self.method not in ("local", "aldic"):
-            bad(f"method={self.method!r} must be 'local' or 'aldic'")
-        if self.init not in ("fft", "seeds"):
-            bad(f"init={self.init!r} must be 'fft' or 'seeds'")
-        if self.search < 1:
-            bad(f"search={self.search} must be >= 1 pixel")
-        if self.search_max is not None and self.search_max < self.search:
-            bad(f"search_max={self.search_max} must be >= search={self.search}")
-        if self.init_spacing is not None and self.init_spacing < 1:
-            bad(f"init_spacing={self.init_spacing} must be >= 1 pixel or None")
-        if self.interpolation not in ("auto", "cubic", "quintic"):
-            bad(f"interpolation={self.interpolation!r} must be 'auto', 'cubic' or 'quintic'")
-        if self.max_iter < 1:
-            bad(f"max_iter={self.max_iter} must be >= 1")
-        if not (0 < self.tol < 1):
-            bad(f"tol={self.tol} must be in (0, 1) pixel")
-        if not (-1 <= self.zncc_min < 1):
-            bad(f"zncc_min={self.zncc_min} must be in [-1, 1)")
-        if self.zncc_rel < 0:
-            bad(f"zncc_rel={self.zncc_rel} must be >= 0 (0 disables the relative test)")
-        if not (0 < self.min_component <= 1):
-            bad(f"min_component={self.min_component} must be in (0, 1]")
-        if self.refine is not None and self.refine not in ("light", "medium", "strong", "none"):
-            bad(f"refine={self.refine!r} must be None, 'light', 'medium' or 'strong'")
-        if not self.mu > 0:
-            bad(f"mu={self.mu} must be > 0")
-        if not self.beta > 0:
-            bad(f"beta={self.beta} must be > 0")
+            object.__setattr__(self, name, _integer(name, getattr(self, name)))
+        for name in ("search_max", "init_spacing", "n_threads"):
+            object.__setattr__(self, name, _integer(name, getattr(self, name), optional=True))
+        for name in ("tol", "zncc_min", "zncc_rel", "min_component", "mu", "beta", "admm_tol"):
+            object.__setattr__(self, name, _number(name, getattr(self, name)))
         if self.smooth != "auto":
-            ok = isinstance(self.smooth, (int, float)) and not isinstance(self.smooth, bool)
-            if not (ok and self.smooth >= 0):
-                bad(f"smooth={self.smooth!r} must be 'auto' or a length >= 0 in pixels")
-            object.__setattr__(self, "smooth", float(self.smooth))
-        if not isinstance(self.second_order_warp, bool):
-            bad(f"second_order_warp={self.second_order_warp!r} must be True or False")
-        if self.admm_max_iter < 1:
-            bad(f"admm_max_iter={self.admm_max_iter} must be >= 1")
+            object.__setattr__(self, "smooth", _number("smooth", self.smooth, "'auto' or "))
+        if self.max_uncertainty is not None:
+            object.__setattr__(self, "max_uncertainty",
+                               _number("max_uncertainty", self.max_uncertainty, "None or "))
+        object.__setattr__(self, "seeds", _seed_points(self.seeds))
+        if not isinstance(self.second_order_warp, (bool, np.bool_)):
+            _bad(f"second_order_warp={self.second_order_warp!r} must be True or False")
+        object.__setattr__(self, "second_order_warp", bool(self.second_order_warp))
+        self._check_choices()
+        self._check_ranges()
+
+    def _check_choices(self) -> None:
+        _choice("method", self.method, ("local", "aldic"))
+        _choice("init", self.init, ("fft", "seeds"))
+        _choice("interpolation", self.interpolation, ("auto", "cubic", "quintic"))
+        if self.refine is not None:
+            _choice("refine", self.refine, ("light", "medium", "strong", "none"), "None, ")
+        if self.init == "seeds" and not self.seeds:
+            _bad("init='seeds' needs at least one seed point (x, y)")
+
+    def _check_ranges(self) -> None:
+        if self.subset < 7 or self.subset % 2 == 0:
+            _bad(f"subset={self.subset} must be an odd full width >= 7 pixels (e.g. 31)")
+        if self.step < 1:
+            _bad(f"step={self.step} must be >= 1 pixel")
+        if self.search < 1:
+            _bad(f"search={self.search} must be >= 1 pixel")
+        if self.search_max is not None and self.search_max < self.search:
+            _bad(f"search_max={self.search_max} must be >= search={self.search}")
+        if self.init_spacing is not None and self.init_spacing < 1:
+            _bad(f"init_spacing={self.init_spacing} must be >= 1 pixel or None")
+        if not 1 <= self.max_iter <= MAX_ITER_CAP:
+            _bad(f"max_iter={self.max_iter} must be between 1 and {MAX_ITER_CAP}")
+        if not (0 < self.tol < 1):
+            _bad(f"tol={self.tol} must be in (0, 1) pixel")
+        if not (-1 <= self.zncc_min < 1):
+            _bad(f"zncc_min={self.zncc_min} must be in [-1, 1)")
+        if self.zncc_rel < 0:
+            _bad(f"zncc_rel={self.zncc_rel} must be >= 0 (0 disables the relative test)")
+        if self.max_uncertainty is not None and not self.max_uncertainty > 0:
+            _bad(f"max_uncertainty={self.max_uncertainty} must be > 0 pixels or None")
+        if not (0 < self.min_component <= 1):
+            _bad(f"min_component={self.min_component} must be in (0, 1]")
+        if not self.mu > 0:
+            _bad(f"mu={self.mu} must be > 0")
+        if not self.beta > 0:
+            _bad(f"beta={self.beta} must be > 0")
+        if self.smooth != "auto" and self.smooth < 0:
+            _bad(f"smooth={self.smooth!r} must be 'auto' or a length >= 0 in pixels")
+        if not 1 <= self.admm_max_iter <= ADMM_ITER_CAP:
+            _bad(f"admm_max_iter={self.admm_max_iter} must be between 1 and {ADMM_ITER_CAP}")
         if not (0 < self.admm_tol < 1):
-            bad(f"admm_tol={self.admm_tol} must be in (0, 1) pixel")
+            _bad(f"admm_tol={self.admm_tol} must be in (0, 1) pixel")
         if self.n_threads is not None and self.n_threads < 1:
-            bad(f"n_threads={self.n_threads} must be >= 1 or None")
-        seeds = tuple((float(s[0]), float(s[1])) for s in self.seeds)
-        object.__setattr__(self, "seeds", seeds)
-        if self.init == "seeds" and not seeds:
-            bad("init='seeds' needs at least one seed point (x, y)")
+            _bad(f"n_threads={self.n_threads} must be >= 1 or None")
 
     @property
     def half(self) -> int:
@@ -212,10 +241,24 @@ class DICParams:
         return k * self.step
 
     def resolved_search_max(self, shape: tuple[int, int]) -> int:
-        """Largest search half-range in pixels for an image of ``shape``."""
+        """Largest search half-range in pixels for an image of ``shape`` (at
+        most the image's larger side)."""
+        top = max(int(shape[0]), int(shape[1]), 1)
         if self.search_max is not None:
-            return self.search_max
-        return max(4 * self.search, max(shape) // 4)
+            return max(min(self.search_max, top), min(self.search, top))
+        return min(max(4 * self.search, max(shape) // 4), top)
+
+    def fitted_to(self, shape: tuple[int, int]) -> DICParams:
+        """These parameters with ``search`` and ``search_max`` clipped to the
+        larger side of an image of ``shape``: a larger shift moves every subset
+        out of the image, and testing it would only cost memory and time."""
+        top = max(int(shape[0]), int(shape[1]), 1)
+        changes = {}
+        if self.search > top:
+            changes["search"] = top
+        if self.search_max is not None and self.search_max > top:
+            changes["search_max"] = top
+        return self.replace(**changes) if changes else self
 
     def replace(self, **changes: Any) -> DICParams:
         """Return a copy with some fields changed (validated again)."""
@@ -231,13 +274,66 @@ class DICParams:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> DICParams:
         """Build parameters from a dictionary, rejecting unknown keys."""
+        if not isinstance(d, dict):
+            raise ValueError("DIC parameters must be a dictionary (JSON object) of DICParams "
+                             f"fields, not {type(d).__name__}")
         names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
-        unknown = sorted(set(d) - names)
+        unknown = sorted(set(map(str, d)) - names)
         if unknown:
             raise ValueError(
                 f"Unknown DIC parameter(s) {unknown}; valid names are {sorted(names)}"
             )
-        d = dict(d)
-        if "seeds" in d and d["seeds"] is not None:
-            d["seeds"] = tuple(tuple(s) for s in d["seeds"])
         return cls(**d)
+
+
+# ------------------------------------------------------------------ checks
+def _bad(msg: str) -> NoReturn:
+    raise ValueError(f"Invalid DIC parameter: {msg}")
+
+
+def _integer(name: str, val, optional: bool = False) -> int | None:
+    """``val`` as an int: integers and whole finite floats (JSON, CLI) pass."""
+    if val is None and optional:
+        return None
+    if isinstance(val, (bool, np.bool_)) or not isinstance(val, Real):
+        _bad(f"{name}={val!r} must be an integer{' or None' if optional else ''}, not "
+             f"{type(val).__name__}")
+    if isinstance(val, Integral):
+        return int(val)
+    if not math.isfinite(val):
+        _bad(f"{name}={val!r} must be a finite integer (got NaN or infinity)")
+    if not float(val).is_integer():
+        _bad(f"{name}={val!r} must be an integer")
+    return int(val)
+
+
+def _number(name: str, val, also: str = "") -> float:
+    """``val`` as a finite float (no bool, no text, no NaN or infinity)."""
+    if isinstance(val, (bool, np.bool_)) or not isinstance(val, Real):
+        _bad(f"{name}={val!r} must be {also}a number, not {type(val).__name__}")
+    if not math.isfinite(val):
+        _bad(f"{name}={val!r} must be {also}a finite number (got NaN or infinity)")
+    return float(val)
+
+
+def _choice(name: str, val, choices: tuple[str, ...], also: str = "") -> None:
+    if not isinstance(val, str) or val not in choices:
+        names = ", ".join(repr(c) for c in choices[:-1]) + f" or {choices[-1]!r}"
+        _bad(f"{name}={val!r} must be {also}{names}")
+
+
+def _seed_points(seeds) -> tuple[tuple[float, float], ...]:
+    """Seeds as a tuple of finite ``(x, y)`` pixel coordinates."""
+    if seeds is None:
+        return ()
+    example = "a list of (x, y) points in pixels, e.g. [[120, 80], [300, 80]]"
+    if isinstance(seeds, (str, bytes, dict)) or not isinstance(seeds, Iterable):
+        _bad(f"seeds={seeds!r} must be {example}")
+    out = []
+    for i, pt in enumerate(seeds):
+        if isinstance(pt, (str, bytes, dict)) or not isinstance(pt, Iterable) or \
+                len(pt := list(pt)) != 2:
+            _bad(f"seed {i} = {pt!r} must be one (x, y) point: two numbers in pixels "
+                 f"(seeds must be {example})")
+        out.append(tuple(_number(f"seed {i} {axis}", v) for axis, v in zip("xy", pt)))
+    return tuple(out)

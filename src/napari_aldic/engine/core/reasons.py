@@ -27,6 +27,18 @@ class Reason(IntEnum):
     NO_INITIAL_GUESS = 7
     #: displacement inconsistent with its mask-connected neighbours (median test)
     OUTLIER = 8
+    #: converged, but the match residual is far above what image noise allows
+    #: (``zncc_rel``): most likely a spurious match
+    POOR_MATCH = 9
+    #: no acceptable match within the widest search range (``search_max``):
+    #: the motion is probably beyond it
+    BEYOND_SEARCH = 10
+    #: predicted standard uncertainty of ``u`` or ``v`` above ``max_uncertainty``
+    UNCERTAIN = 11
+    #: AL-DIC: the global field departs from what the node's own subset
+    #: matches best by more than its noise allows (e.g. smoothed across an
+    #: unmasked crack)
+    GLOBAL_MISMATCH = 12
 
     @classmethod
     def describe(cls, code: int) -> str:
@@ -41,4 +53,8 @@ class Reason(IntEnum):
             6: "diverged",
             7: "no initial guess",
             8: "outlier (median test)",
+            9: "poor match (residual above image noise)",
+            10: "motion beyond the search range",
+            11: "uncertain (noise)",
+            12: "global field departs from the subset match",
         }.get(int(code), f"unknown ({code})")

@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from .files import atomic_write
+from .files import atomic_write, read_roi_file
+from .npzfile import read_result_npz
 from .params import DICParams
 from .reasons import Reason
 
@@ -167,8 +168,13 @@ class DICResult:
         return "\n".join(lines)
 
     # ------------------------------------------------------------- I/O
-    def save(self, path) -> Path:
+    def save(self, path, *, roi_file: dict | None = None) -> Path:
         """Write the result to ``path`` (``.npz``, no pickled objects).
+
+        The ROI is stored bit-packed in the file, unless ``roi_file`` (the
+        reference :func:`~napari_aldic.engine.core.files.write_roi_file`
+        returns: the run folder's ``roi_<digest>.npz`` beside ``path``) is
+        given: frames of one run then share that one copy.
 
         The file is written under a temporary name and renamed when complete
         (:func:`~napari_aldic.engine.core.files.atomic_write`), so an
@@ -193,7 +199,9 @@ class DICResult:
         for k in _OPTIONAL:
             if getattr(self, k) is not None:
                 arrays[k] = np.asarray(getattr(self, k))
-        if self.roi is not None:
+        if self.roi is not None and roi_file is not None:
+            header["roi_file"] = {"file": roi_file["file"], "sha256": roi_file["sha256"]}
+        elif self.roi is not None:
             arrays["roi_packed"] = np.packbits(np.asarray(self.roi, bool), axis=None)
         with atomic_write(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
@@ -206,26 +214,21 @@ class DICResult:
 
 
 def load_result(path) -> DICResult:
-    """Read a ``.npz`` result written by :meth:`DICResult.save`."""
+    """Read a ``.npz`` result written by :meth:`DICResult.save`.
+
+    The file's structure is checked from its array headers before anything
+    is decompressed (:func:`~napari_aldic.engine.core.npzfile.read_result_npz`):
+    an empty, truncated, damaged, inconsistent or oversized file, or one that
+    is not a result, raises ``ValueError`` naming the file and the problem.
+    """
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no result file at {path}")
-    with np.load(path, allow_pickle=False) as z:
-        if "header" not in z.files:
-            raise ValueError(f"{path} is not a napari-aldic result file (no header)")
-        header = json.loads(str(z["header"]))
-        if header.get("format") != _FORMAT:
-            raise ValueError(f"{path} is not a napari-aldic result file")
-        arrays = {k: z[k] for k in _ARRAYS}
-        for k in _OPTIONAL:
-            if k in z.files:
-                arrays[k] = z[k]
-        if "roi_packed" in z.files:
-            shape = tuple(header["image_shape"])
-            bits = np.unpackbits(z["roi_packed"], count=int(np.prod(shape)))
-            arrays["roi"] = bits.reshape(shape).astype(bool)
-    return DICResult(**arrays, image_shape=tuple(header["image_shape"]),
-                     params=DICParams.from_dict(header["params"]), meta=header["meta"])
+    header, arrays = read_result_npz(path, _FORMAT, _ARRAYS, _OPTIONAL)
+    ref = header.get("roi_file")
+    if isinstance(ref, dict):  # the run folder's one copy of the ROI
+        arrays["roi"] = read_roi_file(path.parent / Path(str(ref.get("file"))).name,
+                                      str(ref.get("sha256")), tuple(header["image_shape"]))
+    return DICResult(**arrays, image_shape=header["image_shape"], params=header["params"],
+                     meta=header["meta"])
 
 
 @dataclass

@@ -140,8 +140,9 @@ class Settings:
         if unknown:
             raise ValueError(f"unknown section(s) {unknown}; valid sections are "
                              f"{sorted(SECTIONS)}")
-        return cls(params=_params_from_dict(doc.get("params") or {}),
-                   units=doc.get("units") or None, strain=doc.get("strain"),
+        params = doc.get("params")
+        return cls(params=_params_from_dict({} if params is None else params),
+                   units=doc.get("units"), strain=doc.get("strain"),
                    tracking=doc.get("tracking"))
 
 

@@ -18,10 +18,11 @@ from ..core.reasons import Reason
 from ..core.results import DICResult
 from .admm import CURVATURE_SMOOTHING, run_admm
 from .global_solve import Q4Mesh, uniform_mesh
-from .local import Images, correlation_floor, prepare_images, solve_local
+from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
-from .regularise import choose_smoothing, displacement_noise
+from .regularise import choose_smoothing, gradient_noise_gain
+from .reliability import Validity, image_noise, subset_statistics
 from .subsets import SubsetMasks, split_subsets
 
 __all__ = ["correlate", "reference_result"]
@@ -222,8 +223,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
              report: ProgressFn, guess, solver_cache: dict | None = None) -> _Solution:
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
     sub = split_subsets(roi, grid, params.subset, params.min_component)
+    validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason = solve_local(im, roi, grid, sub, params, timing, report,
-                                         guess=guess)
+                                         validity, guess=guess)
     mesh = qmesh.mesh if qmesh is not None else None
     sol = _Solution(sub, p[:, 0].copy(), p[:, 3].copy(), p[:, [1, 2, 4, 5]].copy(), zncc,
                     reason, iters, mesh)
@@ -232,9 +234,10 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     report(0.85, "AL-DIC iterations")
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
-    trusted = reason == Reason.OK
-    smooth, second_order, table, noise_var = _regularisation(im, grid, sub, mesh, sol,
-                                                                trusted, params)
+    # noisy but correct matches are data for the global step too
+    trusted = (reason == Reason.OK) | (reason == Reason.UNCERTAIN)
+    smooth, second_order, table, noise_var = _regularisation(validity, mesh, sol, trusted,
+                                                             params)
     key = cached = None
     if solver_cache is not None:
         key = _solver_key(mesh, trusted, params, smooth)
@@ -255,10 +258,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
         solver_cache[key] = solver
     for k, val in state.timing.items():
         timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
+    zncc_local = zncc
     zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)
-    reason = np.where(trusted, state.reason, reason).astype(np.int8)
-    conv = reason == Reason.OK  # the same correlation test as the local result
-    reason[conv & ~(zncc >= correlation_floor(zncc, conv, params))] = Reason.LOW_CORRELATION
+    reason = _aldic_reasons(validity, state, trusted, reason, zncc, zncc_local)
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
                      sol.u, sol.v, state.history, dict(table, smooth_px=smooth))
@@ -273,8 +275,36 @@ def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: fl
     return h.hexdigest()
 
 
-def _regularisation(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
-                      sol: _Solution, trusted: np.ndarray, params: DICParams):
+def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+              timing: dict) -> Validity:
+    """The validity tests of this pair: subset statistics and image noise."""
+    t = time.perf_counter()
+    stats = subset_statistics(im.f, im.fgx, im.fgy, grid.x, grid.y, sub.slot, sub.masks,
+                              params.half)
+    image_var = 0.5 * (image_noise(im.f, roi) ** 2 + image_noise(im.g, roi) ** 2)
+    timing["validity"] = time.perf_counter() - t
+    return Validity(stats, image_var, gradient_noise_gain(im.g_spline.order), params)
+
+
+def _aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local):
+    """Reasons of the AL-DIC result: the local reason of untrusted nodes;
+    the last local step's, then the correlation tests of the local result,
+    the global-mismatch test and the uncertainty test for the others."""
+    reason = np.where(trusted, state.reason, reason).astype(np.int8)
+    conv = reason == Reason.OK
+    low = conv & ~(zncc >= validity.params.zncc_min)
+    poor = conv & ~low & ~(zncc >= validity.zncc_floor(zncc, conv))
+    reason[low] = Reason.LOW_CORRELATION
+    reason[poor] = Reason.POOR_MATCH
+    conv = reason == Reason.OK
+    reason[validity.global_mismatch(state.uh, state.vh, state.u_data, state.v_data,
+                                    zncc_local, conv)] = Reason.GLOBAL_MISMATCH
+    reason[validity.uncertain(zncc_local, reason == Reason.OK)] = Reason.UNCERTAIN
+    return reason
+
+
+def _regularisation(validity: Validity, mesh: Q4Mesh, sol: _Solution,
+                    trusted: np.ndarray, params: DICParams):
     """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
     predicted local noise variances (n, 2) or None when nothing needs them)``;
     the user's smoothing length, or the length (and use of the second-order
@@ -283,8 +313,7 @@ def _regularisation(im: Images, grid: NodeGrid, sub: SubsetMasks, mesh: Q4Mesh,
     if params.smooth != "auto" and not params.second_order_warp:
         return float(params.smooth), False, {"mode": "fixed", "second_order_warp": False,
                                              "seconds": 0.0}, None
-    var = displacement_noise(im.f, im.fgx, im.fgy, grid.x, grid.y, sub.slot, sub.masks,
-                             params.half, sol.zncc, im.g_spline.order)
+    var = validity.noise_variance(sol.zncc)
     if params.smooth != "auto":
         return (float(params.smooth), params.second_order_warp,
                 {"mode": "fixed", "second_order_warp": params.second_order_warp,

@@ -54,7 +54,7 @@ def _subpixel(c_m, c_0, c_p):
 
 def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
                search: int, masks: np.ndarray | None = None, cu=None, cv=None,
-               workers: int = -1) -> NCCResult:
+               workers: int = -1, templates: np.ndarray | None = None) -> NCCResult:
     """NCC search at nodes ``(xs, ys)`` with shifts in ``[-search, search]^2``.
 
     Parameters
@@ -71,6 +71,9 @@ def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, hal
         Pixels of each subset to use (None = full squares).
     cu, cv : (n,) int or None
         Integer centre of the search per node (default 0).
+    templates : (n, S, S) array or None
+        The subsets to look for (default: each node's square of ``f``; a
+        rotated copy searches for rotated material).
     """
     n = xs.size
     S = 2 * half + 1
@@ -88,7 +91,8 @@ def ncc_search(f: np.ndarray, g: np.ndarray, xs: np.ndarray, ys: np.ndarray, hal
     for b0 in range(0, n, batch):
         sl = slice(b0, min(n, b0 + batch))
         c = _ncc_surface(f, g, xs[sl], ys[sl], cu[sl], cv[sl],
-                         None if masks is None else masks[sl], half, R, N, workers)
+                         None if masks is None else masks[sl], half, R, N, workers,
+                         None if templates is None else templates[sl])
         out_u[sl], out_v[sl], out_p[sl], out_b[sl] = _ncc_peak(c, R, cu[sl], cv[sl])
     return NCCResult(out_u, out_v, out_p, out_b, np.full(n, R))
 
@@ -111,7 +115,7 @@ def _search_windows(g, bx, by, cu, cv, half: int, R: int):
 
 
 def _ncc_surface(f, g, bx, by, cu, cv, masks, half: int, R: int, N: int,
-                 workers: int) -> np.ndarray:
+                 workers: int, T=None) -> np.ndarray:
     """ZNCC ``(B, 2R+1, 2R+1)`` of a batch of nodes at every integer shift
     (-inf where the shift is invalid or the window has no texture).
 
@@ -120,8 +124,9 @@ def _ncc_surface(f, g, bx, by, cu, cv, masks, half: int, R: int, N: int,
     images (full squares) or from FFT correlations with the mask."""
     S = 2 * half + 1
     nshift = 2 * R + 1
-    off = np.arange(-half, half + 1)
-    T = f[(by[:, None, None] + off[None, :, None]), (bx[:, None, None] + off[None, None, :])]
+    if T is None:
+        off = np.arange(-half, half + 1)
+        T = f[(by[:, None, None] + off[None, :, None]), (bx[:, None, None] + off[None, None, :])]
     T = T.astype(np.float32)
     M = None if masks is None else masks.astype(np.float32)
     W, ok = _search_windows(g, bx, by, cu, cv, half, R)
@@ -189,13 +194,16 @@ def _ncc_peak(c: np.ndarray, R: int, cu, cv):
 
 
 def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
-                        accept: float = 0.5, workers: int = -1) -> NCCResult:
+                        accept=0.5, workers: int = -1, templates=None) -> NCCResult:
     """NCC search that doubles the range for nodes whose peak is on the
-    border of the tested shifts or below ``accept``, up to ``search_max``.
+    border of the tested shifts or below ``accept`` (a number, or one per
+    node), up to ``search_max``.
 
-    A wider search only replaces a result when its peak is higher.
+    A wider search only replaces a result when its peak is higher. At the
+    widest range ``on_border`` stays set where the peak is on its border
+    (the motion is probably beyond it).
     """
-    res = ncc_search(f, g, xs, ys, half, search, masks, workers=workers)
+    res = ncc_search(f, g, xs, ys, half, search, masks, workers=workers, templates=templates)
     R = search
     while R < search_max:
         redo = np.nonzero(res.on_border | ~(res.peak >= accept))[0]
@@ -203,7 +211,8 @@ def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
             break
         R = min(2 * R, search_max)
         sub = ncc_search(f, g, xs[redo], ys[redo], half, R,
-                         None if masks is None else masks[redo], workers=workers)
+                         None if masks is None else masks[redo], workers=workers,
+                         templates=None if templates is None else templates[redo])
         better = ~(sub.peak <= res.peak[redo])  # NaN-safe: take sub when old is NaN
         better &= np.isfinite(sub.peak)
         take = redo[better]

@@ -4,11 +4,13 @@ Stages (see ``solve_local``):
 
 1. initial guess -- from a previous result (``guess``), from seed points
    (wave propagation), or from FFT cross-correlation at coarse nodes whose
-   solutions then start every other node;
+   solutions then start every other node; where the plain search fails at
+   many nodes (large rotations), rotated subsets are searched for at a few;
 2. IC-GN at every usable node;
-3. repair -- nodes that failed, correlate poorly or fail the median test are
-   restarted from trusted neighbours wave by wave, then from their own
-   cross-correlation search, and finally flagged.
+3. repair -- nodes that failed, match poorly or fail the median test are
+   restarted from trusted neighbours wave by wave, then from a rotated
+   search at a few of them, then from their own cross-correlation search,
+   and finally flagged by the validity tests (:mod:`.reliability`).
 """
 
 from __future__ import annotations
@@ -27,11 +29,21 @@ from .init_guess import ncc_search_widening
 from .interpolation import SplineImage, choose_order, prefilter, reference_gradients
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
+from .reliability import Validity
+from .rotation import rotated_search, spread_nodes
 from .subsets import SubsetMasks
 
-__all__ = ["Images", "prepare_images", "solve_local", "correlation_floor"]
+__all__ = ["Images", "prepare_images", "solve_local"]
 
 ProgressFn = Callable[[float, str], None]
+
+#: nodes searched with rotated subsets per rescue round
+ROTATION_NODES = 8
+#: a rotated search is tried when at least this fraction of the usable nodes
+#: still has no acceptable match after the repair waves...
+ROTATION_TRIGGER = 0.05
+#: ... or this fraction of the coarse nodes after the initial guess
+ROTATION_TRIGGER_COARSE = 0.25
 
 
 @dataclass
@@ -54,29 +66,119 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
     return Images(f, g, fgx, fgy, prefilter(g, order))
 
 
-def correlation_floor(zncc: np.ndarray, converged: np.ndarray, params: DICParams) -> float:
-    """Lowest acceptable ZNCC: ``zncc_min``, raised by the relative test
-    (``1 - ZNCC`` above ``zncc_rel`` times the median of converged nodes, and
-    0.1) so spurious matches of material that left the view are flagged."""
-    zmin = params.zncc_min
-    if params.zncc_rel > 0 and converged.any():
-        floor = max(params.zncc_rel * float(np.median(1.0 - zncc[converged])), 0.1)
-        zmin = max(zmin, 1.0 - floor)
-    return zmin
+class _State:
+    """Per-node state of a local analysis and the IC-GN runs that update it:
+    affine parameters ``p``, ``zncc``, ``iters``, ``reason``; ``beyond``
+    marks nodes whose own search reached ``search_max`` without a
+    convincing peak."""
+
+    def __init__(self, im: Images, roi, grid: NodeGrid, sub: SubsetMasks,
+                 params: DICParams, validity: Validity):
+        self.im, self.roi, self.grid, self.sub = im, roi, grid, sub
+        self.params, self.validity = params, validity
+        n = grid.n
+        self.usable = sub.reason == Reason.OK
+        self.p = np.zeros((n, 6))
+        self.zncc = np.full(n, np.nan)
+        self.iters = np.zeros(n, np.int32)
+        self.reason = sub.reason.astype(np.int8).copy()
+        self.beyond = np.zeros(n, bool)
+        self._nbrs5 = None
+
+    @property
+    def nbrs5(self) -> np.ndarray:
+        """Outlier-test neighbourhoods (5 x 5 lattice nodes seen in the ROI)."""
+        if self._nbrs5 is None:
+            self._nbrs5 = lattice_neighbours(self.grid, self.roi)
+        return self._nbrs5
+
+    def run(self, active: np.ndarray, p_init: np.ndarray):
+        """IC-GN at ``active`` from ``p_init``; copies of the state arrays
+        with those nodes updated."""
+        out = (self.p.copy(), self.zncc.copy(), self.iters.copy(), self.reason.copy())
+        im, g, prm = self.im, self.grid, self.params
+        return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, g.x, g.y, p_init, active,
+                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
+                          out=out)
+
+    def store(self, res, nodes: np.ndarray) -> None:
+        rp, rz, ri, rr = res
+        self.p[nodes], self.zncc[nodes] = rp[nodes], rz[nodes]
+        self.iters[nodes], self.reason[nodes] = ri[nodes], rr[nodes]
+
+    def floor(self) -> np.ndarray:
+        """Lowest acceptable ZNCC per node, from the current state."""
+        return self.validity.zncc_floor(self.zncc, self.usable & (self.reason == Reason.OK))
+
+    def acceptable(self, zmin: np.ndarray) -> np.ndarray:
+        return self.usable & (self.reason == Reason.OK) & (self.zncc >= zmin)
+
+    def ncc_guess(self, nodes: np.ndarray, params: DICParams | None = None,
+                  accept: float = 0.5) -> np.ndarray:
+        """Affine parameters from an NCC search at ``nodes`` (gradients
+        zero); marks ``beyond`` where the search ended at ``search_max`` on
+        the border of the range or without a peak >= ``accept``."""
+        prm = params or self.params
+        im, grid, sub = self.im, self.grid, self.sub
+        masks = None
+        if np.any(sub.slot[nodes] >= 0):
+            masks = np.ones((nodes.size, prm.subset, prm.subset), np.uint8)
+            cut = sub.slot[nodes] >= 0
+            masks[cut] = sub.masks[sub.slot[nodes][cut]]
+        top = prm.resolved_search_max(im.f.shape)
+        res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], prm.half,
+                                  min(prm.search, top), top, masks, accept=accept)
+        self.beyond[nodes] = (res.search >= top) & (res.on_border | ~(res.peak >= accept))
+        p0 = np.zeros((nodes.size, 6))
+        p0[:, 0] = res.u
+        p0[:, 3] = res.v
+        return p0
 
 
-def _propagate_seeds(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
-                     run, store, p, zncc, iters, reason):
-    """Seed-propagation initial guess.
+def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
+                timing: dict, report: ProgressFn, validity: Validity, guess=None):
+    """Local IC-GN at every node.
 
-    Each seed is solved by a cross-correlation search over the whole image
-    and IC-GN at its nearest usable node; the solution then spreads, wave by
-    wave, to mask-connected lattice neighbours, each starting from its best
-    solved neighbour extrapolated to first order with that neighbour's
-    gradient (``u + F dX``). Every connected ROI region needs a seed.
+    1. Initial guess: a previous result (``guess``), seed propagation, or NCC
+       at coarse nodes (every k-th lattice node) whose IC-GN solutions start
+       every other node (nearest converged coarse node, extrapolated to first
+       order with its gradient).
+    2. Repair: nodes that failed, match poorly or fail the median test
+       restart from trusted neighbours wave by wave (:func:`_grow`), then
+       from rotated searches at a few of them and from their own NCC search
+       (FFT mode), and grow again.
+    3. What still fails is flagged by the validity tests (:func:`_flag`).
+
+    Returns ``(p, zncc, iters, reason)``.
     """
+    st = _State(im, roi, grid, sub, params, validity)
+    t = time.perf_counter()
+    if guess is not None and np.any(guess.valid):
+        # a previous result (e.g. the last frame of a sequence) as the guess
+        p_init = _guess_from_result(grid, guess)
+        timing["init"] = time.perf_counter() - t
+        st.store(st.run(st.usable.copy(), p_init), np.nonzero(st.usable)[0])
+    elif params.init == "seeds":
+        _propagate_seeds(st)
+        timing["init"] = 0.0
+    else:
+        t = _coarse_to_fine(st, timing, report)
+    timing["icgn"] = time.perf_counter() - t
+    report(0.8, "IC-GN done")
+
+    t = time.perf_counter()
+    _repair(st, report)
+    _flag(st)
+    timing["rescue"] = time.perf_counter() - t
+    return st.p, st.zncc, st.iters, st.reason
+
+
+def _seed_nodes(st: _State) -> np.ndarray:
+    """The usable node nearest each seed (errors name a seed outside the ROI,
+    a ROI region without a seed or without usable nodes)."""
     from scipy import ndimage
 
+    roi, grid, params = st.roi, st.grid, st.params
     rows, cols = roi.shape
     seeds = np.asarray(params.seeds, float).reshape(-1, 2)
     labels, _ = ndimage.label(roi)
@@ -87,53 +189,69 @@ def _propagate_seeds(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: 
             raise ValueError(f"seed ({sx:g}, {sy:g}) is outside the ROI; place seeds on "
                              "analysed material")
         seed_region.append(labels[iy, ix])
-    usable = sub.reason == Reason.OK
     node_region = labels[grid.y, grid.x]
-    for r in np.unique(node_region[usable]):
+    for r in np.unique(node_region[st.usable]):
         if r not in seed_region:
             ys, xs = np.nonzero(labels == r)
             raise ValueError(
                 f"ROI region {r} (x {xs.min()}-{xs.max()}, y {ys.min()}-{ys.max()}, "
                 f"{xs.size} px) has no seed; add a seed point inside it")
-    seed_nodes = []
+    nodes = []
     for (sx, sy), r in zip(seeds, seed_region):
-        cand = np.nonzero(usable & (node_region == r))[0]
+        cand = np.nonzero(st.usable & (node_region == r))[0]
         if cand.size == 0:
             raise ValueError(f"seed ({sx:g}, {sy:g}): its ROI region has no usable node; "
                              "enlarge the region or reduce the subset")
-        seed_nodes.append(cand[np.argmin(np.hypot(grid.x[cand] - sx, grid.y[cand] - sy))])
-    seed_nodes = np.unique(np.asarray(seed_nodes))
-    n = grid.n
+        nodes.append(cand[np.argmin(np.hypot(grid.x[cand] - sx, grid.y[cand] - sy))])
+    return np.unique(np.asarray(nodes))
+
+
+def _propagate_seeds(st: _State) -> None:
+    """Seed-propagation initial guess.
+
+    Each seed is solved at its nearest usable node by a cross-correlation
+    search over the whole image and IC-GN (with rotated subsets when the
+    plain search gives no acceptable match); the solution then spreads, wave
+    by wave, to mask-connected lattice neighbours, each starting from its
+    best solved neighbour extrapolated to first order with that neighbour's
+    gradient (``u + F dX``). Every connected ROI region needs a seed.
+    """
+    seed_nodes = _seed_nodes(st)
+    n = st.grid.n
+    whole = st.params.replace(search_max=max(*st.roi.shape, st.params.search))
     p_init = np.zeros((n, 6))
     # a seed may have moved anywhere: widen until the peak is convincing
-    p_init[seed_nodes] = _ncc_guess(im, grid, sub, seed_nodes,
-                                    params.replace(search_max=max(rows, cols, params.search)),
-                                    accept=0.9)
+    p_init[seed_nodes] = st.ncc_guess(seed_nodes, whole, accept=0.9)
     active = np.zeros(n, bool)
     active[seed_nodes] = True
-    store(run(active, p_init), seed_nodes)
-    solved = active & (reason == Reason.OK) & (zncc >= params.zncc_min)
+    st.store(st.run(active, p_init), seed_nodes)
+    zmin = st.floor()
+    solved = active & st.acceptable(zmin)
+    missing = seed_nodes[~solved[seed_nodes]]
+    if missing.size:  # perhaps a large rotation
+        solved[_rotated_rescue(st, missing, zmin, whole)] = True
     if not solved.any():
         raise ValueError("no seed could be matched in the deformed image; move the seeds to "
                          "well-textured material")
-    tries = _grow(grid, lattice_neighbours(grid, roi, radius=1), solved, usable, run,
-                  p, zncc, iters, reason, params.zncc_min, max_tries=1)
+    tries = _grow(st, lattice_neighbours(st.grid, st.roi, radius=1), solved, st.usable,
+                  zmin, max_tries=1)
     # unreachable from any seed through converged nodes
-    reason[usable & ~active & (tries == 0)] = Reason.NO_INITIAL_GUESS
+    st.reason[st.usable & ~active & (tries == 0)] = Reason.NO_INITIAL_GUESS
 
 
-def _grow(grid: NodeGrid, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray, run,
-          p, zncc, iters, reason, zmin: float, max_tries: int, report=None) -> np.ndarray:
+def _grow(st: _State, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray,
+          zmin: np.ndarray, max_tries: int, report=None) -> np.ndarray:
     """Grow the ``good`` set into the other ``eligible`` nodes, wave by wave.
 
     Each eligible node next to a good one restarts IC-GN from its best good
     neighbour (highest ZNCC), extrapolated to first order with that
-    neighbour's gradient; converged nodes with ZNCC >= ``zmin`` join the good
-    set. A failed attempt only replaces a node's state when it had none yet
-    (so earlier results are never lost). Each node gets ``max_tries``
-    attempts. Used by seed propagation and by the repair stage. Updates
-    ``good`` and the state arrays in place; returns the attempts per node.
+    neighbour's gradient; converged nodes with ZNCC >= ``zmin`` (per node)
+    join the good set. A failed attempt only replaces a node's state when it
+    had none yet (so earlier results are never lost). Each node gets
+    ``max_tries`` attempts. Used by seed propagation and by the repair stage.
+    Updates ``good`` and the state in place; returns the attempts per node.
     """
+    grid, p, zncc = st.grid, st.p, st.zncc
     tries = np.zeros(grid.n, np.int8)
     has = nbrs >= 0
     active = np.zeros(grid.n, bool)
@@ -152,10 +270,9 @@ def _grow(grid: NodeGrid, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarr
                                    grid.y[cand] - grid.y[src])
         active[:] = False
         active[cand] = True
-        rp, rz, ri, rr = run(active, p_try)
-        ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin)
-        take = cand[ok | ~np.isfinite(zncc[cand])]
-        p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+        rp, rz, ri, rr = st.run(active, p_try)
+        ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin[cand])
+        st.store((rp, rz, ri, rr), cand[ok | ~np.isfinite(zncc[cand])])
         tries[cand] += 1
         if not ok.any():
             return tries
@@ -170,73 +287,25 @@ def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarr
     return p0
 
 
-def _ncc_guess(im: Images, grid: NodeGrid, sub: SubsetMasks, nodes: np.ndarray,
-               params: DICParams, accept: float = 0.5) -> np.ndarray:
-    """Affine parameters from an NCC search at ``nodes`` (gradients zero)."""
-    h = params.half
-    masks = None
-    if np.any(sub.slot[nodes] >= 0):
-        masks = np.ones((nodes.size, params.subset, params.subset), np.uint8)
-        cut = sub.slot[nodes] >= 0
-        masks[cut] = sub.masks[sub.slot[nodes][cut]]
-    res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], h, params.search,
-                              params.resolved_search_max(im.f.shape), masks, accept=accept)
-    p0 = np.zeros((nodes.size, 6))
-    p0[:, 0] = res.u
-    p0[:, 3] = res.v
-    return p0
-
-
-def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
-                timing: dict, report: ProgressFn, guess=None):
-    """Local IC-GN at every node.
-
-    1. Initial guess: a previous result (``guess``), seed propagation, or NCC
-       at coarse nodes (every k-th lattice node) whose IC-GN solutions start
-       every other node (nearest converged coarse node, extrapolated to first
-       order with its gradient).
-    2. Repair: nodes that failed, correlate poorly or fail the median test
-       restart from trusted neighbours wave by wave (:func:`_grow`), then
-       from their own NCC search (FFT mode), and grow again.
-    3. What still fails is flagged (LOW_CORRELATION, OUTLIER, or its reason).
-    """
-    n = grid.n
-    usable = sub.reason == Reason.OK
-    p = np.zeros((n, 6))
-    zncc = np.full(n, np.nan)
-    iters = np.zeros(n, np.int32)
-    reason = sub.reason.astype(np.int8).copy()
-
-    def run(active: np.ndarray, p_init: np.ndarray):
-        out = (p.copy(), zncc.copy(), iters.copy(), reason.copy())
-        return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, p_init, active,
-                          sub.slot, sub.masks, params.half, params.max_iter, params.tol,
-                          out=out)
-
-    def store(res, nodes: np.ndarray):
-        rp, rz, ri, rr = res
-        p[nodes], zncc[nodes], iters[nodes], reason[nodes] = (rp[nodes], rz[nodes], ri[nodes],
-                                                              rr[nodes])
-
-    t = time.perf_counter()
-    if guess is not None and np.any(guess.valid):
-        # a previous result (e.g. the last frame of a sequence) as the guess
-        p_init = _guess_from_result(grid, guess)
-        timing["init"] = time.perf_counter() - t
-        store(run(usable.copy(), p_init), np.nonzero(usable)[0])
-    elif params.init == "seeds":
-        _propagate_seeds(im, roi, grid, sub, params, run, store, p, zncc, iters, reason)
-        timing["init"] = 0.0
-    else:
-        t = _coarse_to_fine(im, grid, sub, params, usable, run, store, zncc, reason, p,
-                            timing, report)
-    timing["icgn"] = time.perf_counter() - t
-    report(0.8, "IC-GN done")
-
-    t = time.perf_counter()
-    _repair(im, roi, grid, sub, params, usable, run, p, zncc, iters, reason, report)
-    timing["rescue"] = time.perf_counter() - t
-    return p, zncc, iters, reason
+def _rotated_rescue(st: _State, candidates: np.ndarray, zmin: np.ndarray,
+                    params: DICParams | None = None) -> np.ndarray:
+    """Rotated-subset search at up to :data:`ROTATION_NODES` of the
+    ``candidates`` (spread over them), IC-GN from the best angle; returns the
+    nodes now acceptable (their state stored)."""
+    prm = params or st.params
+    pick = candidates[spread_nodes(st.grid.x[candidates], st.grid.y[candidates],
+                                   ROTATION_NODES)]
+    top = prm.resolved_search_max(st.im.f.shape)
+    p0, _ = rotated_search(st.im.f, st.im.g, st.roi, st.grid.x[pick], st.grid.y[pick],
+                           prm.half, min(prm.search, top), top)
+    p_try = st.p.copy()
+    p_try[pick] = p0
+    active = np.zeros(st.grid.n, bool)
+    active[pick] = True
+    rp, rz, ri, rr = st.run(active, p_try)
+    ok = (rr[pick] == Reason.OK) & (rz[pick] >= zmin[pick])
+    st.store((rp, rz, ri, rr), pick[ok])
+    return pick[ok]
 
 
 def _guess_from_result(grid: NodeGrid, guess) -> np.ndarray:
@@ -250,15 +319,15 @@ def _guess_from_result(grid: NodeGrid, guess) -> np.ndarray:
     return _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
 
 
-def _coarse_to_fine(im: Images, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
-                    usable, run, store, zncc, reason, p, timing: dict,
-                    report: ProgressFn) -> float:
+def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
     """FFT initial guess: NCC and IC-GN at coarse nodes (every k-th lattice
-    node), then IC-GN at every other usable node from its nearest converged
-    coarse node, extrapolated to first order (or from its own NCC search if
-    none converged). Records ``timing["init"]``; returns the
-    ``time.perf_counter()`` at which IC-GN started."""
+    node; rotated searches at a few when many fail), then IC-GN at every
+    other usable node from its nearest acceptable coarse node, extrapolated
+    to first order (or from its own NCC search if none is acceptable).
+    Records ``timing["init"]``; returns the ``time.perf_counter()`` at which
+    IC-GN started."""
     t = time.perf_counter()
+    grid, params, usable = st.grid, st.params, st.usable
     n = grid.n
     k = max(1, params.resolved_init_spacing() // params.step)
     coarse = np.nonzero(usable & (grid.ix >= 0) & (grid.ix % k == 0)
@@ -266,62 +335,93 @@ def _coarse_to_fine(im: Images, grid: NodeGrid, sub: SubsetMasks, params: DICPar
     if coarse.size == 0:
         coarse = np.nonzero(usable)[0]
     p_init = np.zeros((n, 6))
-    p_init[coarse] = _ncc_guess(im, grid, sub, coarse, params)
+    p_init[coarse] = st.ncc_guess(coarse)
     timing["init"] = time.perf_counter() - t
     report(0.3, f"initial guess at {coarse.size} coarse nodes")
 
     t = time.perf_counter()
     active = np.zeros(n, bool)
     active[coarse] = True
-    store(run(active, p_init), coarse)
-    good_c = coarse[(reason[coarse] == Reason.OK) & (zncc[coarse] >= params.zncc_min)]
+    st.store(st.run(active, p_init), coarse)
+    zmin = st.floor()
+    good = st.acceptable(zmin)
+    failed = coarse[~good[coarse] & (st.reason[coarse] != Reason.OUT_OF_IMAGE)]
+    if failed.size and failed.size >= ROTATION_TRIGGER_COARSE * coarse.size:
+        _rotated_rescue(st, failed, zmin)  # e.g. a large rotation
+        good = st.acceptable(zmin)
+    good_c = coarse[good[coarse]]
     rest = np.nonzero(usable & ~active)[0]
     if rest.size:
         if good_c.size:
             tree = cKDTree(np.column_stack([grid.x[good_c], grid.y[good_c]]))
             _, j = tree.query(np.column_stack([grid.x[rest], grid.y[rest]]))
             src = good_c[j]
-            p_init[rest] = _extrapolate(p[src], grid.x[rest] - grid.x[src],
+            p_init[rest] = _extrapolate(st.p[src], grid.x[rest] - grid.x[src],
                                         grid.y[rest] - grid.y[src])
         else:
-            p_init[rest] = _ncc_guess(im, grid, sub, rest, params)
+            p_init[rest] = st.ncc_guess(rest)
         active[:] = False
         active[rest] = True
-        store(run(active, p_init), rest)
+        st.store(st.run(active, p_init), rest)
     return t
 
 
-def _repair(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams, usable,
-            run, p, zncc, iters, reason, report: ProgressFn) -> None:
-    """Repair failed, poorly correlated or inconsistent nodes, then flag what
-    still fails (its best attempt kept). Updates the state arrays in place."""
-    nbrs5 = lattice_neighbours(grid, roi)  # outlier test neighbourhoods (5 x 5)
+def _repair(st: _State, report: ProgressFn) -> None:
+    """Repair failed, poorly matching or inconsistent nodes: grow trusted
+    regions into them, then try rotated searches at a few (when many fail)
+    and each node's own search (FFT mode), growing again after each."""
+    grid, roi, usable = st.grid, st.roi, st.usable
     nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
-    zmin = correlation_floor(zncc, usable & (reason == Reason.OK), params)
+    zmin = st.floor()
 
     def good_nodes() -> np.ndarray:
-        ok = usable & (reason == Reason.OK) & (zncc >= zmin)
-        return ok & ~median_test(p[:, 0], p[:, 3], ok, nbrs5)
+        ok = st.acceptable(zmin)
+        return ok & ~median_test(st.p[:, 0], st.p[:, 3], ok, st.nbrs5)
+
+    def bad_nodes() -> np.ndarray:
+        return np.nonzero(usable & ~good_nodes() & (st.reason != Reason.OUT_OF_IMAGE))[0]
 
     def repair_waves() -> None:
         """Grow trusted regions into failed, poor or inconsistent nodes."""
-        _grow(grid, nbrs1, good_nodes(), usable, run, p, zncc, iters, reason, zmin,
-              max_tries=2, report=report)
+        _grow(st, nbrs1, good_nodes(), usable, zmin, max_tries=2, report=report)
 
     repair_waves()
-    bad = np.nonzero(usable & ~good_nodes() & (reason != Reason.OUT_OF_IMAGE))[0]
-    if bad.size and params.init == "fft":  # seeds: motion may exceed any FFT range
-        p_try = p.copy()
-        p_try[bad] = _ncc_guess(im, grid, sub, bad, params)
+    if st.params.init != "fft":  # seeds: motion may exceed any FFT range
+        return
+    for _ in range(2):  # regions that turned by a large angle
+        bad = bad_nodes()
+        if bad.size < max(1, ROTATION_TRIGGER * usable.sum()):
+            break
+        if not _rotated_rescue(st, bad, zmin).size:
+            break
+        repair_waves()
+    bad = bad_nodes()
+    if bad.size:
+        p_try = st.p.copy()
+        p_try[bad] = st.ncc_guess(bad)
         active = np.zeros(grid.n, bool)
         active[bad] = True
-        rp, rz, ri, rr = run(active, p_try)
-        ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin)
-        take = bad[ok & ~((reason[bad] == Reason.OK) & (zncc[bad] >= rz[bad]))]
-        p[take], zncc[take], iters[take], reason[take] = rp[take], rz[take], ri[take], rr[take]
+        rp, rz, ri, rr = st.run(active, p_try)
+        ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin[bad])
+        was = (st.reason[bad] == Reason.OK) & (st.zncc[bad] >= rz[bad])
+        st.store((rp, rz, ri, rr), bad[ok & ~was])
         repair_waves()
-    # whatever still fails keeps its best attempt, flagged
-    low = usable & (reason == Reason.OK) & ~(zncc >= zmin)
-    reason[low] = Reason.LOW_CORRELATION
-    trusted = reason == Reason.OK
-    reason[median_test(p[:, 0], p[:, 3], trusted, nbrs5)] = Reason.OUTLIER
+
+
+def _flag(st: _State) -> None:
+    """Flag what still fails (its best attempt kept): ZNCC below
+    ``zncc_min`` (LOW_CORRELATION) or below the noise-relative floor
+    (POOR_MATCH, or BEYOND_SEARCH when the node's own search reached
+    ``search_max`` without a convincing peak), the median test (OUTLIER),
+    and a predicted uncertainty above ``max_uncertainty`` (UNCERTAIN)."""
+    conv = st.usable & (st.reason == Reason.OK)
+    zmin = st.validity.zncc_floor(st.zncc, conv)
+    low = conv & ~(st.zncc >= st.params.zncc_min)
+    poor = conv & ~low & ~(st.zncc >= zmin)
+    st.reason[low] = Reason.LOW_CORRELATION
+    st.reason[poor] = Reason.POOR_MATCH
+    st.reason[(low | poor) & st.beyond] = Reason.BEYOND_SEARCH
+    trusted = st.reason == Reason.OK
+    st.reason[median_test(st.p[:, 0], st.p[:, 3], trusted, st.nbrs5)] = Reason.OUTLIER
+    trusted = st.reason == Reason.OK
+    st.reason[st.validity.uncertain(st.zncc, trusted)] = Reason.UNCERTAIN

@@ -43,7 +43,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..kernels.subset import subset_noise
 from .global_solve import (
     CurvatureEstimator,
     Q4Mesh,
@@ -51,6 +50,7 @@ from .global_solve import (
     level_transition_nodes,
     second_difference_operators,
 )
+from .reliability import displacement_variance, subset_statistics
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES"]
@@ -86,12 +86,9 @@ def displacement_noise(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int,
         Variances of ``u`` and ``v``; NaN where the node has no usable subset
         or no ZNCC.
     """
-    out = np.empty((nodes_x.size, 2))
-    omz = np.where(np.isfinite(zncc), 1.0 - zncc, np.nan)
-    subset_noise(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
-                 np.asarray(slot, np.int32), masks, int(half), omz,
-                 gradient_noise_gain(order), out)
-    return out
+    stats = subset_statistics(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half)
+    var_e = np.where(np.isfinite(zncc), (1.0 - zncc) * stats.var_f, np.nan)
+    return displacement_variance(stats, var_e, gradient_noise_gain(order))
 
 
 def _lattice_trace_factor(ell: float, step: float, subset: int, n: int = 256) -> float:

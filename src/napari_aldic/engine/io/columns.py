@@ -52,19 +52,26 @@ def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
     velocities and strain rates appear only with a frame interval; they are
     backward differences to the previous frame (frame 0 = zero field), NaN
     at frame 0 and where the previous frame has other nodes.
+
+    The one rule of every export (:data:`UNTRUSTED_RULE`): measured fields
+    (``u``, ``v``, ``magnitude``, velocities, strains, rates) are NaN where
+    the node (or its strain) is not trusted, for accumulative and incremental
+    results alike; ``u_attempt``/``v_attempt`` keep the solver's value at
+    every node, untrusted ones included (NaN where it has none), for diagnosis.
     """
     res, ps = fr.result, units.pixel_size
     n = len(res)
     L = units.unit
+    u, v = trusted_displacement(res)
     cols: dict[str, tuple[np.ndarray, str]] = {
         "node": (np.arange(n), ""),
         "x_px": (np.asarray(res.x, float), "px"),
         "y_px": (np.asarray(res.y, float), "px"),
         "x": (res.x * ps, L),
         "y": (res.y * ps, L),
-        "u": (res.u * ps, L),
-        "v": (res.v * ps, L),
-        "magnitude": (np.hypot(res.u, res.v) * ps, L),
+        "u": (u * ps, L),
+        "v": (v * ps, L),
+        "magnitude": (np.hypot(u, v) * ps, L),
     }
     dt_frames = None
     prev_u = prev_v = None
@@ -76,19 +83,19 @@ def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
             if p is None:
                 prev_u = prev_v = np.zeros(n)
             else:
-                prev_u, prev_v = p.result.u, p.result.v
+                prev_u, prev_v = trusted_displacement(p.result)
                 prev_strain = p.strain
         dt = None if dt_frames is None else dt_frames * units.frame_interval
         if dt is None:
             vx = vy = np.full(n, np.nan)
         else:
-            vx, vy = (res.u - prev_u) * ps / dt, (res.v - prev_v) * ps / dt
+            vx, vy = (u - prev_u) * ps / dt, (v - prev_v) * ps / dt
         cols["vx"] = (vx, units.velocity_unit)
         cols["vy"] = (vy, units.velocity_unit)
     s = fr.strain
     if s is not None:
         for name in STRAIN_NAMES:
-            cols[name] = (np.asarray(getattr(s, name), float), "rad" if name == "rotation" else "")
+            cols[name] = (trusted_strain(s, name), "rad" if name == "rotation" else "")
         if units.has_time:
             for name in RATE_NAMES:
                 if dt_frames is None:
@@ -97,16 +104,39 @@ def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
                     if fr.prev is None:
                         before = np.zeros(n)
                     elif prev_strain is not None:
-                        before = np.asarray(getattr(prev_strain, name), float)
+                        before = trusted_strain(prev_strain, name)
                     else:
                         before = np.full(n, np.nan)
-                    rate = (getattr(s, name) - before) / (dt_frames * units.frame_interval)
+                    rate = (trusted_strain(s, name) - before) / (dt_frames
+                                                                  * units.frame_interval)
                 cols[f"{name}_rate"] = (rate, units.rate_unit)
         cols["strain_valid"] = (np.asarray(s.valid, bool), "")
     cols["valid"] = (np.asarray(res.valid, bool), "")
     cols["reason"] = (np.asarray(res.reason, np.int64), "")
     cols["zncc"] = (np.asarray(res.zncc, float), "")
+    cols["u_attempt"] = (np.asarray(res.u, float) * ps, L)
+    cols["v_attempt"] = (np.asarray(res.v, float) * ps, L)
     return cols
+
+
+#: the rule for untrusted nodes that every export states (CSV header, VTU comment, MAT)
+UNTRUSTED_RULE = ("u, v, magnitude, velocities, strains and rates are NaN where the node "
+                  "(or its strain) is not trusted (valid = 0); u_attempt and v_attempt hold "
+                  "the solver's value at every node, untrusted ones included (NaN where it "
+                  "has none), for diagnosis only")
+
+
+def trusted_displacement(res: DICResult) -> tuple[np.ndarray, np.ndarray]:
+    """``(u, v)`` in pixels, NaN at the nodes that are not trusted."""
+    ok = np.asarray(res.valid, bool)
+    return (np.where(ok, np.asarray(res.u, float), np.nan),
+            np.where(ok, np.asarray(res.v, float), np.nan))
+
+
+def trusted_strain(strain, name: str) -> np.ndarray:
+    """Strain component ``name`` of a ``StrainResult``, NaN where it is not trusted."""
+    return np.where(np.asarray(strain.valid, bool), np.asarray(getattr(strain, name), float),
+                    np.nan)
 
 
 def reason_lines() -> list[str]:

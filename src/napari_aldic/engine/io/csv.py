@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.files import atomic_write, target_path
 from ..core.units import Units
-from .columns import frame_columns, reason_lines, software_name
+from .columns import UNTRUSTED_RULE, frame_columns, reason_lines, software_name
 from .runs import collect_frames
 
 
@@ -25,9 +25,12 @@ def export_csv(data, path, *, units=None, strain=True, frames=None) -> Path:
     a frame interval), ``exx``, ``eyy``, ``exy``, ``e1``, ``e2``,
     ``max_shear``, ``von_mises``, ``rotation [rad]`` (with strain),
     ``exx_rate``, ``eyy_rate``, ``exy_rate`` (``[1/time_unit]``), then
-    ``strain_valid``, ``valid``, ``reason``, ``zncc``. Header lines start with
-    ``#``: software, source, units (one JSON line), strain settings and the
-    reason codes. Read it back with :func:`read_csv`.
+    ``strain_valid``, ``valid``, ``reason``, ``zncc``, ``u_attempt``,
+    ``v_attempt``. Measured values are NaN where the node is not trusted; the
+    ``*_attempt`` columns keep the solver's value there (see
+    :data:`~napari_aldic.engine.io.columns.UNTRUSTED_RULE`). Header lines start
+    with ``#``: software, source, units (one JSON line), strain settings, the
+    untrusted-node rule and the reason codes. Read it back with :func:`read_csv`.
     """
     path = target_path(path, (".csv", ".txt"))
     fr_list, units, info = collect_frames(data, frames=frames, strain=strain, units=units)
@@ -49,6 +52,7 @@ def export_csv(data, path, *, units=None, strain=True, frames=None) -> Path:
                      f"VSG {s['vsg_px']:g} px; dimensionless (exy is the tensor shear)\n")
         fh.write(f"# image_shape: {list(info['image_shape'])}; coordinates: x = column, "
                  "y = row (downwards), pixel centres at integers\n")
+        fh.write(f"# untrusted nodes: {UNTRUSTED_RULE}\n")
         fh.write("# reason codes: " + "; ".join(reason_lines()) + "\n")
         header = [f"{k} [{unit_map[k]}]" if unit_map[k] else k for k in names]
         fh.write(",".join(header) + "\n")

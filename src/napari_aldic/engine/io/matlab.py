@@ -11,7 +11,7 @@ import numpy as np
 from ..core.files import atomic_write, target_path
 from ..core.reasons import Reason
 from ..core.units import Units
-from .columns import frame_columns, same_nodes, software_name
+from .columns import UNTRUSTED_RULE, frame_columns, same_nodes, software_name
 from .runs import (
     MAT_FORMAT,
     MAT_FORMAT_VERSION,
@@ -32,7 +32,7 @@ def _mat_frame(fr: Frame, units: Units) -> dict[str, Any]:
         "x_px": np.asarray(res.x, float), "y_px": np.asarray(res.y, float),
         "u_px": np.asarray(res.u, float), "v_px": np.asarray(res.v, float),
     }
-    for k in ("x", "y", "u", "v", "magnitude"):
+    for k in ("x", "y", "u", "v", "magnitude", "u_attempt", "v_attempt"):
         d[k] = cols[k][0]
     for k in ("vx", "vy"):
         d[k] = cols[k][0] if k in cols else np.empty((0, 1))
@@ -71,7 +71,10 @@ def export_mat(data, path, *, units=None, strain=True, frames=None) -> Path:
     ``pixel_size``, ``unit``, ``frame_interval`` (NaN if unknown),
     ``time_unit``, ``frame`` (1 x F), ``time`` (1 x F), ``image_shape``,
     ``params_json`` and ``params`` (struct), ``strain_settings`` (struct),
-    ``reason_codes`` (cell), ``roi`` (uint8, rows x cols, when stored), and
+    ``reason_codes`` (cell), ``untrusted_rule`` (text: ``u``, ``v``,
+    ``magnitude``, velocities and strains are NaN at untrusted nodes,
+    ``u_attempt``/``v_attempt`` and ``u_px``/``v_px`` keep the solver's value),
+    ``roi`` (uint8, rows x cols, when stored), and
     ``frames``: a 1 x F struct array, one element per frame, with the fields
     listed in ``docs/exports.md``. When every frame has the same nodes, the
     per-node fields are also stacked as F x N matrices at top level
@@ -108,6 +111,8 @@ def export_mat(data, path, *, units=None, strain=True, frames=None) -> Path:
         "reason_codes": np.array([f"{int(r)}: {Reason.describe(int(r))}" for r in Reason],
                                  dtype=object),
         "source": info.get("source") or "",
+        "untrusted_rule": UNTRUSTED_RULE + "; u_px, v_px and the gradients are the result "
+                          "as stored (best attempt at untrusted nodes), for load_mat",
         "frames": st,
     }
     roi = fr_list[0].result.roi

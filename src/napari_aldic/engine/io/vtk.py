@@ -11,7 +11,7 @@ import numpy as np
 from ..core.files import atomic_write, numbered_path, target_path
 from ..core.results import DICResult
 from ..core.units import Units
-from .columns import frame_columns, software_name
+from .columns import UNTRUSTED_RULE, frame_columns, software_name
 from .runs import Frame, collect_frames
 
 
@@ -83,7 +83,7 @@ def _vtu_text(fr: Frame, units: Units, encoding: str, info: dict,
     unit_note = (f"napari-aldic VTU export ({software_name()}), frame {fr.index}. Coordinates and "
                  f"displacement in {units.unit} (pixel size {units.pixel_size:g} {units.unit}); "
                  "x = image column, y = image row (downwards), z = 0. Strains dimensionless, "
-                 "rotation in rad")
+                 "rotation in rad. Untrusted nodes: " + UNTRUSTED_RULE)
     if units.has_time:
         unit_note += (f"; velocity in {units.velocity_unit}, strain rates in "
                       f"{units.rate_unit}, time in {units.time_unit}")
@@ -134,7 +134,10 @@ def export_vtu(data, path, *, units=None, strain=True, frames=None,
     physical unit (z = 0); point data: ``displacement`` (3-vector),
     ``velocity`` (with a frame interval), ``u``, ``v``, ``magnitude``,
     ``vx``, ``vy``, strains and rates (when computed), ``strain_valid``,
-    ``valid``, ``reason``, ``zncc``. ``encoding``: ``"binary"`` (base64,
+    ``valid``, ``reason``, ``zncc``, ``u_attempt``, ``v_attempt``. Measured
+    values are NaN at untrusted nodes (the ``*_attempt`` arrays keep the
+    solver's value there; see
+    :data:`~napari_aldic.engine.io.columns.UNTRUSTED_RULE`). ``encoding``: ``"binary"`` (base64,
     exact, default) or ``"ascii"``. VTK cannot parse NaN in ASCII: with
     ``"ascii"``, arrays holding NaN (untrusted nodes, no velocity at frame 0)
     stay base64 unless ``nan_value`` gives a number to write instead. Returns

@@ -1,7 +1,7 @@
-"""A node's subset: work buffers, gathering its pixels, and its noise model.
+"""A node's subset: work buffers, gathering its pixels, and its statistics.
 
-Every per-node kernel (the IC-GN solvers, the noise estimate of the
-regularisation) works on the same packed subset: the pixels of the node's
+Every per-node kernel (the IC-GN solvers, the subset statistics behind the
+noise model and the validity tests) works on the same packed subset: the pixels of the node's
 square subset that belong to its mask component, gathered once into flat
 buffers with their offsets, reference values and reference gradients.
 """
@@ -13,7 +13,7 @@ import numpy as np
 
 from .flags import INLINE, PARALLEL
 
-__all__ = ["subset_buffers", "gather_subset", "subset_noise"]
+__all__ = ["subset_buffers", "gather_subset", "subset_stats"]
 
 
 @nb.njit(**INLINE)
@@ -95,15 +95,13 @@ def gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h, dxs, dys, gx, gy, fs):
 
 
 @nb.njit(**PARALLEL)
-def subset_noise(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out):
-    """Predicted noise variance of each node's local displacement.
+def subset_stats(f, fgx, fgy, xs, ys, slot, masks, h, out):
+    """Per-node statistics of the reference subset, in parallel.
 
-    Per node, in parallel: gather the subset exactly as IC-GN does, sum its
-    2 x 2 Gauss-Newton matrix ``H`` from the reference gradients, estimate the
-    image noise from the node's ZNCC (``var_e = (1 - ZNCC) df2 / m``), remove
-    the noise energy the gradients carry (``m var_e gain`` per direction) to
-    keep the speckle part ``S``, and return ``2 var_e S^-1 H S^-1`` (noise in
-    both images).
+    Each subset is gathered exactly as IC-GN gathers it (mask component
+    only); the sums give its grey-level variance and its 2 x 2 Gauss-Newton
+    matrix of the displacement, from which the expected correlation of a
+    correct match and the noise of the displacement follow.
 
     Parameters
     ----------
@@ -115,18 +113,14 @@ def subset_noise(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out)
         Mask slot per node and the component masks of the cut nodes.
     h : int
         Subset half-width.
-    one_minus_zncc : (n,) float64
-        ``1 - ZNCC`` per node (NaN: unknown).
-    gain : float
-        Variance of the spline derivative of unit white noise.
-    out : (n, 2) float64
-        Receives the variances of ``u`` and ``v`` (NaN where undefined).
+    out : (n, 5) float64
+        Receives ``(m, var_f, hxx, hxy, hyy)``: pixels used, grey-level
+        variance ``sum (f - fm)^2 / m`` and ``sum gx^2, sum gx gy, sum gy^2``.
     """
     n = xs.size
     npx = (2 * h + 1) ** 2
     for i in nb.prange(n):
         dxs, dys, gx, gy, fs, _, _, _ = subset_buffers(npx)
-        # the subset's pixels exactly as IC-GN gathers them (mask component only)
         _, _, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, xs, ys, i, h,
                                          dxs, dys, gx, gy, fs)
         hxx = hxy = hyy = 0.0
@@ -134,24 +128,8 @@ def subset_noise(f, fgx, fgy, xs, ys, slot, masks, h, one_minus_zncc, gain, out)
             hxx += gx[q] * gx[q]
             hxy += gx[q] * gy[q]
             hyy += gy[q] * gy[q]
-        if m == 0 or not one_minus_zncc[i] >= 0.0:
-            out[i, 0] = np.nan
-            out[i, 1] = np.nan
-            continue
-        var_e = one_minus_zncc[i] * df2 / m
-        # the gradients of the noisy reference carry noise energy m var_e gain
-        # per direction; only the rest (the speckle's) makes the subset match
-        e = m * var_e * gain
-        sxx = max(hxx - e, 0.1 * hxx)
-        syy = max(hyy - e, 0.1 * hyy)
-        det = sxx * syy - hxy * hxy
-        if det <= 0.0:
-            out[i, 0] = np.nan
-            out[i, 1] = np.nan
-            continue
-        # covariance 2 var_e S^-1 H S^-1 (S: signal part of H)
-        a = syy / det
-        b = -hxy / det
-        c = sxx / det
-        out[i, 0] = 2.0 * var_e * (a * a * hxx + 2 * a * b * hxy + b * b * hyy)
-        out[i, 1] = 2.0 * var_e * (b * b * hxx + 2 * b * c * hxy + c * c * hyy)
+        out[i, 0] = m
+        out[i, 1] = df2 / m if m > 0 else 0.0
+        out[i, 2] = hxx
+        out[i, 3] = hxy
+        out[i, 4] = hyy

@@ -20,11 +20,10 @@ from ..core.units import Units
 from ..io.columns import frame_columns
 from ..io.runs import Frame, collect_frames
 from ..io.vtk import result_cells
+from .layout import compact_ticks
 from .style import (
-    DIVERGING,
     SEQUENTIAL,
     check_field,
-    colour_limits,
     field_colour_limits,
     field_label,
     field_title,
@@ -58,33 +57,42 @@ def truth_at_nodes(result, truth) -> tuple[np.ndarray, np.ndarray]:
     return ut, vt
 
 
-def _lattice_extent(result) -> tuple[float, float, float, float]:
-    """imshow extent putting each lattice cell centred on its node."""
+def _lattice_extent(result, ps: float = 1.0) -> tuple[float, float, float, float]:
+    """imshow extent putting each lattice cell centred on its node (in units of ``ps``)."""
     xs = np.asarray(result.grid_xs, float)
     ys = np.asarray(result.grid_ys, float)
     step = float(result.params.step)
     dx = xs[1] - xs[0] if xs.size > 1 else step
     dy = ys[1] - ys[0] if ys.size > 1 else step
-    return (xs[0] - dx / 2, xs[-1] + dx / 2, ys[-1] + dy / 2, ys[0] - dy / 2)
+    return tuple(ps * e for e in (xs[0] - dx / 2, xs[-1] + dx / 2, ys[-1] + dy / 2,
+                                  ys[0] - dy / 2))
 
 
-def _displacement_panels(result, truth) -> list[dict[str, Any]]:
+def _displacement_panels(result, truth, units: Units) -> list[dict[str, Any]]:
     """The three maps of :func:`displacement_figure`: u, v and the error
-    against ``truth`` (or the ZNCC without it), with colours and labels."""
+    against ``truth`` (or the ZNCC without it), with colours and labels.
+
+    u and v take their colour limits from the one rule of every export
+    (:func:`~napari_aldic.engine.viz.style.field_colour_limits`): the robust
+    range of the trusted values, made symmetric only when they change sign."""
     panels: list[dict[str, Any]] = []
     for name in ("u", "v"):
-        grid = result.to_grid(name)
-        lim = colour_limits(grid, "symmetric", percentile=100, fallback=1.0)[1]
-        panels.append(dict(data=grid, cmap=transparent_cmap(DIVERGING), vmin=-lim, vmax=lim,
-                           label=f"{name} (px)", title=f"{name} displacement", extend="neither"))
-    panels.append(_error_panel(result, truth) if truth is not None else _zncc_panel(result))
+        grid = result.to_grid(name) * units.pixel_size
+        cm, lo, hi = field_colour_limits(name, [grid])
+        finite = grid[np.isfinite(grid)]
+        over = finite.size and (finite.min() < lo or finite.max() > hi)
+        panels.append(dict(data=grid, cmap=transparent_cmap(cm), vmin=lo, vmax=hi,
+                           label=f"{name} ({units.unit})", title=f"{name} displacement",
+                           extend="both" if over else "neither"))
+    panels.append(_error_panel(result, truth, units) if truth is not None
+                  else _zncc_panel(result))
     return panels
 
 
-def _error_panel(result, truth) -> dict[str, Any]:
+def _error_panel(result, truth, units: Units) -> dict[str, Any]:
     """Map of ``|(u, v) - truth|`` at the trusted nodes, capped at its 99th percentile."""
     ut, vt = truth_at_nodes(result, truth)
-    err = np.hypot(result.u - ut, result.v - vt)
+    err = np.hypot(result.u - ut, result.v - vt) * units.pixel_size
     sel = result.valid & np.isfinite(err)
     rmse = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else float("nan")
     grid = np.full(result.grid_shape, np.nan)
@@ -92,8 +100,8 @@ def _error_panel(result, truth) -> dict[str, Any]:
     top = float(np.percentile(err[sel], 99)) if sel.any() else 1.0
     top = top if top > 0 else 1.0
     return dict(data=grid, cmap=transparent_cmap("magma"), vmin=0.0, vmax=top,
-                label="error |(u, v) - truth| (px)",
-                title=f"error vs truth (RMSE {rmse:.4f} px)",
+                label=f"error |(u, v) - truth| ({units.unit})",
+                title=f"error vs truth (RMSE {rmse:.4g} {units.unit})",
                 extend="max" if float(np.nanmax(grid, initial=0.0)) > top else "neither")
 
 
@@ -105,7 +113,8 @@ def _zncc_panel(result) -> dict[str, Any]:
     lo = min(float(np.percentile(finite, 1)), 0.99) if finite.size else 0.0
     clipped = finite.size and float(finite.min()) < lo
     return dict(data=grid, cmap=transparent_cmap(SEQUENTIAL), vmin=lo, vmax=1.0, label="ZNCC",
-                title="correlation quality", extend="min" if clipped else "neither")
+                title="correlation quality (all nodes)",
+                extend="min" if clipped else "neither")
 
 
 def _panel_grid(n: int, rows: int, cols: int):
@@ -116,78 +125,94 @@ def _panel_grid(n: int, rows: int, cols: int):
     if cols > 1.6 * rows:
         ax_w = 8.0
         ax_h = ax_w * rows / cols
-        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.6), layout="constrained")
+        fig = Figure(figsize=(ax_w + 2.0, n * (ax_h + 0.8) + 0.9), layout="constrained")
         axes = fig.subplots(n, 1, sharex=True, sharey=True)
     else:
         ax_h = min(7.0, 4.2 * rows / cols)
         ax_w = ax_h * cols / rows
-        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.3), layout="constrained")
+        fig = Figure(figsize=(n * (ax_w + 1.9), ax_h + 1.6), layout="constrained")
         axes = fig.subplots(1, n, sharex=True, sharey=True)
     return fig, np.atleast_1d(axes)
 
 
-def _draw_panel(fig, ax, panel: dict[str, Any], result, image) -> None:
+def _draw_panel(fig, ax, panel: dict[str, Any], result, image, units: Units) -> None:
     """One map on the node lattice over the optional image, flagged nodes
     marked with x, with its colour bar."""
     rows, cols = (int(s) for s in result.image_shape)
+    ps = units.pixel_size
     ax.set_facecolor("0.85")
+    full = (-0.5 * ps, (cols - 0.5) * ps, (rows - 0.5) * ps, -0.5 * ps)
     if image is not None:
-        ax.imshow(np.asarray(image), cmap="gray", extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
-                  interpolation="nearest")
+        ax.imshow(np.asarray(image), cmap="gray", extent=full, interpolation="nearest")
     im = ax.imshow(panel["data"], cmap=panel["cmap"], vmin=panel["vmin"], vmax=panel["vmax"],
-                   extent=_lattice_extent(result), interpolation="nearest")
+                   extent=_lattice_extent(result, ps), interpolation="nearest")
     bad = ~np.asarray(result.valid, bool)
     if bad.any():
-        ax.plot(result.x[bad], result.y[bad], linestyle="none", marker="x", markersize=3,
-                color="k", alpha=0.6, label="flagged node")
-    ax.set_xlim(-0.5, cols - 0.5)
-    ax.set_ylim(rows - 0.5, -0.5)
+        ax.plot(result.x[bad] * ps, result.y[bad] * ps, linestyle="none", marker="x",
+                markersize=3, color="k", alpha=0.6, label="flagged node")
+    ax.set_xlim(full[0], full[1])
+    ax.set_ylim(full[2], full[3])
     ax.set_title(panel["title"], fontsize=10)
-    label_axes(ax, "px")
-    fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
+    label_axes(ax, units.unit)
+    bar = fig.colorbar(im, ax=ax, label=panel["label"], extend=panel["extend"])
+    compact_ticks(bar.ax.yaxis)
 
 
 def result_title(result) -> str:
-    """One line on a result: nodes (valid), subset, step and method."""
+    """One line on a result: the method, nodes (trusted), subset and step."""
     p = result.params
-    return (f"{len(result)} nodes ({result.n_valid} valid), subset {p.subset} px, "
-            f"step {p.step} px, {p.method}")
+    method = "AL-DIC" if p.method == "aldic" else "Local DIC (subset IC-GN)"
+    line = (f"{method}: {len(result)} nodes ({result.n_valid} trusted), subset {p.subset} px, "
+            f"step {p.step} px")
+    reg = (result.meta or {}).get("regularisation") or {}
+    if "smooth_px" in reg:
+        line += f", smoothing {reg['smooth_px']:.1f} px"
+    return line
 
 
-def displacement_figure(result, truth=None, image=None, title: str | None = None):
+def displacement_figure(result, truth=None, image=None, title: str | None = None,
+                        units=None):
     """Figure with the u and v maps of ``result`` and an error (or ZNCC) map.
 
     Parameters
     ----------
     result : DICResult
         The analysis to show. Fields are drawn on the node lattice
-        (``result.to_grid``), one cell per node centred on it, in pixel
+        (``result.to_grid``), one cell per node centred on it, in the
         coordinates of the reference image; untrusted nodes are blank.
     truth : displacement field, callable or (u, v) arrays, optional
         Exact displacement (see :func:`truth_at_nodes`). When given, the
-        third panel is the error magnitude ``|(u, v) - truth|`` in pixels;
-        otherwise it is the ZNCC of every node.
+        third panel is the error magnitude ``|(u, v) - truth|``; otherwise it
+        is the ZNCC of every node.
     image : (H, W) array, optional
         Reference image drawn in grey underneath (visible where there is no
         trusted node: holes, borders, flagged nodes).
     title : str, optional
-        Figure title (default: a one-line summary of the result).
+        First line of the figure title; the second line always names the
+        method, nodes, subset and step (:func:`result_title`).
+    units : Units or dict, optional
+        Lengths (axes, u, v, error) in ``units.unit``; default: the units
+        stored in ``result.meta["units"]``, else pixels.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    if isinstance(units, dict):
+        units = Units.from_dict(units)
+    units = units or Units.from_meta(result.meta) or Units()
     rows, cols = (int(s) for s in result.image_shape)
-    panels = _displacement_panels(result, truth)
+    panels = _displacement_panels(result, truth, units)
     fig, axes = _panel_grid(len(panels), rows, cols)
     for ax, panel in zip(axes, panels):
-        _draw_panel(fig, ax, panel, result, image)
-    fig.suptitle(result_title(result) if title is None else title, fontsize=11)
+        _draw_panel(fig, ax, panel, result, image, units)
+    head = result_title(result) if title is None else f"{title}\n{result_title(result)}"
+    fig.suptitle(head, fontsize=11)
     return fig
 
 
 def plot_displacement(result, path, truth=None, image=None, title: str | None = None,
-                      dpi: int = 120) -> Path:
+                      dpi: int = 120, units=None) -> Path:
     """Save :func:`displacement_figure` to ``path`` (PNG, PDF, SVG... by suffix).
 
     Returns the path written. The figure is closed afterwards (no pyplot state).
@@ -195,7 +220,7 @@ def plot_displacement(result, path, truth=None, image=None, title: str | None = 
     path = Path(path)
     if not path.parent.exists():
         raise FileNotFoundError(f"folder {path.parent} does not exist; create it first")
-    fig = displacement_figure(result, truth=truth, image=image, title=title)
+    fig = displacement_figure(result, truth=truth, image=image, title=title, units=units)
     fig.savefig(path, dpi=dpi)
     return path
 

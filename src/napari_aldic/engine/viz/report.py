@@ -2,24 +2,29 @@
 
 Pages, in order (see ``docs/exports.md``):
 
-1. **Analysis**: software, source, frames, units, strain settings and the
-   table of every analysis parameter.
+1. **Analysis**: the image files, tracking, software, units, strain settings
+   and every analysis parameter as used (choices made by the analysis, such as
+   the smoothing length, included).
 2. **Mesh and nodes**: the nodes over the ROI, coloured by their validity
-   reason, with the Q4 mesh (and the profile line, when given).
+   reason (one colour per reason), with the Q4 mesh and the profile line.
 3. **One page per chosen frame**: maps of u, v and |u| (physical units) and
-   of exx, eyy, exy (or the ZNCC without strain), shared colour limits.
+   of exx, eyy, exy (or the ZNCC without strain), shared colour limits, laid
+   out to fill the page.
 4. **Line profiles** (only with ``line=(x0, y0, x1, y1)``): u, v and the
    strains sampled along the line for every chosen frame.
-5. **Summary statistics**: mean (and standard deviation) over the trusted
-   nodes of the ROI of u, v and the strains against frame or time.
-6. **Validity**: node counts per reason for every frame.
+5. **Summary statistics** (only for more than one frame): mean and standard
+   deviation over the trusted nodes of u, v and the strains against frame or
+   time.
+6. **Validity**: node counts per reason for every frame (with the statistics
+   table for a single pair).
 
-So a report has ``4 + len(frames)`` pages, plus one with a line.
+So a report has ``3 + len(frames)`` pages, plus one with a line and one for
+a sequence (:func:`report_page_count`). :func:`report_pages` gives the
+matplotlib figures themselves.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 from pathlib import Path
 
 import numpy as np
@@ -31,12 +36,20 @@ from ..io.columns import software_name
 from ..io.runs import Frame, collect_frames
 from ..io.vtk import result_cells
 from .figures import draw_field, field_values
-from .style import field_colour_limits, field_label, field_title, frame_title, label_axes
+from .layout import A4, A4_LANDSCAPE, compact_ticks, map_grid, wrap
+from .provenance import analysis_page
+from .report_stats import profiles_page, summary_page, validity_page
+from .style import (
+    field_colour_limits,
+    field_label,
+    field_title,
+    frame_title,
+    label_axes,
+    reason_colour,
+)
 
-__all__ = ["export_report", "line_profile", "report_page_count", "sample_cells"]
-
-_A4 = (8.27, 11.69)
-_A4_LANDSCAPE = (11.69, 8.27)
+__all__ = ["export_report", "report_pages", "line_profile", "report_page_count",
+           "sample_cells"]
 
 
 def _default_frames(indices: list[int], n: int = 4) -> list[int]:
@@ -47,9 +60,12 @@ def _default_frames(indices: list[int], n: int = 4) -> list[int]:
     return [moving[i] for i in pick]
 
 
-def report_page_count(n_frames: int, line: bool) -> int:
-    """Number of pages of a report on ``n_frames`` chosen frames."""
-    return 4 + int(n_frames) + (1 if line else 0)
+def report_page_count(n_frames: int, line: bool = False, n_total: int | None = None) -> int:
+    """Number of pages of a report with map pages for ``n_frames`` frames, out
+    of ``n_total`` frames in all (default ``n_frames``): the statistics page
+    against frame appears only when ``n_total > 1``."""
+    n_total = int(n_frames) if n_total is None else int(n_total)
+    return 3 + int(n_frames) + (1 if line else 0) + (1 if n_total > 1 else 0)
 
 
 def _check_line(line):
@@ -113,80 +129,16 @@ def sample_cells(x, y, cells, values, px, py, chunk: int = 256) -> np.ndarray:
     return out
 
 
-def _text_page(fig, lines, y0=0.97, size=10, x=0.06):
-    y = y0
-    for text, kw in lines:
-        fig.text(x, y, text, fontsize=kw.get("size", size), weight=kw.get("weight", "normal"),
-                 va="top", family=kw.get("family", "sans-serif"))
-        y -= kw.get("gap", 0.024)
-    return y
-
-
-def _page_parameters(fr_list, units, info, line):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=_A4)
-    p = info["params"]
-    first = fr_list[0].result
-    meta = first.meta or {}
-    versions = meta.get("versions") or {}
-    idx = info.get("frames_all") or [f.index for f in fr_list]
-    s = info.get("strain")
-    lines = [("napari-aldic DIC report", {"size": 18, "weight": "bold", "gap": 0.04}),
-             (f"written {_dt.datetime.now().isoformat(timespec='seconds')} by {software_name()}",
-              {}),
-             ("analysis software: " + (", ".join(f"{k} {v}" for k, v in versions.items())
-                                       or "not recorded"), {}),
-             (f"source: {info.get('source') or meta.get('inputs', {}).get('reference') or '-'}",
-              {}),
-             (f"frames: {len(idx)} ({idx[0]} to {idx[-1]})"
-              + (f", reference mode {info['reference']}" if info.get("reference") else ""), {}),
-             (f"image: {first.image_shape[1]} x {first.image_shape[0]} px; "
-              f"{len(first)} nodes", {}),
-             (f"units: {units.describe()}", {}),
-             ("strain: " + (f"{s['measure'].replace('_', '-')} by {s['method'].replace('_', ' ')}, "
-                            f"window {s['window']} nodes, virtual strain gauge "
-                            f"{s['vsg_px']:g} px ({s['vsg_px'] * units.pixel_size:g} "
-                            f"{units.unit})" if s else "not computed"), {}),
-             ("profile line: " + ("-" if line is None else
-                                  f"({line[0]:g}, {line[1]:g}) to ({line[2]:g}, {line[3]:g}) px"),
-              {"gap": 0.045}),
-             ("Analysis parameters (lengths in pixels)", {"size": 12, "weight": "bold",
-                                                         "gap": 0.01})]
-    y = _text_page(fig, lines)
-    rows = [[k, "None" if v is None else str(v)] for k, v in p.to_dict().items()]
-    t = meta.get("timing", {})
-    if "total" in t:
-        rows.append(["(time of last frame)", f"{t['total']:.3f} s"])
-    ax = fig.add_axes((0.06, 0.04, 0.88, y - 0.06))
-    ax.axis("off")
-    table = ax.table(cellText=rows, colLabels=["parameter", "value"], loc="upper left",
-                     cellLoc="left", colWidths=[0.4, 0.6])
-    table.auto_set_font_size(False)
-    table.set_fontsize(9)
-    table.scale(1, 1.25)
-    return fig
-
-
-def _reason_style():
-    import matplotlib
-
-    cmap = matplotlib.colormaps["tab10"]
-    style = {0: ("o", (0.2, 0.6, 0.2))}
-    for i, r in enumerate(Reason):
-        if r != 0:
-            style[int(r)] = ("x", cmap((i + 1) % 10))
-    return style
-
-
-def _page_mesh(fr_list, units, info, line, image):
+# =================================================================== pages
+def _mesh_page(fr_list, units, info, line, image):
     from matplotlib.collections import PolyCollection
     from matplotlib.figure import Figure
 
     fr = fr_list[-1]
     res, ps = fr.result, units.pixel_size
     rows, cols = res.image_shape
-    fig = Figure(figsize=_A4_LANDSCAPE, layout="constrained")
+    tall = rows > 1.2 * cols  # a tall image fills a portrait page, its legend below
+    fig = Figure(figsize=A4 if tall else A4_LANDSCAPE, layout="constrained")
     ax = fig.add_subplot()
     ext = (-0.5 * ps, (cols - 0.5) * ps, (rows - 0.5) * ps, -0.5 * ps)
     if image is not None:
@@ -199,13 +151,12 @@ def _page_mesh(fr_list, units, info, line, image):
         verts = np.stack([res.x[cells] * ps, res.y[cells] * ps], axis=-1)
         ax.add_collection(PolyCollection(verts, facecolors="none", edgecolors="0.45",
                                          linewidths=0.4))
-    style = _reason_style()
     for code in np.unique(res.reason):
         sel = res.reason == code
-        marker, color = style.get(int(code), ("x", "k"))
-        ax.plot(res.x[sel] * ps, res.y[sel] * ps, linestyle="none", marker=marker,
-                markersize=2.5 if code == 0 else 4, color=color,
-                label=f"{Reason.describe(int(code))}: {int(sel.sum())}")
+        ax.plot(res.x[sel] * ps, res.y[sel] * ps, linestyle="none",
+                marker="o" if code == 0 else "x", markersize=2.5 if code == 0 else 6,
+                markeredgewidth=1.0 if code == 0 else 1.8, color=reason_colour(code),
+                label=f"{int(code)}: {Reason.describe(int(code))} ({int(sel.sum())})")
     if line is not None:
         ax.plot([line[0] * ps, line[2] * ps], [line[1] * ps, line[3] * ps], "-", color="m",
                 lw=1.5, label="profile line")
@@ -214,10 +165,12 @@ def _page_mesh(fr_list, units, info, line, image):
     ax.set_aspect("equal")
     label_axes(ax, units.unit)
     p = info["params"]
-    ax.set_title(f"Mesh and nodes ({frame_title(fr, units)}): {len(res)} nodes, "
-                 f"{len(cells)} Q4 cells, subset {p.subset} px, step {p.step} px, "
-                 f"method {p.method}", fontsize=11)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, title="node status")
+    title = (f"Mesh and nodes, {frame_title(fr, units)}: {len(res)} nodes, {len(cells)} Q4 "
+             f"cells; subset {p.subset} px, step {p.step} px, method {p.method}")
+    ax.set_title("\n".join(wrap(title, 7.0, 11)), fontsize=11)
+    where = dict(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=2) if tall else \
+        dict(loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    ax.legend(fontsize=8, title="node status (count)", title_fontsize=9, **where)
     return fig
 
 
@@ -225,168 +178,68 @@ def _map_fields(has_strain: bool):
     return ("u", "v", "magnitude") + (("exx", "eyy", "exy") if has_strain else ("zncc",))
 
 
-def _page_maps(fr, units, info, limits, image):
+def _maps_page(fr, units, info, limits, image):
     from matplotlib.figure import Figure
 
     names = _map_fields(fr.strain is not None)
-    rows, cols = fr.result.image_shape
-    fig = Figure(figsize=_A4_LANDSCAPE if cols >= rows else _A4, layout="constrained")
-    ncol = 3
-    nrow = -(-len(names) // ncol)
+    res = fr.result
+    size, nrow, ncol = map_grid(len(names), res.image_shape)
+    fig = Figure(figsize=size, layout="constrained")
     axes = np.atleast_1d(fig.subplots(nrow, ncol)).ravel()
+    ax_w = size[0] / ncol - 1.4  # the map's own width, its colour bar beside it
     for ax, name in zip(axes, names):
         cm, lo, hi = limits[name]
         im = draw_field(ax, fr, name, units, cm, lo, hi, image=image)
-        fig.colorbar(im, ax=ax, label=field_label(name, units, info), shrink=0.8)
-        ax.set_title(field_title(name), fontsize=9)
+        bar = fig.colorbar(im, ax=ax, shrink=0.85, aspect=25)
+        bar.set_label(field_label(name, units, info), fontsize=8)
+        bar.ax.tick_params(labelsize=7)
+        compact_ticks(bar.ax.yaxis)
+        ax.set_title("\n".join(wrap(field_title(name), max(ax_w, 1.0), 9)), fontsize=9)
         ax.tick_params(labelsize=7)
+        ax.xaxis.label.set_size(8)
+        ax.yaxis.label.set_size(8)
     for ax in axes[len(names):]:
         ax.axis("off")
-    res = fr.result
-    fig.suptitle(f"{frame_title(fr, units)}: {res.n_valid} of {len(res)} nodes trusted",
-                 fontsize=12)
+    method = "AL-DIC" if res.params.method == "aldic" else "Local DIC"
+    fig.suptitle(f"{frame_title(fr, units)}: {res.n_valid} of {len(res)} nodes trusted "
+                 f"({method}; untrusted nodes blank, marked x)", fontsize=11)
     return fig
 
 
-def _page_profiles(fr_list, units, info, line, limits, image):
-    import matplotlib
-    from matplotlib.figure import Figure
-
-    has_strain = fr_list[-1].strain is not None
-    fig = Figure(figsize=_A4, layout="constrained")
-    n_plots = 2 + (3 if has_strain else 0)
-    gs = fig.add_gridspec(1 + n_plots, 1, height_ratios=[2.2] + [1] * n_plots)
-    ax0 = fig.add_subplot(gs[0])
-    last = fr_list[-1]
-    cm, lo, hi = limits["magnitude"]
-    im = draw_field(ax0, last, "magnitude", units, cm, lo, hi, image=image,
-                     mark_flagged=False)
-    fig.colorbar(im, ax=ax0, label=field_label("magnitude", units, info), shrink=0.8)
-    ps = units.pixel_size
-    ax0.plot([line[0] * ps, line[2] * ps], [line[1] * ps, line[3] * ps], "-", color="m", lw=2)
-    ax0.annotate("A", (line[0] * ps, line[1] * ps), color="m", weight="bold")
-    ax0.annotate("B", (line[2] * ps, line[3] * ps), color="m", weight="bold")
-    ax0.set_anchor("C")
-    ax0.set_title(f"profile line A-B over |u|, {frame_title(last, units)}", fontsize=10)
-    names = ["u", "v"] + (["exx", "eyy", "exy"] if has_strain else [])
-    axes = [fig.add_subplot(gs[i + 1]) for i in range(n_plots)]
-    colors = matplotlib.colormaps["viridis"](np.linspace(0, 0.9, max(len(fr_list), 1)))
-    for fr, color in zip(fr_list, colors):
-        dist, prof = line_profile(fr, units, line, names)
-        for ax, name in zip(axes, names):
-            ax.plot(dist, prof[name], color=color, lw=1.2, label=frame_title(fr, units))
-    for ax, name in zip(axes, names):
-        ax.set_ylabel(field_label(name, units, info).replace(" (", "\n("), fontsize=8)
-        ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=7)
-    axes[-1].set_xlabel(f"distance from A along the line ({units.unit})")
-    axes[0].legend(fontsize=7, loc="best")
-    return fig
-
-
-def _series(fr_list, units):
-    """Mean/std over trusted nodes of each field, frame by frame."""
-    names = ["u", "v"] + (["exx", "eyy", "exy"] if fr_list[0].strain is not None else [])
-    stats = {n: ([], []) for n in names}
-    for fr in fr_list:
-        for n in names:
-            v = field_values(fr, n, units)
-            v = v[np.isfinite(v)]
-            stats[n][0].append(v.mean() if v.size else np.nan)
-            stats[n][1].append(v.std() if v.size else np.nan)
-    return names, {n: (np.array(m), np.array(s)) for n, (m, s) in stats.items()}
-
-
-def _page_summary(all_frames, units, info):
-    from matplotlib.figure import Figure
-
-    names, stats = _series(all_frames, units)
-    idx = np.array([f.index for f in all_frames], float)
-    t = idx * units.frame_interval if units.has_time else idx
-    xlabel = f"time ({units.time_unit})" if units.has_time else "frame"
-    fig = Figure(figsize=_A4, layout="constrained")
-    gs = fig.add_gridspec(3, 1, height_ratios=[1, 1, 1.3])
-    ax_d = fig.add_subplot(gs[0])
-    for n in ("u", "v"):
-        m, s = stats[n]
-        ax_d.plot(t, m, "o-", ms=3, label=f"mean {n}")
-        ax_d.fill_between(t, m - s, m + s, alpha=0.2)
-    ax_d.set_ylabel(f"displacement ({units.unit})")
-    ax_d.set_xlabel(xlabel)
-    ax_d.legend(fontsize=8)
-    ax_d.grid(alpha=0.3)
-    ax_d.set_title("Mean over the trusted nodes of the ROI (band: ± 1 standard deviation)",
-                   fontsize=10)
-    ax_s = fig.add_subplot(gs[1])
-    if "exx" in stats:
-        for n in ("exx", "eyy", "exy"):
-            m, s = stats[n]
-            ax_s.plot(t, m, "o-", ms=3, label=f"mean {n}")
-            ax_s.fill_between(t, m - s, m + s, alpha=0.2)
-        s_info = info.get("strain") or {}
-        ax_s.set_ylabel(f"strain ({s_info.get('measure', '').replace('_', '-')})")
-        ax_s.legend(fontsize=8)
+def report_pages(data, *, frames=None, line=None, units=None, strain=True, image=None):
+    """The pages of :func:`export_report` as matplotlib figures, built one at a
+    time (an iterator): what the PDF holds, for checks or other formats. The
+    arguments are checked at once."""
+    line = _check_line(line)
+    all_frames, units, info = collect_frames(data, strain=strain, units=units)
+    if frames is None:
+        chosen = _default_frames([f.index for f in all_frames])
     else:
-        ax_s.text(0.5, 0.5, "strain not computed", ha="center", va="center",
-                  transform=ax_s.transAxes)
-    ax_s.set_xlabel(xlabel)
-    ax_s.grid(alpha=0.3)
-    ax_t = fig.add_subplot(gs[2])
-    ax_t.axis("off")
-    header = ["frame"] + (["time"] if units.has_time else []) + [
-        f"{n} ({units.unit})" if n in ("u", "v") else n for n in names] + ["trusted"]
-    rows = []
-    shown = all_frames if len(all_frames) <= 25 else all_frames[:12] + all_frames[-12:]
+        chosen = [int(k) for k in frames]
+        missing = [k for k in chosen if k not in [f.index for f in all_frames]]
+        if missing:
+            raise ValueError(f"frame(s) {missing} not in the result; available: "
+                             f"{[f.index for f in all_frames]}")
+    shown = [f for f in all_frames if f.index in chosen]
+    has_strain = shown[0].strain is not None
+    limits = {}
+    for name in set(_map_fields(has_strain)) | {"magnitude"}:
+        limits[name] = field_colour_limits(name, [field_values(f, name, units) for f in shown])
+    return _pages(all_frames, shown, units, info, line, limits, image)
+
+
+def _pages(all_frames, shown, units, info, line, limits, image):
+    """The figures of :func:`report_pages`, one at a time."""
+    yield analysis_page(all_frames, units, info, line)
+    yield _mesh_page(shown, units, info, line, image)
     for fr in shown:
-        j = all_frames.index(fr)
-        row = [str(fr.index)] + ([f"{t[j]:g}"] if units.has_time else [])
-        row += [f"{stats[n][0][j]:.4g}" for n in names]
-        row.append(f"{fr.result.n_valid}/{len(fr.result)}")
-        rows.append(row)
-    table = ax_t.table(cellText=rows, colLabels=header, loc="upper center", cellLoc="right")
-    table.auto_set_font_size(False)
-    table.set_fontsize(7)
-    if len(all_frames) > 25:
-        ax_t.set_title(f"first and last 12 of {len(all_frames)} frames", fontsize=8)
-    fig.suptitle("Summary statistics", fontsize=13)
-    return fig
-
-
-def _page_validity(all_frames, units):
-    from matplotlib.figure import Figure
-
-    codes = sorted({int(c) for fr in all_frames for c in np.unique(fr.result.reason)})
-    counts = np.array([[int(np.count_nonzero(fr.result.reason == c)) for c in codes]
-                       for fr in all_frames])
-    idx = np.array([fr.index for fr in all_frames])
-    fig = Figure(figsize=_A4, layout="constrained")
-    gs = fig.add_gridspec(2, 1, height_ratios=[1, 1.2])
-    ax = fig.add_subplot(gs[0])
-    style = _reason_style()
-    bottom = np.zeros(len(all_frames))
-    pos = np.arange(len(all_frames))
-    for j, c in enumerate(codes):
-        ax.bar(pos, counts[:, j], bottom=bottom, color=style.get(c, ("x", "k"))[1],
-               label=Reason.describe(c), width=0.8)
-        bottom += counts[:, j]
-    step = max(1, len(pos) // 20)
-    ax.set_xticks(pos[::step], [str(k) for k in idx[::step]], fontsize=7)
-    ax.set_xlabel("frame")
-    ax.set_ylabel("nodes")
-    ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("Node validity per frame (reason codes)", fontsize=10)
-    ax_t = fig.add_subplot(gs[1])
-    ax_t.axis("off")
-    shown = list(range(len(all_frames)))
-    if len(shown) > 25:
-        shown = shown[:12] + shown[-12:]
-    header = ["frame"] + [f"{c}: {Reason.describe(c)}" for c in codes]
-    rows = [[str(idx[i])] + [str(v) for v in counts[i]] for i in shown]
-    table = ax_t.table(cellText=rows, colLabels=header, loc="upper center", cellLoc="right")
-    table.auto_set_font_size(False)
-    table.set_fontsize(6.5 if len(codes) > 4 else 7.5)
-    fig.suptitle("Validity counts", fontsize=13)
-    return fig
+        yield _maps_page(fr, units, info, limits, image)
+    if line is not None:
+        yield profiles_page(shown, units, info, line, limits, image,
+                            lambda fr, names: line_profile(fr, units, line, names))
+    if len(all_frames) > 1:
+        yield summary_page(all_frames, units, info)
+    yield validity_page(all_frames, units, info)
 
 
 def export_report(data, path, *, frames=None, line=None, units=None, strain=True,
@@ -407,38 +260,19 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
     image : (H, W) array, optional
         Reference image drawn under the maps.
 
-    The report has ``4 + len(frames)`` pages, plus one with ``line``.
+    The report has ``report_page_count(len(frames), line, n_total)`` pages:
+    ``3 + len(frames)``, plus one with ``line`` and one (statistics against
+    frame) when the data hold more than one frame.
     """
     from matplotlib.backends.backend_pdf import PdfPages
 
     path = target_path(path, (".pdf",))
-    line = _check_line(line)
-    all_frames, units, info = collect_frames(data, strain=strain, units=units)
-    if frames is None:
-        chosen = _default_frames([f.index for f in all_frames])
-    else:
-        chosen = [int(k) for k in frames]
-        missing = [k for k in chosen if k not in [f.index for f in all_frames]]
-        if missing:
-            raise ValueError(f"frame(s) {missing} not in the result; available: "
-                             f"{[f.index for f in all_frames]}")
-    shown = [f for f in all_frames if f.index in chosen]
-    has_strain = shown[0].strain is not None
-    limits = {}
-    for name in set(_map_fields(has_strain)) | {"magnitude"}:
-        limits[name] = field_colour_limits(name, [field_values(f, name, units) for f in shown])
-    pages = [lambda: _page_parameters(all_frames, units, info, line),
-             lambda: _page_mesh(shown, units, info, line, image)]
-    pages += [lambda fr=fr: _page_maps(fr, units, info, limits, image) for fr in shown]
-    if line is not None:
-        pages.append(lambda: _page_profiles(shown, units, info, line, limits, image))
-    pages += [lambda: _page_summary(all_frames, units, info),
-              lambda: _page_validity(all_frames, units)]
+    pages = report_pages(data, frames=frames, line=line, units=units, strain=strain,
+                         image=image)
     meta = {"Title": title or "napari-aldic DIC report", "Creator": software_name(),
-            "Subject": f"DIC analysis, {len(all_frames)} frame(s)"}
+            "Subject": "DIC analysis"}
     with atomic_write(path) as tmp:
         with PdfPages(tmp, metadata=meta) as pdf:
-            for make in pages:
-                fig = make()
+            for fig in pages:
                 pdf.savefig(fig)
     return path

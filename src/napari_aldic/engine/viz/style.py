@@ -20,7 +20,7 @@ from ..io.columns import FIELD_INFO, unit_of
 
 __all__ = ["colour_limits", "field_colour_limits", "field_title", "field_label",
            "check_field", "unknown_field", "needs_strain", "frame_title", "label_axes",
-           "transparent_cmap", "DIVERGING", "SEQUENTIAL"]
+           "transparent_cmap", "DIVERGING", "SEQUENTIAL", "REASON_COLOURS", "reason_colour"]
 
 #: colour map of signed fields whose limits straddle zero
 DIVERGING = "RdBu_r"
@@ -33,6 +33,14 @@ SIGNED_KINDS = ("length", "velocity", "strain", "angle", "rate")
 #: fields of a signed kind that are never negative
 NON_NEGATIVE_FIELDS = ("magnitude", "von_mises", "max_shear")
 _LIMIT_MODES = ("range", "symmetric", "from_zero")
+#: one colour per reason code, no two alike (the tab10 colours; green only for converged)
+REASON_COLOURS = {0: "#2ca02c", 1: "#1f77b4", 2: "#ff7f0e", 3: "#d62728", 4: "#9467bd",
+                  5: "#8c564b", 6: "#e377c2", 7: "#bcbd22", 8: "#17becf"}
+
+
+def reason_colour(code: int) -> str:
+    """The colour of reason ``code`` in every figure (black for an unknown code)."""
+    return REASON_COLOURS.get(int(code), "#000000")
 
 
 # =================================================================== names

@@ -16,13 +16,14 @@ The previous frame's field is the initial guess of the next one (within a
 reference block). Frames are read only when needed. With ``out_dir`` each
 frame's result is written as soon as it is computed (``frame_00003.npz``,
 written under a temporary name and renamed), so an interrupted run keeps
-every finished frame, and a rerun with the same ``out_dir`` and parameters
-resumes where it stopped.
+every finished frame, and a rerun with the same ``out_dir`` and inputs
+resumes where it stopped (:mod:`.runfolder`: the manifest, the checks and the
+lock). A frame that cannot be analysed raises :class:`TrackError`, which
+carries the frames finished before it.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
@@ -31,14 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.files import atomic_write
+from ..core.files import RunFolderError, array_digest, write_roi_file
+from ..core.images import validate_roi
 from ..core.params import DICParams
 from ..core.progress import Cancelled
 from ..core.results import DICResult, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
 from ..io.stack import open_stack
+from .runfolder import MANIFEST, refine_record, roi_record, run_folder, run_id, stack_record
 
-__all__ = ["track"]
+__all__ = ["track", "TrackError", "RunFolderError"]
 
 def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
     """Bilinear interpolation of a node field at points (NaN where not possible)."""
@@ -102,39 +105,60 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     return out
 
 
+class TrackError(ValueError):
+    """A frame of :func:`track` could not be read or analysed (an unreadable
+    file, a frame of another size, ...). The frames finished before it are
+    not lost: ``partial`` is the :class:`SequenceResult` of the run so far
+    (frames not computed are ``None``; ``partial.meta["failed_frame"]`` is
+    ``frame``), and the original error is ``__cause__``."""
+
+    def __init__(self, message: str, partial: SequenceResult, frame: int):
+        super().__init__(message)
+        self.partial = partial
+        self.frame = frame
+
+
 def _pair_job(stack, ref_k: int, k: int, roi, params: DICParams, refine=None) -> DICResult:
     """One frame pair (runs in a worker thread or process)."""
     src = open_stack(stack)
     return correlate(src[ref_k], src[k], roi=roi, params=params, refine=refine)
 
 
-def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, workers,
-                  finish, results, cancel, report, refine=None) -> bool:
+def _run_parallel(run: _SequenceRun, stack, todo, scheduler, workers, cancel) -> bool:
     """Run the pairs of ``todo`` concurrently; finish frames in order as their
     references become available. Returns True if cancelled."""
-    spec = src.name if src.name is not None else stack
+    spec = run.src.name if run.src.name is not None else stack
     incs: dict = {}
+
+    def args(i):
+        return spec, run.ref_of(i), run.idx[i], run.roi_for(run.ref_of(i))
 
     def flush():
         for i in sorted(incs):
-            r = ref_of(i)
-            if results[idx.index(r)] is None:
+            if run.results[run.idx.index(run.ref_of(i))] is None:
                 break  # its reference frame is not final yet (composition order)
-            finish(i, incs.pop(i))
+            run.finish(i, incs.pop(i))
+
+    def collect(fu, i, others) -> None:
+        try:
+            incs[i] = fu.result()
+        except Exception as exc:
+            for other in others:
+                other.cancel()
+            raise run.failed(run.idx[i], exc) from exc
 
     if scheduler == "threads":
         from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
         n = workers or os.cpu_count() or 1
-        one = params.replace(n_threads=1)  # frames are the parallel unit
+        one = run.params.replace(n_threads=1)  # frames are the parallel unit
         with ThreadPoolExecutor(max_workers=n) as ex:
-            futs = {ex.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), one,
-                              refine): i for i in todo}
+            futs = {ex.submit(_pair_job, *args(i), one, run.refine): i for i in todo}
             pending = set(futs)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fu in done:
-                    incs[futs[fu]] = fu.result()
+                    collect(fu, futs[fu], pending)
                 flush()
                 if cancel is not None and cancel():
                     for fu in pending:
@@ -145,14 +169,10 @@ def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, wor
 
     client = Client(scheduler) if isinstance(scheduler, str) else scheduler
     try:
-        futs = {}
-        for i in todo:
-            fu = client.submit(_pair_job, spec, ref_of(i), idx[i], roi_for(ref_of(i)), params,
-                               refine, pure=False)
-            futs[fu] = i
-        ac = as_completed(list(futs))
-        for fu in ac:
-            incs[futs[fu]] = fu.result()
+        futs = {client.submit(_pair_job, *args(i), run.params, run.refine, pure=False): i
+                for i in todo}
+        for fu in as_completed(list(futs)):
+            collect(fu, futs[fu], futs)
             flush()
             if cancel is not None and cancel():
                 for other in futs:
@@ -167,7 +187,7 @@ def _run_parallel(stack, src, todo, idx, ref_of, roi_for, params, scheduler, wor
 def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
           reference: str = "accumulative", *, update_every: int | None = None,
           rois=None, frames=None, out_dir=None, params: DICParams | None = None,
-          scheduler=None, workers: int | None = None, refine=None,
+          scheduler=None, workers: int | None = None, refine=None, meta: dict | None = None,
           progress: Callable[[int, float, str], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
@@ -187,7 +207,13 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     frames : sequence of int, optional
         Frames to analyse (must start with 0 and increase); default all.
     out_dir : path, optional
-        Write each frame's result as it finishes; rerunning resumes.
+        A run folder: each frame's result is written as it finishes, and
+        rerunning resumes. The folder is locked while the run writes it
+        (a second process gets :class:`RunFolderError`), and a folder that
+        holds another analysis, or whose inputs changed (parameters, ROI,
+        refinement, reference mode, frames, stack contents), is refused
+        with :class:`RunFolderError` naming what changed (see
+        :mod:`~napari_aldic.engine.workflow.runfolder`).
     scheduler : None, "threads", a ``dask.distributed.Client`` or its address
         ``None`` runs frames one after the other, each starting from the
         previous frame's field. Otherwise the frame pairs, which do not
@@ -199,6 +225,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     refine : preset name, Refinement or dict, optional
         Quadtree refinement for every frame (as in ``correlate``), e.g. a
         ``Refinement(brush=mask)`` painted region.
+    meta : dict, optional
+        JSON-compatible entries added to every frame's ``meta`` (e.g.
+        ``{"units": units.to_dict()}``); part of a run folder's identity.
     progress : callable(frame, fraction, message), optional
     on_frame : callable(frame, result), optional
         Called with each frame's final (frame-0 referenced) result as soon as
@@ -211,6 +240,14 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     Returns
     -------
     SequenceResult
+
+    Raises
+    ------
+    TrackError
+        A frame could not be read or analysed; ``error.partial`` holds the
+        frames finished before it (with ``out_dir`` they are also on disk).
+    RunFolderError
+        ``out_dir`` is in use, holds another analysis, or its inputs changed.
     """
     if reference not in ("accumulative", "incremental"):
         raise ValueError(f"reference={reference!r} must be 'accumulative' or 'incremental'")
@@ -222,43 +259,14 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     idx = list(range(len(src))) if frames is None else [int(k) for k in frames]
     if idx[0] != 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= len(src):
         raise ValueError(f"frames must start at 0, increase and stay below {len(src)}")
-    out = _open_out_dir(out_dir, {"params": params.to_dict(), "reference": reference,
-                                  "update_every": update_every, "frames": idx,
-                                  "source": src.name})
-    t0 = time.perf_counter()
-    run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine, out,
-                       progress or (lambda k, frac, msg: None), on_frame)
-    ref_img = run.start()
-    todo = run.load_finished()
-    if scheduler is None:
-        cancelled = run.serial(todo, ref_img, cancel)
-    else:
-        cancelled = _run_parallel(stack, src, todo, idx, run.ref_of, run.roi_for, params,
-                                  scheduler, workers, run.finish, run.results, cancel,
-                                  run.report, refine)
-    meta = {"seconds": time.perf_counter() - t0, "frames": idx, "cancelled": cancelled,
-            "update_every": update_every, "source": src.name}
-    return SequenceResult(run.results, params, reference, meta)
-
-
-def _open_out_dir(out_dir, info: dict) -> Path | None:
-    """Create ``out_dir`` and its manifest ``sequence.json`` (the analysis
-    ``info``), or check that an existing manifest describes the same analysis
-    (a rerun resumes). None without ``out_dir``."""
+    run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
+                       dict(meta or {}), progress or (lambda k, frac, msg: None), on_frame)
     if out_dir is None:
-        return None
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    manifest = out / "sequence.json"
-    if manifest.exists():
-        old = json.loads(manifest.read_text())
-        if {k: old.get(k) for k in info} != info:
-            raise ValueError(f"{out} holds results of a different analysis; choose an "
-                             "empty folder or the same parameters to resume")
-    else:
-        with atomic_write(manifest) as tmp:
-            tmp.write_text(json.dumps(info, indent=1))
-    return out
+        return run.execute(stack, scheduler, workers, cancel)
+    info = run.identity()
+    with run_folder(out_dir, info) as out:
+        run.out, run.run_id = out, run_id(info)
+        return run.execute(stack, scheduler, workers, cancel)
 
 
 @dataclass
@@ -274,19 +282,49 @@ class _SequenceRun:
     rois: object
     params: DICParams
     refine: object
-    out: Path | None
+    extra: dict  # entries added to every frame's meta
     report: Callable[[int, float, str], None]
     on_frame: Callable[[int, DICResult], None] | None
+    out: Path | None = None
+    run_id: str | None = None
     results: list = field(init=False)
 
     def __post_init__(self):
         self.results = [None] * len(self.idx)
+        self._whole = None  # the one ROI array of a run without per-frame ROIs
+        self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
 
-    def roi_for(self, k: int):
-        """ROI of the reference image ``k``."""
+    # ------------------------------------------------------------ inputs
+    def roi_for(self, k: int) -> np.ndarray:
+        """ROI of the reference image ``k`` as a bool mask; without per-frame
+        ROIs every frame shares one array (no full-size copy per result)."""
+        shape = tuple(self.src.shape[1:])
         if self.rois is None:
-            return self.roi
-        return self.rois(k) if callable(self.rois) else self.rois[k]
+            if self._whole is None:
+                self._whole = validate_roi(self.roi, shape)
+            return self._whole
+        return validate_roi(self.rois(k) if callable(self.rois) else self.rois[k], shape)
+
+    def _digest(self, mask: np.ndarray) -> str:
+        got = self._roi_refs.get(id(mask))
+        if got is None or got[0] is not mask:
+            if len(self._roi_refs) > 8:
+                self._roi_refs.clear()
+            got = self._roi_refs[id(mask)] = [mask, array_digest(mask), None]
+        return got[1]
+
+    def identity(self) -> dict:
+        """Everything that defines this run (the run folder's manifest)."""
+        refs = sorted({0} | {self.ref_of(i) for i in range(1, len(self.idx))})
+        rec = {}
+        for k in refs if self.rois is not None else [0]:
+            m = self.roi_for(k)
+            rec[str(k)] = roi_record(m, self._digest(m))
+        return {"params": self.params.to_dict(), "reference": self.reference,
+                "update_every": self.update_every, "frames": self.idx, "roi": rec["0"],
+                "rois": rec if self.rois is not None else None,
+                "refine": refine_record(self.refine), "meta": self.extra,
+                "stack": stack_record(self.src, self.idx), "source": self.src.name}
 
     def ref_of(self, i: int) -> int:
         """Reference frame of ``idx[i]``."""
@@ -301,41 +339,95 @@ class _SequenceRun:
     def path_of(self, k: int):
         return None if self.out is None else self.out / f"frame_{k:05d}.npz"
 
+    # ------------------------------------------------------------ outputs
+    def save(self, res: DICResult, k: int) -> None:
+        """Write frame ``k`` into the run folder, its ROI stored once per run."""
+        res.meta["run_id"] = self.run_id
+        ref = None
+        if res.roi is not None:
+            self._digest(res.roi)
+            entry = self._roi_refs[id(res.roi)]
+            if entry[2] is None:
+                entry[2] = write_roi_file(self.out, res.roi)
+            ref = entry[2]
+        res.save(self.path_of(k), roi_file=ref)
+
+    def partial(self, **meta) -> SequenceResult:
+        return SequenceResult(list(self.results), self.params, self.reference,
+                              {"frames": self.idx, "update_every": self.update_every,
+                               "source": self.src.name, **meta})
+
+    def failed(self, k: int, exc: Exception) -> TrackError:
+        """The error of a frame that could not be analysed, carrying the
+        frames finished so far."""
+        n = sum(r is not None for r in self.results[1:])
+        where = f" and in {self.out}" if self.out is not None else ""
+        return TrackError(
+            f"frame {k} ({self.src.frame_name(k)}) could not be analysed: {exc}. The {n} "
+            f"frame(s) finished before it are kept (in the error's .partial{where})",
+            self.partial(failed_frame=k, error=str(exc), cancelled=False), k)
+
+    # ------------------------------------------------------------ running
+    def execute(self, stack, scheduler, workers, cancel) -> SequenceResult:
+        t0 = time.perf_counter()
+        ref_img = self.start()
+        todo = self.load_finished()
+        if scheduler is None:
+            cancelled = self.serial(todo, ref_img, cancel)
+        else:
+            cancelled = _run_parallel(self, stack, todo, scheduler, workers, cancel)
+        return self.partial(seconds=time.perf_counter() - t0, cancelled=cancelled)
+
     def start(self):
         """Frame 0's result (a zero field on its nodes), saved if missing;
         returns frame 0's image."""
         ref_img = self.src[0]
         self.results[0] = reference_result(ref_img, roi=self.roi_for(0), params=self.params,
                                            refine=self.refine)
-        if self.out is not None and not (self.out / "frame_00000.npz").exists():
-            self.results[0].save(self.out / "frame_00000.npz")
+        self.results[0].meta.update(self.extra)
+        if self.out is not None and not self.path_of(0).exists():
+            self.save(self.results[0], 0)
         return ref_img
 
     def load_finished(self) -> list[int]:
         """Load the frames already in ``out``; returns the indices still to do."""
         todo = []
-        for i in range(1, len(self.idx)):
+        for i in range(len(self.idx)):
             pth = self.path_of(self.idx[i])
-            if pth is not None and pth.exists():
-                self.results[i] = load_result(pth)
+            if pth is None or not pth.exists():
+                todo.append(i)
+                continue
+            try:
+                res = load_result(pth)
+            except Exception as exc:  # damaged: say which file, and how to recover
+                raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete "
+                                     "that file to compute its frame again", self.out) from None
+            if res.meta.get("run_id") != self.run_id:
+                raise RunFolderError(f"{pth} belongs to another analysis than "
+                                     f"{self.out / MANIFEST} (results must not mix); remove "
+                                     "it or choose an empty folder", self.out)
+            if i:
+                self.results[i] = res
                 self.report(self.idx[i], i / (len(self.idx) - 1),
                             f"frame {self.idx[i]}: loaded from {pth.name}")
-            else:
-                todo.append(i)
-        return todo
+        return [i for i in todo if i]
 
     def finish(self, i: int, inc: DICResult) -> None:
         """Compose the increment of ``idx[i]`` back to frame 0, record, save
         and announce it."""
         k, r = self.idx[i], self.ref_of(i)
+        shared = self.roi_for(r)
+        if inc.roi is not None and inc.roi is not shared and np.array_equal(inc.roi, shared):
+            inc.roi = shared  # a copy from a worker process: keep one array per run
         res = inc if r == 0 else _compose(self.results[self.idx.index(r)], inc)
+        res.meta.update(self.extra)
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
         res.meta.setdefault("inputs", {"reference": self.src.frame_name(r),
                                        "deformed": self.src.frame_name(k), "frame": k})
         self.results[i] = res
-        if self.path_of(k) is not None:
-            res.save(self.path_of(k))
+        if self.out is not None:
+            self.save(res, k)
         if self.on_frame is not None:
             self.on_frame(k, res)
         self.report(k, i / (len(self.idx) - 1),
@@ -350,19 +442,20 @@ class _SequenceRun:
         for i in todo:
             if cancel is not None and cancel():
                 return True
-            r = self.ref_of(i)
-            if r != ref_k:
-                ref_k, ref_img, prev_inc = r, self.src[r], None
+            r, k = self.ref_of(i), self.idx[i]
             if i - 1 not in todo and i > 1:
                 prev_inc = None  # previous frame came from disk: no increment at hand
-            self.report(self.idx[i], (i - 1) / (len(self.idx) - 1),
-                        f"frame {self.idx[i]} against frame {r}")
+            self.report(k, (i - 1) / (len(self.idx) - 1), f"frame {k} against frame {r}")
             try:  # cancel also stops promptly inside a frame
-                inc = correlate(ref_img, self.src[self.idx[i]], roi=self.roi_for(r),
-                                params=self.params, guess=prev_inc, refine=self.refine,
-                                cancel=cancel, solver_cache=solvers)
+                if r != ref_k:
+                    ref_k, ref_img, prev_inc = r, self.src[r], None
+                inc = correlate(ref_img, self.src[k], roi=self.roi_for(r), params=self.params,
+                                guess=prev_inc, refine=self.refine, cancel=cancel,
+                                solver_cache=solvers)
             except Cancelled:
                 return True
+            except Exception as exc:  # a bad frame: keep what is finished
+                raise self.failed(k, exc) from exc
             prev_inc = inc
             self.finish(i, inc)
         return False

@@ -1,0 +1,392 @@
+"""The probe plot dock: curves of probes over the frames and the stress-strain curve.
+
+Probes are drawn in napari: a Shapes layer (a line is a gauge; a rectangle,
+ellipse or polygon an area) and a Points layer (point probes), on the analysed
+image. The dock measures them on the analysis behind the ``DIC ...`` result
+layers and redraws when a probe moves or the result layers change (also while a
+run updates them). The current frame is marked; clicking the plot moves the
+frame slider. Load data from a testing-machine CSV adds the stress-strain curve.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+from matplotlib.figure import Figure
+from qtpy.QtCore import QTimer
+from qtpy.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from ..engine.probes import (
+    LINE_QUANTITIES,
+    STATUS_NAMES,
+    attach_load,
+    draw_probe_curves,
+    draw_stress_strain,
+    export_probe_plot,
+    export_probes_csv,
+    read_load_csv,
+)
+from .probes import (
+    PROBE_POINTS,
+    PROBE_SHAPES,
+    find_analysis,
+    is_probe_candidate,
+    measure_analysis,
+    probes_from_layers,
+)
+
+__all__ = ["ProbePlotDock"]
+
+NONE = "(none)"
+FIELDS = ("u", "v", "magnitude", "exx", "eyy", "exy", "von_mises")
+
+
+class ProbePlotDock(QWidget):
+    """Probe curves over the frames (napari dock widget)."""
+
+    def __init__(self, napari_viewer):
+        super().__init__()
+        self._viewer = napari_viewer
+        self.view = None  # ResultView of the analysis in the viewer
+        self.table = None  # ProbeTable of the last measurement
+        self.load_record = None
+        self.message = ""
+        self._hooks: list = []  # (emitter, callback) of the watched layers
+        self._axes: dict = {}
+        self._ss_column = ""  # the strain of the stress-strain curve
+        self._timer = QTimer(self)
+        self._timer.setSingleShot(True)
+        self._timer.setInterval(150)  # a dragged probe fires many events: measure once
+        self._timer.timeout.connect(self.recompute)
+        self._setup_ui()
+        layers = napari_viewer.layers
+        layers.events.inserted.connect(self._on_layers_changed)
+        layers.events.removed.connect(self._on_layers_changed)
+        napari_viewer.dims.events.current_step.connect(self._on_frame)
+        self.destroyed.connect(lambda *_: self._unhook_all(layers, napari_viewer.dims))
+        self._on_layers_changed()
+
+    # ------------------------------------------------------------ UI
+    def _setup_ui(self) -> None:
+        self.shapes_combo, self.points_combo = QComboBox(), QComboBox()
+        self.add_button = QPushButton("Add probe layers")
+        self.quantity_combo, self.field_combo = QComboBox(), QComboBox()
+        self.quantity_combo.addItems(list(LINE_QUANTITIES))
+        self.field_combo.addItems(list(FIELDS))
+        form = QFormLayout()
+        form.addRow("Gauges, areas (Shapes)", self.shapes_combo)
+        form.addRow("Point probes (Points)", self.points_combo)
+        form.addRow("", self.add_button)
+        form.addRow("Line gauges show", self.quantity_combo)
+        form.addRow("Points, areas show", self.field_combo)
+        self.load_button = QPushButton("Load CSV...")
+        self.load_label = QLabel("no load data")
+        self.area_spin = QDoubleSpinBox(decimals=3, minimum=0.001, maximum=1e7, value=10.0,
+                                        suffix=" mm²")
+        self.sync_combo = QComboBox()
+        self.sync_combo.addItems(["frame", "time"])
+        self.fps_spin = QDoubleSpinBox(decimals=4, minimum=0.0001, maximum=1e6, value=1.0)
+        self.offset_spin = QDoubleSpinBox(decimals=4, minimum=-1e6, maximum=1e6, value=0.0,
+                                          suffix=" s")
+        load_form = QFormLayout()
+        load_form.addRow(self.load_button, self.load_label)
+        load_form.addRow("Cross-section", self.area_spin)
+        load_form.addRow("Synchronise by", self.sync_combo)
+        load_form.addRow("Camera fps", self.fps_spin)
+        load_form.addRow("Time of frame 0", self.offset_spin)
+        load_box = QGroupBox("Testing machine (stress-strain)")
+        load_box.setLayout(load_form)
+        self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
+        self.canvas = FigureCanvasQTAgg(self.figure)
+        self.canvas.setMinimumHeight(320)
+        self.status_label = QLabel("")
+        self.status_label.setWordWrap(True)
+        self.save_csv_button, self.save_plot_button = QPushButton("Save CSV..."), \
+            QPushButton("Save plot...")
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.save_csv_button)
+        buttons.addWidget(self.save_plot_button)
+        lay = QVBoxLayout(self)
+        lay.addLayout(form)
+        lay.addWidget(load_box)
+        lay.addWidget(self.canvas, 1)
+        lay.addWidget(self.status_label)
+        lay.addLayout(buttons)
+        for combo in (self.shapes_combo, self.points_combo):
+            combo.currentTextChanged.connect(self._on_probe_layers_chosen)
+        for combo in (self.quantity_combo, self.field_combo):
+            combo.currentTextChanged.connect(lambda *_: self.redraw())
+        for w in (self.area_spin, self.fps_spin, self.offset_spin):
+            w.valueChanged.connect(self.schedule)
+        self.sync_combo.currentTextChanged.connect(self.schedule)
+        self.add_button.clicked.connect(self.add_probe_layers)
+        self.load_button.clicked.connect(self._ask_load)
+        self.save_csv_button.clicked.connect(self._ask_save_csv)
+        self.save_plot_button.clicked.connect(self._ask_save_plot)
+        self.canvas.mpl_connect("button_press_event", self._on_click)
+
+    # ------------------------------------------------------------ layers
+    def _layer(self, combo: QComboBox):
+        name = combo.currentText()
+        layers = self._viewer.layers
+        return layers[name] if name != NONE and name in layers else None
+
+    @property
+    def shapes_layer(self):
+        return self._layer(self.shapes_combo)
+
+    @property
+    def points_layer(self):
+        return self._layer(self.points_combo)
+
+    def _fill(self, combo: QComboBox, kind: str) -> None:
+        names = [lay.name for lay in self._viewer.layers
+                 if is_probe_candidate(lay) and lay.__class__.__name__ == kind]
+        keep = combo.currentText()
+        combo.blockSignals(True)
+        combo.clear()
+        combo.addItems([NONE, *names])
+        preferred = PROBE_SHAPES if kind == "Shapes" else PROBE_POINTS
+        pick = keep if keep in names else (preferred if preferred in names else NONE)
+        combo.setCurrentText(pick)
+        combo.blockSignals(False)
+
+    def _on_layers_changed(self, *_) -> None:
+        self._fill(self.shapes_combo, "Shapes")
+        self._fill(self.points_combo, "Points")
+        self._rehook()
+        self.schedule()
+
+    def _on_probe_layers_chosen(self, *_) -> None:
+        self._rehook()
+        self.schedule()
+
+    def set_probe_layers(self, shapes=None, points=None) -> None:
+        """Use these layers (or None) as the probes."""
+        self.shapes_combo.setCurrentText(shapes.name if shapes is not None else NONE)
+        self.points_combo.setCurrentText(points.name if points is not None else NONE)
+
+    def add_probe_layers(self) -> None:
+        """Add empty probe layers (a Shapes layer in line mode, a Points layer)."""
+        v = self._viewer
+        if PROBE_POINTS not in v.layers:
+            v.add_points(np.zeros((0, 2)), name=PROBE_POINTS, size=8, face_color="cyan")
+        if PROBE_SHAPES not in v.layers:
+            shapes = v.add_shapes(name=PROBE_SHAPES, edge_color="yellow", edge_width=2,
+                                  face_color="transparent")
+            shapes.mode = "add_line"
+        self.set_probe_layers(v.layers[PROBE_SHAPES], v.layers[PROBE_POINTS])
+
+    def _unhook_all(self, layers=None, dims=None) -> None:
+        for emitter, cb in self._hooks:
+            emitter.disconnect(cb)
+        self._hooks = []
+        if layers is not None:
+            layers.events.inserted.disconnect(self._on_layers_changed)
+            layers.events.removed.disconnect(self._on_layers_changed)
+            dims.events.current_step.disconnect(self._on_frame)
+
+    def _rehook(self) -> None:
+        """Watch the probe layers and the result layers for changes."""
+        self._unhook_all()
+        watched = [lay for lay in self._viewer.layers if str(lay.name).startswith("DIC ")]
+        watched += [lay for lay in (self.shapes_layer, self.points_layer) if lay is not None]
+        for lay in watched:
+            for ev in ("data", "metadata"):
+                emitter = getattr(lay.events, ev, None)
+                if emitter is not None:
+                    emitter.connect(self.schedule)
+                    self._hooks.append((emitter, self.schedule))
+
+    # ------------------------------------------------------------ measuring
+    def schedule(self, *_) -> None:
+        """Measure again shortly (events of a dragged probe come in bursts)."""
+        self._timer.start()
+
+    def recompute(self) -> None:
+        """Measure the probes on the analysis in the viewer and redraw."""
+        self.view = find_analysis(self._viewer.layers)
+        self.table, notes = None, []
+        if self.view is None:
+            self.message = "No result layers: run an analysis or open a result."
+        else:
+            try:
+                probes, notes = probes_from_layers(self.shapes_layer, self.points_layer,
+                                                   self.view)
+                if len(probes):
+                    self.table = measure_analysis(self.view, probes)
+                    self._attach_load()
+                    self.message = self._status_text()
+                else:
+                    self.message = ("Draw probes: a line (gauge) or a rectangle/ellipse/"
+                                    "polygon (area) in a Shapes layer, points in a Points "
+                                    "layer ('Add probe layers').")
+            except (ValueError, TypeError) as exc:
+                self.message = f"Cannot measure the probes: {exc}"
+        self.status_label.setText("\n".join([self.message, *notes]))
+        self.redraw()
+
+    def _attach_load(self) -> None:
+        if self.load_record is None or self.table is None:
+            return
+        sync = self.sync_combo.currentText()
+        try:
+            attach_load(self.table, self.load_record, area_mm2=self.area_spin.value(),
+                        sync=sync, fps=self.fps_spin.value(), offset=self.offset_spin.value())
+        except ValueError as exc:
+            self.load_label.setText(f"load not used: {exc}")
+
+    def load_csv(self, path, *, area_mm2: float | None = None, sync: str | None = None,
+                 fps: float | None = None, offset: float | None = None) -> bool:
+        """Read a testing-machine CSV (and set the synchronisation); False on an error."""
+        for w, v in ((self.area_spin, area_mm2), (self.fps_spin, fps),
+                     (self.offset_spin, offset)):
+            if v is not None:
+                w.setValue(float(v))
+        try:
+            self.load_record = read_load_csv(path)
+        except (ValueError, OSError) as exc:
+            self.load_record = None
+            self.load_label.setText(f"error: {exc}")
+            return False
+        self.sync_combo.setCurrentText(sync or ("frame" if self.load_record.frame is not None
+                                                else "time"))
+        self.load_label.setText(self.load_record.describe())
+        self.recompute()
+        return True
+
+    def _status_text(self) -> str:
+        lines = []
+        for group in self.table.groups():
+            status, reasons = self.table.group_status(group)
+            bad = np.nonzero(status > 0)[0]
+            if bad.size:
+                frames = ", ".join(str(int(self.table.frames[i])) for i in bad[:5])
+                why = next((reasons[i] for i in bad if reasons[i]), "")
+                lines.append(f"{group}: {STATUS_NAMES[int(status.max())]} at frame(s) "
+                             f"{frames}{' ...' if bad.size > 5 else ''}: {why}")
+        return "\n".join(lines) or f"{len(self.table)} frames, every probe value trusted."
+
+    # ------------------------------------------------------------ plotting
+    def curve_columns(self) -> tuple[list[str], list[str]]:
+        """(line gauge columns, point/area columns) shown."""
+        if self.table is None:
+            return [], []
+        q, f = self.quantity_combo.currentText(), self.field_combo.currentText()
+        cols = self.table.columns
+        lines = [n for n in cols if n.startswith("line") and n.endswith(f"_{q}")
+                 and n.split("_", 1)[1] == q]
+        spatial = [n for n in cols if n.startswith("point") and n.split("_", 1)[1] == f]
+        spatial += [n for n in cols if n.startswith("area") and n.split("_", 1)[1] ==
+                    f"{f}_mean"]
+        return lines, spatial
+
+    def current_frame(self) -> int | None:
+        if self.view is None:
+            return None
+        if self.view.t_scale is None:
+            return int(self.view.analysis.frames[-1])
+        axis = self._viewer.dims.ndim - 3
+        return self.view.frame_at(float(self._viewer.dims.point[axis]))
+
+    def redraw(self) -> None:
+        """Draw the curves (and the stress-strain curve) with the current frame marked."""
+        fig = self.figure
+        fig.clear()
+        self._axes = {}
+        lines, spatial = self.curve_columns()
+        stress = self.table is not None and "stress_MPa" in self.table.columns and lines
+        panels = [p for p in (("lines", lines), ("spatial", spatial)) if p[1]]
+        n = len(panels) + bool(stress)
+        if n == 0:
+            ax = fig.add_subplot()
+            ax.text(0.5, 0.5, "no probe values", ha="center", va="center", color="0.4")
+            ax.set_axis_off()
+        else:
+            axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+            k = self.current_frame()
+            for ax, (key, names) in zip(axes, panels):
+                draw_probe_curves(ax, self.table, names, current=k)
+                self._axes[key] = ax
+            if stress:  # against the engineering strain of the first gauge shown
+                self._ss_column = f"{lines[0].split('_', 1)[0]}_strain"
+                draw_stress_strain(axes[-1], self.table, self._ss_column, current=k)
+                self._axes["stress"] = axes[-1]
+        self.canvas.draw_idle()
+
+    def _on_frame(self, *_) -> None:
+        if self.table is not None:
+            self.redraw()
+
+    def go_to_frame(self, frame: int) -> None:
+        """Move the viewer's frame slider to ``frame``."""
+        if self.view is None or self.view.t_scale is None:
+            return
+        self._viewer.dims.set_point(self._viewer.dims.ndim - 3, self.view.world_time(frame))
+
+    def _on_click(self, event) -> None:
+        if self.table is None or event.inaxes is None or event.xdata is None:
+            return
+        frames = self.table.frames
+        if event.inaxes is self._axes.get("stress"):
+            pts = event.inaxes.transData.transform(
+                np.column_stack([self.table[self._ss_column], self.table["stress_MPa"]]))
+            d = np.hypot(pts[:, 0] - event.x, pts[:, 1] - event.y)
+            if np.all(np.isnan(d)):
+                return
+            self.go_to_frame(int(frames[int(np.nanargmin(d))]))
+        else:
+            self.go_to_frame(int(frames[int(np.argmin(np.abs(frames - event.xdata)))]))
+
+    # ------------------------------------------------------------ saving
+    def save_csv(self, path) -> Path | None:
+        return None if self.table is None else export_probes_csv(self.table, path)
+
+    def save_plot(self, path) -> Path | None:
+        return None if self.table is None else export_probe_plot(self.table, path)
+
+    def _ask(self, title: str, filt: str, save: bool = True) -> str:
+        fn = QFileDialog.getSaveFileName if save else QFileDialog.getOpenFileName
+        return fn(self, title, "", filt)[0]
+
+    def _ask_load(self) -> None:
+        path = self._ask("Testing-machine CSV", "CSV or text (*.csv *.txt *.tsv *.dat)",
+                         save=False)
+        if path:
+            self.load_csv(path)
+
+    def _ask_save_csv(self) -> None:
+        path = self._ask("Save probe values", "CSV (*.csv)")
+        if path:
+            self._report(self.save_csv, path)
+
+    def _ask_save_plot(self) -> None:
+        path = self._ask("Save probe plot", "PNG (*.png);;PDF (*.pdf)")
+        if path:
+            self._report(self.save_plot, path)
+
+    def _report(self, fn, path) -> None:
+        from napari.utils.notifications import show_error, show_info
+
+        try:
+            out = fn(path)
+        except (ValueError, OSError) as exc:
+            show_error(f"napari-aldic: {exc}")
+            return
+        if out is None:
+            show_error("napari-aldic: no probe values to save yet")
+        else:
+            show_info(f"napari-aldic: saved {out}")

@@ -1,0 +1,210 @@
+"""Validity tests: is a converged subset match the right one, and how sure is it?
+
+IC-GN converges to *a* local optimum of the correlation criterion; whether it
+is the right one has to be judged from the data. The tests here (their
+thresholds and measured effect are in ``docs/method.md``, section 6):
+
+* **image noise** -- the standard deviation of white noise in each image,
+  estimated from the images alone (Immerkær's Laplacian-difference
+  operator, which speckle of a few pixels barely excites);
+* **match quality, absolute and relative** -- a correct match of a subset
+  with grey-level variance ``V`` leaves a residual per pixel about equal to
+  the image noise, ``(1 - ZNCC) V ≈ σ²``. The reference ``σ̂²`` is the median
+  residual of the converged nodes, but never more than twice the image noise
+  seen in the images: when most matches are wrong (motion beyond the search
+  range, unrelated images) their median is no reference. A node is a poor
+  match when ``1 - ZNCC > 0.1 + zncc_rel σ̂² / V``: 0.1 allows model
+  mismatch (lighting, out-of-plane motion, strain gradients), the second term
+  the noise. A clean image then rejects a ZNCC of 0.85, a correct match at
+  50 grey levels of noise (ZNCC ≈ 0.6) is not rejected for its ZNCC;
+* **standard uncertainty** of ``u, v`` from the Gauss-Newton matrix of the
+  subset and its own residual (noise in both images, the noise carried by
+  the reference gradients removed), ``Var u ≈ 2 σ_e² [S⁻¹ H S⁻¹]_uu``;
+  a node whose uncertainty exceeds ``max_uncertainty`` is flagged.
+
+References: J. Immerkær, "Fast noise variance estimation", Computer Vision and
+Image Understanding 64(2), 1996; B. Pan, "Reliability-guided digital image
+correlation for image deformation measurement", Applied Optics 48(8), 2009;
+E. M. C. Jones, M. A. Iadicola (eds.), A Good Practices Guide for Digital
+Image Correlation, iDICs, 2018 (noise floor, match-quality checks).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..core.params import DICParams
+from ..kernels.subset import subset_stats
+
+__all__ = ["SubsetStats", "subset_statistics", "image_noise", "displacement_variance",
+           "Validity", "MISMATCH_ALLOWANCE", "NOISE_CAP", "GLOBAL_TOLERANCE", "GLOBAL_SIGMAS"]
+
+#: 1 - ZNCC a correct match may lose to what the affine, grey-level-affine
+#: model does not describe (lighting, out-of-plane motion, strain gradients);
+#: spurious matches of 31 px speckle subsets reach at most ZNCC ~0.85
+MISMATCH_ALLOWANCE = 0.1
+#: the reference residual of a correct match is at most this many times the
+#: image noise variance measured in the images
+NOISE_CAP = 2.0
+#: AL-DIC: how far (px) the global field may depart from a node's own match
+#: beyond noise (smoothing, the finite-element space), and how many standard
+#: uncertainties of that match the noise may take
+GLOBAL_TOLERANCE = 0.2
+GLOBAL_SIGMAS = 4.0
+# Immerkær's mask (difference of two Laplacians): zero on planes and on
+# quadratics, sum of squares 36
+_MASK = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]], np.float32)
+_NOISE_PIXELS = 2**20  # pixels sampled for the noise estimate
+_BAND = 64  # rows per sampled band
+
+
+@dataclass
+class SubsetStats:
+    """Reference-subset statistics per node (see :func:`subset_statistics`)."""
+
+    m: np.ndarray  # pixels used
+    var_f: np.ndarray  # grey-level variance of the subset
+    hxx: np.ndarray  # sum gx^2
+    hxy: np.ndarray  # sum gx gy
+    hyy: np.ndarray  # sum gy^2
+
+
+def subset_statistics(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int) -> SubsetStats:
+    """Pixel count, grey-level variance and 2 x 2 Gauss-Newton matrix of
+    every node's reference subset (mask component only)."""
+    out = np.zeros((np.size(nodes_x), 5))
+    subset_stats(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
+                 np.asarray(slot, np.int32), masks, int(half), out)
+    return SubsetStats(*(np.ascontiguousarray(out[:, k]) for k in range(5)))
+
+
+def image_noise(image: np.ndarray, roi: np.ndarray | None = None) -> float:
+    """Standard deviation (grey levels) of white noise in ``image``.
+
+    Immerkær's estimator: ``sqrt(pi/2) / 6`` times the mean absolute response
+    to the mask ``[[1,-2,1],[-2,4,-2],[1,-2,1]]`` over the pixels whose 3 x 3
+    neighbourhood lies in ``roi``. Texture finer than about two pixels adds
+    to it (an over-estimate only makes the tests more lenient). Large images
+    are sampled in bands of rows (about a million pixels).
+    """
+    img = np.asarray(image)
+    rows = img.shape[0]
+    every = max(1, int(np.ceil(img.size / _NOISE_PIXELS)))
+    total = 0.0
+    count = 0
+    for r0 in range(0, rows - 2, _BAND * every):
+        r1 = min(rows, r0 + _BAND + 2)
+        band = img[r0:r1].astype(np.float32)
+        resp = np.abs(ndimage.correlate(band, _MASK, mode="nearest")[1:-1, 1:-1])
+        if roi is not None:
+            inside = ndimage.binary_erosion(roi[r0:r1], np.ones((3, 3), bool),
+                                            border_value=0)[1:-1, 1:-1]
+            resp = resp[inside]
+        total += float(np.sum(resp, dtype=np.float64))
+        count += resp.size
+    return float(np.sqrt(np.pi / 2) / 6 * total / count) if count else 0.0
+
+
+def displacement_variance(stats: SubsetStats, var_e: np.ndarray, gain: float) -> np.ndarray:
+    """Noise variance (px²) of ``u`` and ``v`` per node, ``(n, 2)``.
+
+    ``2 var_e S⁻¹ H S⁻¹`` (noise of variance ``var_e`` in both images): ``H``
+    is the subset's 2 x 2 Gauss-Newton matrix; the gradients of the noisy
+    reference carry noise energy ``m var_e gain`` per direction, so only the
+    rest ``S`` (the speckle's, at least a tenth of ``H``) makes the subset
+    match. NaN where ``var_e`` is unknown or ``S`` singular.
+    """
+    hxx, hxy, hyy = stats.hxx, stats.hxy, stats.hyy
+    e = stats.m * var_e * gain
+    sxx = np.maximum(hxx - e, 0.1 * hxx)
+    syy = np.maximum(hyy - e, 0.1 * hyy)
+    det = sxx * syy - hxy * hxy
+    ok = (det > 0) & (stats.m > 0) & (var_e >= 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = syy / det
+        b = -hxy / det
+        c = sxx / det
+        vu = 2.0 * var_e * (a * a * hxx + 2 * a * b * hxy + b * b * hyy)
+        vv = 2.0 * var_e * (b * b * hxx + 2 * b * c * hxy + c * c * hyy)
+    return np.where(ok[:, None], np.column_stack([vu, vv]), np.nan)
+
+
+class Validity:
+    """The validity tests of one image pair.
+
+    Parameters
+    ----------
+    stats : SubsetStats
+        Of the nodes' reference subsets.
+    image_var : float
+        Noise variance of the images (mean of both, grey levels²).
+    gain : float
+        Variance of the spline derivative of unit white noise
+        (:func:`~napari_aldic.engine.dic.regularise.gradient_noise_gain`).
+    params : DICParams
+    """
+
+    def __init__(self, stats: SubsetStats, image_var: float, gain: float,
+                 params: DICParams):
+        self.stats = stats
+        self.image_var = float(image_var)
+        self.gain = float(gain)
+        self.params = params
+
+    def residual(self, zncc: np.ndarray) -> np.ndarray:
+        """Residual variance per pixel of each match, ``(1 - ZNCC) V`` (GL²)."""
+        return (1.0 - zncc) * self.stats.var_f
+
+    def level(self, zncc: np.ndarray, converged: np.ndarray) -> float:
+        """Reference residual of a correct match: the median residual of the
+        ``converged`` nodes, capped at ``NOISE_CAP`` times the image noise."""
+        cap = NOISE_CAP * self.image_var
+        ok = converged & np.isfinite(zncc)
+        if not ok.any():
+            return cap
+        return float(min(np.median(self.residual(zncc)[ok]), cap))
+
+    def zncc_floor(self, zncc: np.ndarray, converged: np.ndarray) -> np.ndarray:
+        """Lowest acceptable ZNCC per node: ``zncc_min``, raised by the
+        relative test ``1 - ZNCC <= 0.1 + zncc_rel σ̂² / V``."""
+        p = self.params
+        floor = np.full(zncc.shape, float(p.zncc_min))
+        if p.zncc_rel > 0:
+            lvl = self.level(zncc, converged)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rel = 1.0 - MISMATCH_ALLOWANCE - p.zncc_rel * lvl / self.stats.var_f
+            floor = np.maximum(floor, np.nan_to_num(rel, nan=-1.0, neginf=-1.0))
+        return floor
+
+    def noise_variance(self, zncc: np.ndarray) -> np.ndarray:
+        """Predicted noise variance (px²) of ``u`` and ``v``, ``(n, 2)``, from
+        each node's own residual; NaN where it has none (or ZNCC > 1)."""
+        var_e = np.where(np.isfinite(zncc), self.residual(zncc), np.nan)
+        return displacement_variance(self.stats, var_e, self.gain)
+
+    def std(self, zncc: np.ndarray) -> np.ndarray:
+        """Standard uncertainty (px) of ``u`` and ``v`` per node, ``(n, 2)``
+        (a ZNCC rounded above 1 counts as a perfect match)."""
+        return np.sqrt(self.noise_variance(np.minimum(zncc, 1.0)))
+
+    def uncertain(self, zncc: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """``candidates`` whose standard uncertainty of ``u`` or ``v`` exceeds
+        ``max_uncertainty`` (or cannot be predicted)."""
+        limit = self.params.max_uncertainty
+        if limit is None:
+            return np.zeros(zncc.shape, bool)
+        s = self.std(zncc)
+        return candidates & ~(np.max(s, axis=1) <= limit)
+
+    def global_mismatch(self, uh, vh, u_data, v_data, zncc_local, candidates) -> np.ndarray:
+        """AL-DIC: ``candidates`` where the global field ``(uh, vh)`` departs
+        from the node's own best match with the same warp ``(u_data,
+        v_data)`` by more than ``GLOBAL_TOLERANCE`` plus ``GLOBAL_SIGMAS``
+        standard uncertainties of that match (or where it has none)."""
+        s = np.max(self.std(zncc_local), axis=1)
+        d = np.hypot(uh - u_data, vh - v_data)
+        return candidates & ~(d <= GLOBAL_TOLERANCE + GLOBAL_SIGMAS * np.nan_to_num(s))
+
