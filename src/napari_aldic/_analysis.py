@@ -174,7 +174,9 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
             r.meta["frame"] = k  # index in the full stack
     strains: list = [None] * len(results)
     if strain is not None:
-        report(frames[-1], 1.0, "computing strain")
+        # the fraction of the frames tracked (below 1 after a cancel)
+        done = sum(r is not None for r in results[1:]) / max(1, len(results) - 1)
+        report(frames[-1], done, "computing strain")
         for i, r in enumerate(results):
             if r is not None:
                 strains[i] = compute_strain(r, window=strain.window, method=strain.method,
@@ -246,20 +248,28 @@ class Job:
                             cancel=cancel, source=self.source)
 
 
-def run_in_thread(job: Job, cancel: threading.Event
-                  ) -> Generator[tuple[int, float, str], None, Analysis]:
+def run_in_thread(job: Job, cancel: threading.Event,
+                  after: Callable[[Analysis], Any] | None = None,
+                  before: Callable[[], Any] | None = None
+                  ) -> Generator[tuple[int, float, str], None, tuple[Analysis, Any]]:
     """Run ``job`` in a helper thread; yield its progress reports
-    ``(frame, fraction, message)`` and return its :class:`Analysis`.
+    ``(frame, fraction, message)`` and return ``(analysis, after(analysis))``
+    (``None`` for the second without ``after``).
 
     The engine reports through a callback; the callback queues the reports
     and this generator yields them, so a napari generator worker delivers
-    each one to the main thread. An exception of the run is raised here.
+    each one to the main thread. ``before`` runs first in the helper thread
+    (e.g. to wait until the correlation engine is prepared), ``after`` runs in
+    the worker too (e.g. to make the result layers away from the event loop).
+    An exception is raised here.
     """
     reports: queue.Queue = queue.Queue()
     box: dict = {}
 
     def target():
         try:
+            if before is not None:
+                before()
             box["result"] = job.run(lambda k, frac, msg: reports.put((k, frac, msg)),
                                     cancel.is_set)
         except BaseException as exc:  # re-raised in the generator
@@ -274,4 +284,5 @@ def run_in_thread(job: Job, cancel: threading.Event
     thread.join()
     if "error" in box:
         raise box["error"]
-    return box["result"]
+    analysis = box["result"]
+    return analysis, (after(analysis) if after is not None else None)

@@ -4,14 +4,19 @@ napari itself is not imported: the functions here return plain layer-data
 tuples that the dock widget adds to (or updates in) the viewer and that the
 reader returns for result files.
 
-Layers made (names are fixed, so a new run replaces the previous one):
+Layers made (a new run replaces the previous one; every layer names its
+field in ``metadata["napari_aldic"]["field"]`` and its name carries the unit,
+which also shows in the status bar when hovering):
 
-* ``DIC u``, ``DIC v``, ``DIC |u|`` and ``DIC exx``, ``DIC eyy``, ``DIC exy``,
-  ``DIC von Mises``: Image layers on the node lattice (one pixel per node,
-  pixel spacing = ``step`` image pixels), with the image's time axis so that
-  the frame slider shows that frame's field; NaN (transparent) where a node is
-  untrusted or outside the ROI;
-* ``DIC displacement``: a Vectors layer at the trusted nodes, every node
+* ``DIC u [px]``, ``DIC v [px]``, ``DIC |u| [px]`` and ``DIC exx [-]``,
+  ``DIC eyy [-]``, ``DIC exy [-]``, ``DIC von Mises [-]``: Image layers on the
+  node lattice (one pixel per node, pixel spacing = ``step`` image pixels; on
+  a refined quadtree mesh a grid as fine as the smallest element, filled by the
+  elements' bilinear interpolation), with the image's time axis so that the
+  frame slider shows that frame's field; NaN (transparent) where a node is
+  untrusted or outside the ROI. Colour limits come from the data (robust
+  percentiles over all frames);
+* ``DIC displacement [px]``: a Vectors layer at the trusted nodes, every node
   value (u, v, ZNCC, strains ...) in its ``features``;
 * ``DIC unreliable nodes``: Points at the untrusted nodes, the reason in
   ``features``;
@@ -20,37 +25,40 @@ Layers made (names are fixed, so a new run replaces the previous one):
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from .engine import DICResult, Reason
 from .engine.io import result_cells
-from .engine.viz import colour_limits, to_deformed
+from .engine.viz import colour_limits, fine_grid, on_fine_grid, rigid_motion, to_deformed
 
-__all__ = ["Geometry", "Display", "DISPLAY_FIELDS", "LAYER_NAMES", "layer_name",
-           "analysis_layers", "field_on_lattice"]
+__all__ = ["Geometry", "Display", "DISPLAY_FIELDS", "RESULT_KEYS", "REASON_COLORS",
+           "layer_name", "is_result_name", "analysis_layers", "field_on_lattice"]
 
 PREFIX = "DIC "
 
 #: the result fields shown as Image layers: key (the layer name after "DIC ") ->
-#: (attribute, quantity, colormap, symmetric limits, description)
+#: (attribute, quantity, colormap, colour limits, description)
 DISPLAY_FIELDS = {
-    "u": ("u", "length", "RdBu_r", True, "displacement along x (columns)"),
-    "v": ("v", "length", "RdBu_r", True, "displacement along y (rows, down)"),
-    "|u|": ("magnitude", "length", "viridis", False, "displacement magnitude"),
-    "exx": ("exx", "strain", "RdBu_r", True, "normal strain along x"),
-    "eyy": ("eyy", "strain", "RdBu_r", True, "normal strain along y"),
-    "exy": ("exy", "strain", "PuOr_r", True, "tensor shear strain"),
-    "von Mises": ("von_mises", "strain", "magma", False, "equivalent (von Mises) strain"),
+    "u": ("u", "length", "turbo", "range", "displacement along x (columns)"),
+    "v": ("v", "length", "turbo", "range", "displacement along y (rows, down)"),
+    "|u|": ("magnitude", "length", "viridis", "from_zero", "displacement magnitude"),
+    "exx": ("exx", "strain", "RdBu_r", "symmetric", "normal strain along x"),
+    "eyy": ("eyy", "strain", "RdBu_r", "symmetric", "normal strain along y"),
+    "exy": ("exy", "strain", "PuOr_r", "symmetric", "tensor shear strain"),
+    "von Mises": ("von_mises", "strain", "magma", "from_zero",
+                  "equivalent (von Mises) strain"),
 }
 VECTORS = "displacement"
 UNRELIABLE = "unreliable nodes"
 MESH = "mesh"
-LAYER_NAMES = tuple(PREFIX + k for k in (*DISPLAY_FIELDS, VECTORS, UNRELIABLE, MESH))
+RESULT_KEYS = (*DISPLAY_FIELDS, VECTORS, UNRELIABLE, MESH)
+_NAME = re.compile(r"^DIC (.+?)( \[[^\]]*\])?$")
 
 #: colour of each reason code in the unreliable-nodes layer (RGBA)
-_REASON_COLORS = {
+REASON_COLORS = {
     int(Reason.SMALL_COMPONENT): (0.6, 0.6, 0.6, 1.0),
     int(Reason.NOT_CONVERGED): (1.0, 0.6, 0.0, 1.0),
     int(Reason.OUT_OF_IMAGE): (0.5, 0.3, 1.0, 1.0),
@@ -59,12 +67,23 @@ _REASON_COLORS = {
     int(Reason.DIVERGED): (1.0, 0.0, 1.0, 1.0),
     int(Reason.NO_INITIAL_GUESS): (1.0, 1.0, 0.0, 1.0),
     int(Reason.OUTLIER): (1.0, 0.4, 0.7, 1.0),
+    int(Reason.POOR_MATCH): (0.9, 0.3, 0.1, 1.0),
+    int(Reason.BEYOND_SEARCH): (0.3, 0.6, 1.0, 1.0),
+    int(Reason.UNCERTAIN): (0.8, 0.8, 0.5, 1.0),
+    int(Reason.GLOBAL_MISMATCH): (0.2, 1.0, 0.4, 1.0),
 }
 
 
-def layer_name(key: str) -> str:
-    """The viewer name of result layer ``key`` (e.g. ``"u"`` -> ``"DIC u"``)."""
-    return PREFIX + key
+def layer_name(key: str, unit: str | None = None) -> str:
+    """The viewer name of result layer ``key`` with its unit (e.g. ``"u"``,
+    ``"µm"`` -> ``"DIC u [µm]"``)."""
+    return PREFIX + key + (f" [{unit}]" if unit else "")
+
+
+def is_result_name(name: str) -> bool:
+    """Whether ``name`` is the name of a result layer (any unit)."""
+    m = _NAME.match(name)
+    return bool(m) and m.group(1) in RESULT_KEYS
 
 
 @dataclass(frozen=True)
@@ -111,19 +130,34 @@ class Display:
     unreliable: bool = True
     mesh: bool = False
     deformed: bool = False
+    rigid: bool = False  # subtract each frame's rigid-body motion from u, v, |u|
     length_scale: float = 1.0  # physical length of one pixel
     length_unit: str = "px"
     frame_interval: float | None = None  # None: frame numbers only
     time_unit: str = "s"
 
+    def unit_of(self, key: str) -> str:
+        """The unit shown for result ``key``: the length unit, or ``-`` for strains."""
+        if key == VECTORS or (key in DISPLAY_FIELDS and DISPLAY_FIELDS[key][1] == "length"):
+            return self.length_unit
+        return "-" if key in DISPLAY_FIELDS else ""
+
 
 # ----------------------------------------------------------------- helpers
-def _node_values(res: DICResult, strain, key: str) -> np.ndarray:
+def _displacement(res: DICResult, display: Display) -> tuple[np.ndarray, np.ndarray]:
+    """u, v of ``res`` in pixels, without the rigid-body motion when asked."""
+    u, v = np.asarray(res.u, float), np.asarray(res.v, float)
+    if display.rigid:
+        ur, vr = rigid_motion(res.x, res.y, u, v, res.valid)
+        u, v = u - ur, v - vr
+    return u, v
+
+
+def _node_values(res: DICResult, strain, key: str, display: Display) -> np.ndarray:
     attr = DISPLAY_FIELDS[key][0]
-    if attr == "magnitude":
-        return np.hypot(res.u, res.v)
-    if attr in ("u", "v"):
-        return np.asarray(getattr(res, attr), float)
+    if attr in ("u", "v", "magnitude"):
+        u, v = _displacement(res, display)
+        return {"u": u, "v": v, "magnitude": np.hypot(u, v)}[attr]
     if strain is None:
         return np.full(len(res), np.nan)
     return np.where(strain.valid, np.asarray(getattr(strain, attr), float), np.nan)
@@ -147,6 +181,35 @@ def _frame_coords(t, y, x, with_time: bool) -> np.ndarray:
     return np.column_stack([y, x])
 
 
+@dataclass(frozen=True)
+class _Grid:
+    """Where the field images are drawn: the node lattice, or the finer grid of a
+    refined mesh (``pitch`` < step)."""
+
+    pitch: float
+    origin: tuple  # (x0, y0) pixels
+    shape: tuple  # (rows, cols)
+    fine: bool
+
+    @classmethod
+    def of(cls, analysis) -> _Grid:
+        done = [r for r in analysis.results if r is not None]
+        base = done[0]
+        if not any(np.any(np.asarray(r.grid_ix) < 0) for r in done):
+            step = float(base.params.step)
+            return cls(step, (float(base.grid_xs[0]), float(base.grid_ys[0])),
+                       base.grid_shape, False)
+        pitch, origin, shape = fine_grid(done)
+        return cls(pitch, origin, shape, True)
+
+    def put(self, res: DICResult, values: np.ndarray) -> np.ndarray:
+        """Trusted node values of ``res`` on this grid (NaN elsewhere)."""
+        if not self.fine:
+            return field_on_lattice(res, values)
+        masked = np.where(np.asarray(res.valid, bool), np.asarray(values, float), np.nan)
+        return on_fine_grid(res, masked, self.pitch, self.origin, self.shape)
+
+
 # ----------------------------------------------------------------- main entry
 def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) -> list:
     """Layer-data tuples for every result layer of ``analysis``.
@@ -167,7 +230,7 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
     if with_time and geo.ndim != 3:
         raise ValueError(f"the image has {geo.ndim} axes; a stack has (time, rows, cols)")
     meta = _common_meta(analysis, base, display)
-    layers = _image_layers(analysis, base, geo, display, meta)
+    layers = _image_layers(analysis, geo, display, meta)
     tables = _node_tables(analysis, display, with_time)
     if display.vectors:
         layers.append(_vectors_layer(analysis, tables, geo, display, meta))
@@ -184,17 +247,16 @@ def _common_meta(analysis, base: DICResult, display: Display) -> dict:
             "pixel_size": float(display.length_scale),
             "frame_interval": display.frame_interval, "time_unit": display.time_unit,
             "params": base.params.to_dict(), "reference": analysis.reference,
-            "cancelled": analysis.cancelled,
+            "cancelled": analysis.cancelled, "rigid_removed": display.rigid,
             "strain": {"window": analysis.strain.window, "method": analysis.strain.method,
                        "measure": analysis.strain.measure}}
 
 
-def _field_stacks(analysis, display: Display, step: float) -> dict[str, np.ndarray]:
-    """Every displayed field on the node lattice, one plane per frame of the
-    image's time axis (or one plane without a time axis: the last frame)."""
-    base = analysis.lattice()
+def _field_stacks(analysis, display: Display, grid: _Grid) -> dict[str, np.ndarray]:
+    """Every displayed field on ``grid``, one plane per frame of the image's time
+    axis (or one plane without a time axis: the last frame)."""
     with_time = analysis.n_frames is not None
-    shape = base.grid_shape if not with_time else (analysis.n_frames, *base.grid_shape)
+    shape = grid.shape if not with_time else (analysis.n_frames, *grid.shape)
     stacks = {k: np.full(shape, np.nan, np.float32) for k in display.fields}
     for i, res in enumerate(analysis.results):
         if res is None:
@@ -202,13 +264,12 @@ def _field_stacks(analysis, display: Display, step: float) -> dict[str, np.ndarr
         strain = analysis.strains[i] if i < len(analysis.strains) else None
         grids = []
         for k in display.fields:
-            vals = _node_values(res, strain, k)
+            vals = _node_values(res, strain, k, display)
             if DISPLAY_FIELDS[k][1] == "length":
                 vals = vals * float(display.length_scale)
-            grids.append(field_on_lattice(res, vals))
+            grids.append(grid.put(res, vals))
         if display.deformed and i > 0:
-            grids = to_deformed(grids, field_on_lattice(res, res.u),
-                                field_on_lattice(res, res.v), step)
+            grids = to_deformed(grids, grid.put(res, res.u), grid.put(res, res.v), grid.pitch)
         for k, g in zip(display.fields, grids):
             if with_time:
                 stacks[k][analysis.frames[i]] = g
@@ -217,31 +278,43 @@ def _field_stacks(analysis, display: Display, step: float) -> dict[str, np.ndarr
     return stacks
 
 
-def _image_layers(analysis, base: DICResult, geo: Geometry, display: Display,
-                  meta: dict) -> list:
+def _moving_frames(analysis) -> list | None:
+    """The planes of the time axis whose fields set the colour limits: every
+    computed frame but the reference (a zero field) when there is one; ``None``:
+    no time axis."""
+    if analysis.n_frames is None:
+        return None
+    done = [k for k, r in zip(analysis.frames, analysis.results) if r is not None]
+    return done[1:] if len(done) > 1 else done
+
+
+def _image_layers(analysis, geo: Geometry, display: Display, meta: dict) -> list:
     """One Image layer per displayed field, on the node lattice (one pixel per
-    node, pixel spacing = ``step`` image pixels)."""
-    step = float(base.params.step)
+    node, pixel spacing = ``step`` image pixels) or the finer grid of a refined mesh."""
+    grid = _Grid.of(analysis)
     sy, sx = geo.scale[-2:]
     ty, tx = geo.translate[-2:]
     lat = geo.kwargs()
-    lat["scale"] = (*lat["scale"][:-2], step * sy, step * sx)
-    lat["translate"] = (*lat["translate"][:-2], ty + float(base.grid_ys[0]) * sy,
-                        tx + float(base.grid_xs[0]) * sx)
+    lat["scale"] = (*lat["scale"][:-2], grid.pitch * sy, grid.pitch * sx)
+    lat["translate"] = (*lat["translate"][:-2], ty + grid.origin[1] * sy,
+                        tx + grid.origin[0] * sx)
     layers = []
-    for k, data in _field_stacks(analysis, display, step).items():
-        _, quantity, cmap, sym, desc = DISPLAY_FIELDS[k]
+    moving = _moving_frames(analysis)
+    for k, data in _field_stacks(analysis, display, grid).items():
+        _, quantity, cmap, limits, desc = DISPLAY_FIELDS[k]
         if quantity == "length":
             u_txt = display.length_unit
         else:
             u_txt = f"{analysis.strain.measure.replace('_', '-')} strain (dimensionless)"
+        clim = colour_limits(data[moving] if moving is not None else data, limits)
         layers.append((data, {
-            "name": layer_name(k), **lat, "colormap": cmap,
-            "contrast_limits": colour_limits(data, "symmetric" if sym else "from_zero"),
-            "interpolation2d": "nearest",
+            "name": layer_name(k, display.unit_of(k)), **lat, "colormap": cmap,
+            "contrast_limits": clim, "interpolation2d": "nearest",
             "blending": "translucent", "opacity": 0.8, "visible": k == display.visible_field,
             "metadata": {"napari_aldic": {**meta, "field": k, "description": desc,
-                                          "value_unit": u_txt, "deformed": display.deformed},
+                                          "value_unit": u_txt, "deformed": display.deformed,
+                                          "auto_colormap": cmap, "auto_limits": clim,
+                                          "grid_pitch_px": grid.pitch},
                          "napari_aldic_analysis": analysis},
         }, "image"))
     return layers
@@ -260,17 +333,20 @@ class _NodeTables:
 
 
 def _trusted_rows(res: DICResult, strain, t, display: Display, with_time: bool):
-    """(vector rows, features) of the trusted nodes of one frame."""
+    """(vector rows, features) of the trusted nodes of one frame; the arrows and
+    values lose the rigid-body motion when the display asks for it (the nodes
+    stay where the material is)."""
     L = float(display.length_scale)
     ok = np.asarray(res.valid, bool) & np.isfinite(res.u) & np.isfinite(res.v)
     x, y = res.x[ok].astype(float), res.y[ok].astype(float)
     if display.deformed:
         x, y = x + res.u[ok], y + res.v[ok]
+    du, dv = (a[ok] for a in _displacement(res, display))
     pos = _frame_coords(t, y, x, with_time)
-    proj = _frame_coords(0.0, res.v[ok], res.u[ok], with_time)
+    proj = _frame_coords(0.0, dv, du, with_time)
     feats = {"frame": np.full(ok.sum(), t, np.int64), "x_px": res.x[ok].astype(float),
-             "y_px": res.y[ok].astype(float), "u": res.u[ok] * L, "v": res.v[ok] * L,
-             "magnitude": np.hypot(res.u[ok], res.v[ok]) * L,
+             "y_px": res.y[ok].astype(float), "u": du * L, "v": dv * L,
+             "magnitude": np.hypot(du, dv) * L,
              "zncc": np.asarray(res.zncc, float)[ok]}
     for name in ("exx", "eyy", "exy", "von_mises"):
         feats[name] = (np.asarray(getattr(strain, name), float)[ok] if strain is not None
@@ -331,7 +407,7 @@ def _vectors_layer(analysis, tables: _NodeTables, geo: Geometry, display: Displa
         length = 0.9 * step / big if big > 1e-9 else 1.0
     keys = ("frame", "x_px", "y_px", "u", "v", "magnitude", "zncc", "exx", "eyy", "exy",
             "von_mises")
-    kw = {"name": layer_name(VECTORS), **geo.kwargs(),
+    kw = {"name": layer_name(VECTORS, display.length_unit), **geo.kwargs(),
           "features": _concat_features(tables.vec_feats, keys),
           "length": length, "edge_width": max(1.0, step / 6.0),
           "vector_style": "arrow", "projection_mode": "none", "opacity": 0.9,
@@ -352,7 +428,7 @@ def _unreliable_layer(tables: _NodeTables, geo: Geometry, display: Display, meta
     pdata = _concat(tables.bad_rows, (0, tables.ndim))
     feats = _concat_features(tables.bad_feats,
                              ("frame", "x_px", "y_px", "reason", "reason_text", "zncc"))
-    colors = np.array([_REASON_COLORS.get(int(c), (1, 0, 0, 1)) for c in feats["reason"]]
+    colors = np.array([REASON_COLORS.get(int(c), (1, 0, 0, 1)) for c in feats["reason"]]
                       ).reshape(-1, 4) if len(pdata) else "red"
     return (pdata, {
         "name": layer_name(UNRELIABLE), **geo.kwargs(), "features": feats,

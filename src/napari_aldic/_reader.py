@@ -42,6 +42,29 @@ def is_result_file(path) -> bool:
         return False
 
 
+def _builtin_npz(path: Path) -> bool:
+    """True for what napari's own writer makes of a result layer saved as ``.npz``
+    (File > Save Selected Layers... with the default file type): one float array
+    ``arr_0`` with NaN where nodes are missing, and no napari-aldic header."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if z.files != ["arr_0"]:
+                return False
+            a = z["arr_0"]
+            return a.dtype.kind == "f" and a.ndim in (2, 3) and bool(np.isnan(a).any())
+    except Exception:
+        return False
+
+
+def _explain_builtin_npz(path):
+    raise ValueError(
+        f"{Path(path).name} holds only the pixels of one layer, written by napari's own "
+        "image writer (the default file type of File > Save Selected Layers...), not the "
+        "napari-aldic results. Save results with the DIC widget's Export section (format "
+        "'Results (.npz)'), or choose the file type 'napari-aldic results (*.npz)' in "
+        "File > Save Selected Layers...; those reopen as result layers.")
+
+
 def _result_frames(folder: Path) -> list[tuple[int, Path]]:
     out = []
     for p in folder.iterdir():
@@ -80,7 +103,9 @@ def get_reader(path):
         return read_stack if len(image_files(path)) >= 2 else None
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return read_results if is_result_file(path) else None
+        if is_result_file(path):
+            return read_results
+        return _explain_builtin_npz if _builtin_npz(path) else None
     if suffix in TIFF_SUFFIXES and path.is_file() and _tiff_stack(path):
         return read_stack
     return None

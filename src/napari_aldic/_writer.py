@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["write_results", "write_export", "units_of"]
+__all__ = ["write_results", "write_export", "units_of", "save_analysis"]
 
 
 def _analysis_of(meta: dict):
@@ -42,7 +42,16 @@ def units_of(info: dict | None):
 def write_results(path: str, data, meta: dict) -> list[str]:
     """Write the results behind a result layer as ``.npz`` file(s)."""
     analysis = _analysis_of(meta)
-    units = units_of((meta.get("metadata") or {}).get("napari_aldic")).to_dict()
+    return save_analysis(analysis, path, units_of((meta.get("metadata") or {}).get(
+        "napari_aldic")))
+
+
+def save_analysis(analysis, path, units) -> list[str]:
+    """Write an analysis as the engine's ``.npz`` result file(s) with ``units``
+    (:class:`~napari_aldic.engine.Units`): one file for a single deformed frame,
+    else the folder named after ``path`` (``results.npz`` -> ``results/``) of
+    ``frame_#####.npz`` files, which the reader opens again with a time axis."""
+    units = units.to_dict()
     path = Path(path)
     if path.suffix.lower() != ".npz":
         path = path.with_suffix(".npz")

@@ -3,13 +3,14 @@ statuses, and the testing-machine load reader and synchronisation."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from napari_aldic.engine import Reason, Units, correlate, track
-from napari_aldic.engine import synthetic as S
+from napari_aldic.engine import Reason, Units, correlate, synthetic as S, track
 from napari_aldic.engine.probes import (
     DEGRADED,
     MISSING,
@@ -29,6 +30,9 @@ from napari_aldic.engine.probes import (
     read_load_csv,
 )
 
+#: set to write the pictures of docs/probes.md into docs/images
+DOC_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images" if os.environ.get(
+    "NAPARI_ALDIC_DOC_IMAGES", "") not in ("", "0") else None
 SHAPE = (160, 160)
 CENTER = (80.0, 80.0)
 EXX = np.linspace(0.0, 0.02, 5)  # frame k: exx = EXX[k]
@@ -274,13 +278,26 @@ def test_kymograph_follows_the_field(strain_run, tmp_path):
     np.testing.assert_allclose(data[:, 3:], kymo.values.T, rtol=1e-8, atol=1e-12)
     head = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")][0]
     assert head.startswith("distance [px],x_px [px],y_px [px],frame_0 [px]")
+    if DOC_IMAGES is not None:
+        from napari_aldic.engine.probes import export_kymograph_plot
+
+        export_kymograph_plot(kymo, DOC_IMAGES / "probes_kymograph.png", dpi=80)
 
 
 def test_probe_plot_shows_curves(strain_run, tmp_path):
     import matplotlib.image as mpimg
 
-    table = measure_probes(strain_run, ProbeSet(lines=[LineProbe(30, 80, 130, 80)]))
+    table = measure_probes(strain_run, ProbeSet(lines=[LineProbe(30, 80, 130, 80)],
+                                                areas=[AreaProbe.circle(80, 80, 35)]),
+                           fields=("exx",))
+    load = tmp_path / "load.csv"  # a linear-elastic test: 210 GPa, 20 mm²
+    load.write_text("Frame;Load\n(-);(kN)\n" + "".join(
+        f"{k};{210e3 * 20 * e / 1e3:.6f}\n".replace(".", ",") for k, e in enumerate(EXX)))
+    attach_load(table, read_load_csv(load), area_mm2=20.0)
+    assert np.abs(table["stress_MPa"] - 210e3 * EXX).max() < 1e-3
     png = export_probe_plot(table, tmp_path / "curves.png", dpi=60)
+    if DOC_IMAGES is not None:
+        export_probe_plot(table, DOC_IMAGES / "probes_curves.png", dpi=80)
     img = mpimg.imread(png)
     assert img.shape[0] > 100 and img[..., :3].std() > 0.05  # not blank
     assert export_probe_plot(table, tmp_path / "curves.pdf").read_bytes()[:4] == b"%PDF"
@@ -395,3 +412,46 @@ def test_a_single_pair_result_works(tmp_path):
     table = measure_probes(res, ProbeSet(lines=[LineProbe(20, 48, 76, 48)]))
     assert list(table.frames) == [0, 1]
     assert abs(table["line1_strain"][1]) < 1e-4
+
+
+def test_report_gets_a_probe_page(export_sequence, export_stack, tmp_path):
+    import re
+
+    from napari_aldic.engine import export_report
+    from napari_aldic.engine.viz import report_page_count
+
+    load = tmp_path / "l.csv"
+    load.write_text("Frame,Load (kN)\n0,0\n1,1\n2,2\n3,3\n")
+    table = measure_probes(export_sequence, ProbeSet(lines=[LineProbe(20, 64, 108, 64)],
+                                                     areas=[AreaProbe.circle(64, 64, 30)]))
+    attach_load(table, read_load_csv(load), area_mm2=5.0)
+    pdf = export_report(export_sequence, tmp_path / "r.pdf", frames=[3], probes=table,
+                        image=export_stack[0])
+    n_pages = len(re.findall(rb"/Type\s*/Page(?!s)", pdf.read_bytes()))
+    assert n_pages == report_page_count(1, False, len(export_stack)) + 1
+    from napari_aldic.engine.viz.probe_page import probe_page
+
+    fig = probe_page(table)
+    fig.savefig(tmp_path / "probe_page.png", dpi=60)
+    assert len(fig.axes) == 4  # strains, lengths, load, stress-strain
+
+
+def test_probes_on_an_aldic_quadtree_result(aldic_result, export_field):
+    """Quadtree cells (hanging nodes) and a hole in the ROI."""
+    res = replace(aldic_result, meta={**aldic_result.meta, "frame": 2})
+    pts = [PointProbe(30.5, 33.2), PointProbe(95.3, 70.1), PointProbe(64.0, 64.0)]
+    table = measure_probes(res, ProbeSet(points=pts, lines=[LineProbe(20, 64, 108, 64)]),
+                           fields=("u", "v"))
+    for i, p in enumerate(pts[:2], 1):
+        u, v = export_field(2).displacement(p.x, p.y)
+        assert abs(table[f"point{i}_u"][1] - u) < 0.02
+        assert abs(table[f"point{i}_v"][1] - v) < 0.02
+    hole = table.columns["point3_u"]
+    assert hole.status[1] == MISSING and "outside the ROI" in hole.reasons[1]
+    field = export_field(2)
+    u, v = field.displacement(np.array([20.0, 108.0]), np.array([64.0, 64.0]))
+    assert abs(table["line1_strain"][1] - (88 + u[1] - u[0]) / 88 + 1 - 1) < 3e-4 or \
+        abs(table["line1_strain"][1] - (np.hypot(88 + u[1] - u[0], v[1] - v[0]) / 88 - 1)) < 3e-4
+    # the gauge spans the hole: its strain is flagged, its opening is not
+    assert table.columns["line1_strain"].status[1] == DEGRADED
+    assert table.columns["line1_cod_opening"].status[1] == OK

@@ -145,9 +145,10 @@ def _flagged(res: DICResult, seed: int = 0) -> DICResult:
     out = DICResult(**{**res.__dict__})
     out.reason, out.valid = res.reason.copy(), res.valid.copy()
     out.meta = dict(res.meta)
+    codes = [int(r) for r in Reason if r != 0]
     rng = np.random.default_rng(seed)
-    for j, i in enumerate(rng.choice(len(res), 16, replace=False)):
-        out.reason[i] = 1 + j % 8
+    for j, i in enumerate(rng.choice(len(res), 2 * len(codes), replace=False)):
+        out.reason[i] = codes[j % len(codes)]
         out.valid[i] = False
     return out
 

@@ -24,7 +24,7 @@ from napari_aldic.engine import (
     load_run,
     track,
 )
-from napari_aldic.engine.core.files import LOCK_NAME, folder_lock
+from napari_aldic.engine.core.files import LOCK_NAME, ExportError, atomic_write, folder_lock
 
 FAST = {"subset": 21, "step": 24}  # a 5 x 5 lattice on the 128 px export stack
 
@@ -118,6 +118,13 @@ def test_old_manifest_and_foreign_files_are_refused(stack, tmp_path):
     (broken / "sequence.json").write_text("{not json")
     with pytest.raises(RunFolderError, match=r"cannot read the run manifest .*sequence\.json"):
         track(stack, out_dir=broken, **FAST)
+    (broken / "sequence.json").write_text(json.dumps({"format": "napari-aldic-run",
+                                                      "format_version": 99}))
+    with pytest.raises(RunFolderError, match="format version 99, newer than"):
+        track(stack, out_dir=broken, **FAST)
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(RunFolderError, match="a_file as a run folder: it is a file"):
+        track(stack, out_dir=tmp_path / "a_file", **FAST)
 
 
 def test_a_frame_file_of_another_run_is_not_mixed_in(stack, tmp_path):
@@ -196,6 +203,19 @@ def test_planted_links_are_not_followed_and_stale_temporaries_are_cleaned(stack,
     assert seq.complete and victim.read_text() == "precious"
     assert not [p.name for p in out.iterdir() if p.name.endswith(".part")]
     assert json.loads((out / "sequence.json").read_text())["format_version"] == 2
+
+
+def test_a_temporary_swapped_for_a_link_is_never_renamed(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    target = tmp_path / "out" / "sequence.json"
+    target.parent.mkdir()
+    with pytest.raises(ExportError, match="was replaced by another program"):
+        with atomic_write(target) as tmp:
+            tmp.write_text("{}")
+            tmp.unlink()
+            tmp.symlink_to(victim)
+    assert victim.read_text() == "precious" and list(target.parent.iterdir()) == []
 
 
 # ----------------------------------------------------------------- a bad frame

@@ -45,13 +45,13 @@ def test_bug01_renamed_layers_stay_chosen_and_names_are_read_again(make_napari_v
     labels = viewer.add_labels(np.ones(SHAPE, np.uint8), name="roi labels")
     seeds = viewer.add_points([[60.0, 60.0]], name="seeds")
     brush = viewer.add_labels(np.zeros(SHAPE, np.uint8), name="refine")
-    assert list(w.roi_add.value) == [roi] and w.roi_labels.value is labels
-    assert w.seeds.value is seeds and w.brush.value is brush
+    assert list(w.roi_add.value) == [roi] and w.roi_labels.value == labels
+    assert w.seeds.value == seeds and w.brush.value == brush
     for layer, name in ((roi, "specimen outline"), (labels, "painted area"),
                         (seeds, "start points"), (brush, "painted detail")):
         layer.name = name
     assert list(w.roi_add.value) == [roi]
-    assert w.roi_labels.value is labels and w.seeds.value is seeds and w.brush.value is brush
+    assert w.roi_labels.value == labels and w.seeds.value == seeds and w.brush.value == brush
     mask, _ = w.inputs.roi(SHAPE)
     assert mask is not None and mask.sum() == 130 * 130  # the ROI, not the whole image
     assert "Ready." in w.status.value
@@ -65,7 +65,7 @@ def test_bug01_renamed_layers_stay_chosen_and_names_are_read_again(make_napari_v
     painted = viewer.add_labels(np.zeros(SHAPE, np.uint8), name="Labels")
     assert w.brush.value is None
     painted.name = "refine here"
-    assert w.brush.value is painted
+    assert w.brush.value == painted
 
 
 # ------------------------------------------------------------------ 2
@@ -123,7 +123,7 @@ def test_bug04_choosing_none_checks_the_inputs_again(make_napari_viewer_proxy, s
     assert "Ready." in w.status.value and w.run_button.enabled
 
     seeds = viewer.add_points([[60.0, 60.0]], name="seeds")
-    assert w.seeds.value is seeds and w.init.value == "seeds"
+    assert w.seeds.value == seeds and w.init.value == "seeds"
     assert w.run_button.enabled
     w.seeds.value = None
     assert "needs a Points layer" in w.status.value and not w.run_button.enabled
@@ -153,7 +153,7 @@ def test_bug05_display_toggles_keep_the_users_colours_and_show_acts_at_once(
     w.show_field.value = "exx"
     assert result_layer(viewer, "exx").visible
     assert not result_layer(viewer, "|u|").visible
-    assert viewer.layers.selection.active is result_layer(viewer, "exx")
+    assert viewer.layers.selection.active == result_layer(viewer, "exx")
 
 
 # ------------------------------------------------------------------ 6
@@ -191,11 +191,11 @@ def test_bug07_labels_of_another_sample_are_not_chosen_for_the_first_image(
     w = _dock(viewer)
     [first] = viewer.open_sample("napari-aldic", "translation_pair")
     oht = viewer.open_sample("napari-aldic", "open_hole_pair")
-    assert w.image.value is first
+    assert w.image.value == first
     assert w.roi_labels.value is None
     assert "px but the image" not in w.status.value and "Ready." in w.status.value
     w.image.value = oht[0]  # the labels that fit the chosen image come with it
-    assert w.roi_labels.value is oht[1]
+    assert w.roi_labels.value == oht[1]
     assert "Ready." in w.status.value
 
 
@@ -235,7 +235,7 @@ def test_bug09_labels_made_while_shapes_are_active_are_matched_by_world_coordina
 
     # the panel's own button makes labels of the image's size and chooses them
     made = w.inputs.new_labels("roi_labels")
-    assert made.data.shape == SHAPE and w.roi_labels.value is made
+    assert made.data.shape == SHAPE and w.roi_labels.value == made
     assert tuple(made.scale) == (1.0, 1.0)
 
 
@@ -267,7 +267,7 @@ def test_bug11_names_carry_units_legend_explains_reasons_field_is_active(
     u = result_layer(viewer, "u")
     assert u.name == "DIC u [px]"
     assert result_layer(viewer, "exx").name == "DIC exx [-]"
-    assert viewer.layers.selection.active is result_layer(viewer, "|u|")
+    assert viewer.layers.selection.active == result_layer(viewer, "|u|")
     w.unit.value = "µm"
     w.pixel_size.value = 0.5
     u = result_layer(viewer, "u")

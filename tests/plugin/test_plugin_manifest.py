@@ -18,7 +18,8 @@ def test_npe2_discovers_the_installed_plugin():
     contrib = manifest.contributions
     assert any(r.command == "napari-aldic.get_reader" for r in contrib.readers)
     assert {w.layer_types[0] for w in contrib.writers} >= {"image", "vectors"}
-    assert [w.display_name for w in contrib.widgets] == ["Digital image correlation (AL-DIC)"]
+    assert [w.display_name for w in contrib.widgets] == ["Digital image correlation (AL-DIC)",
+                                                         "Probes and stress-strain"]
     assert len(contrib.sample_data) >= 3
     measure = manifest.contributions.menus.get("napari/layers/measure", [])
     assert any(getattr(item, "command", None) == "napari-aldic.dic_widget" for item in measure)

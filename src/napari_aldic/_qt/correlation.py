@@ -13,7 +13,7 @@ from magicgui.widgets import ComboBox, FloatSpinBox, SpinBox
 from psygnal import Signal
 
 from ..engine import DICParams
-from .controls import Panel, Plan, put, section
+from .controls import Panel, Plan, put
 
 __all__ = ["CorrelationPanel", "PARAM_CONTROLS"]
 
@@ -77,7 +77,7 @@ class CorrelationPanel(Panel):
                              tooltip="FFT: automatic search. Seed points: propagate from the "
                                      "points of the seeds layer (large or uneven motion).")
         self._setup_tracking_ui()
-        self.extend([section("Correlation"), self.method, self.subset, self.step, self.search,
+        self.extend([self.method, self.subset, self.step, self.search,
                      self.refine, self.smooth, self.smooth_px, self.init, self.reference,
                      self.start, self.stop, self.stride])
 
@@ -136,9 +136,10 @@ class CorrelationPanel(Panel):
         self.stop.value = n - 1
         self.start.value = min(self.start.value, max(0, n - 2))
 
-    def params(self, seeds: tuple = ()) -> DICParams:
+    def params(self, seeds: tuple = (), init: str | None = None) -> DICParams:
         """The DICParams of the controls with ``seeds`` ((x, y) image pixels) and
-        the fields the panel does not show (:attr:`extra_params`)."""
+        the fields the panel does not show (:attr:`extra_params`); ``init``
+        replaces the initial guess of the controls."""
         extra = dict(self._extra_params)
         if extra.get("search_max") is not None and extra["search_max"] < self.search.value:
             extra["search_max"] = int(self.search.value)  # the search cannot start wider
@@ -146,7 +147,7 @@ class CorrelationPanel(Panel):
             **extra, "method": self.method.value, "subset": int(self.subset.value),
             "step": int(self.step.value), "search": int(self.search.value),
             "refine": None if self.refine.value == "none" else self.refine.value,
-            "smooth": self.smooth_value, "init": self.init.value, "seeds": seeds})
+            "smooth": self.smooth_value, "init": init or self.init.value, "seeds": seeds})
 
     def summary(self) -> str:
         """The settings in words (for the log)."""

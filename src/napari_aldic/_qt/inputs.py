@@ -18,7 +18,7 @@ from psygnal import Signal
 
 from .._layers import is_result_name
 from .._roi import build_roi, labels_fit, labels_mask, points_xy
-from .controls import Panel, section
+from .controls import Panel
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari

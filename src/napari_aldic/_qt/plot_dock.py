@@ -31,7 +31,6 @@ from qtpy.QtWidgets import (
 
 from ..engine.probes import (
     LINE_QUANTITIES,
-    STATUS_NAMES,
     attach_load,
     draw_probe_curves,
     draw_stress_strain,
@@ -52,6 +51,8 @@ __all__ = ["ProbePlotDock"]
 
 NONE = "(none)"
 FIELDS = ("u", "v", "magnitude", "exx", "eyy", "exy", "von_mises")
+DOCK_STYLE = {"font.size": 7.5, "axes.titlesize": 8, "axes.labelsize": 7.5,
+              "legend.fontsize": 6.5, "xtick.labelsize": 7, "ytick.labelsize": 7}
 
 
 class ProbePlotDock(QWidget):
@@ -65,7 +66,7 @@ class ProbePlotDock(QWidget):
         self.load_record = None
         self.message = ""
         self._hooks: list = []  # (emitter, callback) of the watched layers
-        self._axes: dict = {}
+        self.axes: dict = {}  # "lines", "spatial", "stress" -> the matplotlib axes shown
         self._ss_column = ""  # the strain of the stress-strain curve
         self._timer = QTimer(self)
         self._timer.setSingleShot(True)
@@ -229,7 +230,8 @@ class ProbePlotDock(QWidget):
                 if len(probes):
                     self.table = measure_analysis(self.view, probes)
                     self._attach_load()
-                    self.message = self._status_text()
+                    self.message = "\n".join(self.table.status_summary(5)) or (
+                        f"{len(self.table)} frames, every probe value trusted.")
                 else:
                     self.message = ("Draw probes: a line (gauge) or a rectangle/ellipse/"
                                     "polygon (area) in a Shapes layer, points in a Points "
@@ -265,20 +267,9 @@ class ProbePlotDock(QWidget):
         self.sync_combo.setCurrentText(sync or ("frame" if self.load_record.frame is not None
                                                 else "time"))
         self.load_label.setText(self.load_record.describe())
+        self.load_label.setToolTip(f"{self.load_record.source}\n{self.load_record.describe()}")
         self.recompute()
         return True
-
-    def _status_text(self) -> str:
-        lines = []
-        for group in self.table.groups():
-            status, reasons = self.table.group_status(group)
-            bad = np.nonzero(status > 0)[0]
-            if bad.size:
-                frames = ", ".join(str(int(self.table.frames[i])) for i in bad[:5])
-                why = next((reasons[i] for i in bad if reasons[i]), "")
-                lines.append(f"{group}: {STATUS_NAMES[int(status.max())]} at frame(s) "
-                             f"{frames}{' ...' if bad.size > 5 else ''}: {why}")
-        return "\n".join(lines) or f"{len(self.table)} frames, every probe value trusted."
 
     # ------------------------------------------------------------ plotting
     def curve_columns(self) -> tuple[list[str], list[str]]:
@@ -304,9 +295,16 @@ class ProbePlotDock(QWidget):
 
     def redraw(self) -> None:
         """Draw the curves (and the stress-strain curve) with the current frame marked."""
+        import matplotlib
+
+        with matplotlib.rc_context(DOCK_STYLE):  # a dock is small: small text
+            self._draw()
+        self.canvas.draw_idle()
+
+    def _draw(self) -> None:
         fig = self.figure
         fig.clear()
-        self._axes = {}
+        self.axes = {}
         lines, spatial = self.curve_columns()
         stress = self.table is not None and "stress_MPa" in self.table.columns and lines
         panels = [p for p in (("lines", lines), ("spatial", spatial)) if p[1]]
@@ -320,12 +318,11 @@ class ProbePlotDock(QWidget):
             k = self.current_frame()
             for ax, (key, names) in zip(axes, panels):
                 draw_probe_curves(ax, self.table, names, current=k)
-                self._axes[key] = ax
+                self.axes[key] = ax
             if stress:  # against the engineering strain of the first gauge shown
                 self._ss_column = f"{lines[0].split('_', 1)[0]}_strain"
                 draw_stress_strain(axes[-1], self.table, self._ss_column, current=k)
-                self._axes["stress"] = axes[-1]
-        self.canvas.draw_idle()
+                self.axes["stress"] = axes[-1]
 
     def _on_frame(self, *_) -> None:
         if self.table is not None:
@@ -341,7 +338,7 @@ class ProbePlotDock(QWidget):
         if self.table is None or event.inaxes is None or event.xdata is None:
             return
         frames = self.table.frames
-        if event.inaxes is self._axes.get("stress"):
+        if event.inaxes is self.axes.get("stress"):
             pts = event.inaxes.transData.transform(
                 np.column_stack([self.table[self._ss_column], self.table["stress_MPa"]]))
             d = np.hypot(pts[:, 0] - event.x, pts[:, 1] - event.y)

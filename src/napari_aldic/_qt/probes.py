@@ -107,7 +107,10 @@ def _ellipse(xy: np.ndarray) -> AreaProbe:
     c = xy.mean(axis=0)
     a, b = 0.5 * (xy[1] - xy[0]), 0.5 * (xy[2] - xy[1])
     rx, ry = float(np.hypot(*a)), float(np.hypot(*b))
-    return AreaProbe.ellipse(c[0], c[1], rx, ry, math.degrees(math.atan2(a[1], a[0])))
+    ang = (math.degrees(math.atan2(a[1], a[0])) + 90.0) % 180.0 - 90.0  # in [-90, 90)
+    if abs(ang) > 45.0:  # the same ellipse, told with the angle nearest 0
+        rx, ry, ang = ry, rx, ang - math.copysign(90.0, ang)
+    return AreaProbe.ellipse(c[0], c[1], rx, ry, ang + 0.0)
 
 
 def _shape_probe(kind: str, xy: np.ndarray, name: str):

@@ -2,21 +2,31 @@
 
 :class:`ResultLayers` holds the last analysis and the image it was computed
 on, and turns them into the viewer's ``DIC ...`` layers with
-:func:`napari_aldic._layers.analysis_layers`.
+:func:`napari_aldic._layers.analysis_layers`. The layer data can be made in a
+worker thread (:meth:`ResultLayers.prepare`); putting them in the viewer is a
+sequence of small steps (:meth:`ResultLayers.steps`, one layer each) so that
+the caller can let the event loop run between them.
+
+A result layer is found by the field it shows (``metadata["napari_aldic"]
+["field"]``), not by its name, which carries the unit (``DIC u [µm]``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .._analysis import Analysis
-from .._layers import Display, Geometry, analysis_layers, layer_name
+from .._layers import DISPLAY_FIELDS, MESH, UNRELIABLE, VECTORS, Display, Geometry, analysis_layers
 from .inputs import is_result_layer
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
 
-__all__ = ["ResultLayers", "geometry_of", "update_layer"]
+__all__ = ["ResultLayers", "Prepared", "prepare", "geometry_of", "update_layer",
+           "find_result_layer", "field_of"]
 
 #: layer attributes that place a layer in the world
 _PLACEMENT = ("scale", "translate", "units", "axis_labels")
@@ -29,21 +39,59 @@ def geometry_of(image) -> Geometry:
                     axis_labels=tuple(image.axis_labels))
 
 
+def field_of(layer) -> str | None:
+    """The result field a layer shows ("u", "exx", "displacement" ...), or None."""
+    meta = getattr(layer, "metadata", None) or {}
+    return (meta.get("napari_aldic") or {}).get("field")
+
+
+def find_result_layer(layers, key: str):
+    """The result layer of field ``key`` among ``layers`` (``None``: there is none)."""
+    for lay in layers:
+        if field_of(lay) == key and is_result_layer(lay):
+            return lay
+    return None
+
+
+def _keep_colours(layer, kw: dict) -> None:
+    """Put the user's colormap and contrast limits into ``kw`` where the user changed
+    them: a display toggle or a new run must not undo that. Limits follow a change
+    of the length scale; they are reset when rigid-body motion is added or removed."""
+    old = (layer.metadata or {}).get("napari_aldic") or {}
+    new = kw["metadata"]["napari_aldic"]
+    if old.get("auto_colormap") and layer.colormap.name != old["auto_colormap"]:
+        kw["colormap"] = layer.colormap
+    auto = old.get("auto_limits")
+    if auto is None or np.allclose(layer.contrast_limits, auto, rtol=1e-6, atol=0):
+        return
+    if old.get("rigid_removed") != new.get("rigid_removed"):
+        return
+    ratio = 1.0
+    if DISPLAY_FIELDS.get(new["field"], ("", "strain"))[1] == "length":
+        ratio = float(new["pixel_size"]) / float(old.get("pixel_size") or 1.0)
+    kw["contrast_limits"] = tuple(float(c) * ratio for c in layer.contrast_limits)
+
+
 def update_layer(layer, data, kw: dict, kind: str) -> bool:
-    """Update a result layer in place (cheaper than removing and adding it, and
-    the user's visibility and opacity stay). False if it must be replaced."""
+    """Update a result layer in place (cheaper than removing and adding it; the
+    user's visibility, opacity, colormap and contrast limits stay). False if it
+    must be replaced."""
     ndim = len(kw["scale"])
     if layer.__class__.__name__.lower() != kind or layer.ndim != ndim or \
             kind not in ("image", "vectors", "points"):
         return False
+    if kind == "image":
+        _keep_colours(layer, kw)
     layer.data = data
     for key in _PLACEMENT:
         if key in kw:
             setattr(layer, key, kw[key])
     if kind == "image":
         layer.colormap = kw["colormap"]
-        layer.contrast_limits_range = kw["contrast_limits"]
-        layer.contrast_limits = kw["contrast_limits"]
+        lo, hi = kw["contrast_limits"]
+        auto = kw["metadata"]["napari_aldic"]["auto_limits"]
+        layer.contrast_limits_range = (min(lo, auto[0]), max(hi, auto[1]))
+        layer.contrast_limits = (lo, hi)
     elif kind == "vectors":
         layer.features = kw["features"]
         layer.length = kw["length"]
@@ -57,7 +105,31 @@ def update_layer(layer, data, kw: dict, kind: str) -> bool:
             layer.face_color = kw["face_color"]
             layer.size = kw["size"]
     layer.metadata = kw["metadata"]
+    if layer.name != kw["name"]:
+        layer.name = kw["name"]  # the unit changed
     return True
+
+
+class Prepared:
+    """Result layers made away from the viewer: the layer-data tuples and, when
+    napari is at hand, the layer objects (both are slow for large results, so a
+    worker thread makes them; only adding them needs the main thread)."""
+
+    def __init__(self, tuples: list, display: Display, make_layers: bool = True):
+        self.tuples = tuples
+        self.display = display
+        self.layers: list = [None] * len(tuples)
+        if make_layers:
+            from napari.layers import Layer
+
+            self.layers = [Layer.create(data, dict(kw), kind) for data, kw, kind in tuples]
+
+
+def prepare(analysis: Analysis, geometry: Geometry, display: Display,
+            make_layers: bool = False) -> Prepared:
+    """The result layers of ``analysis`` for ``display`` on an image of
+    ``geometry`` (safe in a worker thread: nothing of the viewer is touched)."""
+    return Prepared(analysis_layers(analysis, geometry, display), display, make_layers)
 
 
 class ResultLayers:
@@ -74,39 +146,54 @@ class ResultLayers:
         """The viewer's result layers."""
         return [lay for lay in self._viewer.layers if is_result_layer(lay)]
 
-    def show(self, display: Display, fallback_image=None) -> None:
-        """Make or update the result layers of :attr:`analysis` (placed on the
-        analysed image, or on ``fallback_image`` when that one was removed)."""
-        layers = self._viewer.layers
-        if self.analysis is None:
-            return
-        if self.image is not None and self.image not in layers:
-            self.image = None
-        image = self.image if self.image is not None else fallback_image
-        if image is None:
-            return
-        tuples = analysis_layers(self.analysis, geometry_of(image), display)
-        made = {kw["name"] for _, kw, _ in tuples}
-        # layers this display no longer makes (e.g. mesh switched off) go away
-        for key in ("displacement", "unreliable nodes", "mesh"):
-            name = layer_name(key)
-            if name not in made and name in layers:
-                layers.remove(name)
-        for data, kw, kind in tuples:
-            self._put(data, kw, kind)
-        vis = layer_name(display.visible_field)
-        if vis in layers and hasattr(layers[vis], "colorbar"):
-            layers[vis].colorbar.visible = True
+    def layer(self, key: str):
+        """The result layer of field ``key`` (``None``: not shown)."""
+        return find_result_layer(self._viewer.layers, key)
 
-    def _put(self, data, kw: dict, kind: str) -> None:
-        """Add a layer, or update the one of that name (replaced at the same place
+    def placed_on(self, fallback_image=None):
+        """The image the results are drawn on: the analysed one while it is in the
+        viewer, else ``fallback_image``."""
+        if self.image is not None and self.image not in self._viewer.layers:
+            self.image = None
+        return self.image if self.image is not None else fallback_image
+
+    def prepare(self, display: Display, image, make_layers: bool = False) -> Prepared | None:
+        """The result layers of :attr:`analysis` for ``display`` on ``image``
+        (thread-safe: only the analysis and the image's transform are read)."""
+        if self.analysis is None or image is None:
+            return None
+        return prepare(self.analysis, geometry_of(image), display, make_layers)
+
+    def show(self, display: Display, fallback_image=None) -> None:
+        """Make or update the result layers of :attr:`analysis` at once."""
+        prepared = self.prepare(display, self.placed_on(fallback_image))
+        if prepared is not None:
+            for _ in self.steps(prepared):
+                pass
+
+    def steps(self, prepared: Prepared) -> Iterator[None]:
+        """Put ``prepared`` in the viewer, one layer per step."""
+        made = {kw["metadata"]["napari_aldic"]["field"] for _, kw, _ in prepared.tuples}
+        for key in (VECTORS, UNRELIABLE, MESH):  # layers this display no longer makes
+            old = self.layer(key)
+            if key not in made and old is not None:
+                self._viewer.layers.remove(old)
+                yield
+        for (data, kw, kind), premade in zip(prepared.tuples, prepared.layers):
+            self._put(data, kw, kind, premade)
+            yield
+
+    def _put(self, data, kw: dict, kind: str, premade=None) -> None:
+        """Add a layer, or update the one of that field (replaced at the same place
         when it is of another kind or number of axes)."""
         layers = self._viewer.layers
-        name = kw["name"]
-        if name not in layers:
-            getattr(self._viewer, f"add_{kind}")(data, **kw)
+        old = self.layer(kw["metadata"]["napari_aldic"]["field"])
+        if old is None:
+            if premade is not None:
+                layers.append(premade)
+            else:
+                getattr(self._viewer, f"add_{kind}")(data, **kw)
             return
-        old = layers[name]
         if update_layer(old, data, kw, kind):
             return
         kw["visible"] = old.visible
@@ -114,6 +201,19 @@ class ResultLayers:
         layers.remove(old)
         new = getattr(self._viewer, f"add_{kind}")(data, **kw)
         layers.move(layers.index(new), index)
+
+    def show_field(self, key: str) -> None:
+        """Make field ``key`` the visible, active result image (its colour bar
+        shown); the other field images are hidden."""
+        target = self.layer(key)
+        for k in DISPLAY_FIELDS:
+            lay = self.layer(k)
+            if lay is not None:
+                lay.visible = k == key
+                if hasattr(lay, "colorbar"):
+                    lay.colorbar.visible = k == key
+        if target is not None:
+            self._viewer.layers.selection.active = target
 
     def go_to_last_frame(self) -> None:
         """Show the last computed frame (frame 0, the reference, is a zero field)."""
@@ -132,7 +232,7 @@ class ResultLayers:
         recomputed (automatic length, ``length <= 0``)."""
         if length <= 0:
             return False
-        name = layer_name("displacement")
-        if name in self._viewer.layers:
-            self._viewer.layers[name].length = float(length)
+        layer = self.layer(VECTORS)
+        if layer is not None:
+            layer.length = float(length)
         return True

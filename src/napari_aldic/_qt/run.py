@@ -1,17 +1,23 @@
-"""The Run panel: input status, Run/Cancel, progress, time left and the log.
+"""The Run panel: input status, Run/Cancel, progress, time elapsed and left, and the log.
 
 A run is a :class:`~napari_aldic._analysis.Job` executed by
 :func:`~napari_aldic._analysis.run_in_thread` in a napari generator worker:
 progress reports arrive on the main thread (``yielded``), the
-:class:`~napari_aldic._analysis.Analysis` through ``returned``, an error
-through ``errored`` (one notification, the viewer stays usable).
+:class:`~napari_aldic._analysis.Analysis` (with the result layers made in the
+worker) through ``returned``, an error through ``errored`` (one notification,
+the viewer stays usable). The result layers are then put in the viewer one per
+turn of the event loop, so that the viewer never stalls; the run counts as
+running until they are all there.
+
+The log (:attr:`RunPanel.log`) is made here but placed by the dock widget.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from magicgui.widgets import Container, Label, ProgressBar, PushButton, TextEdit
 from psygnal import Signal
@@ -19,7 +25,10 @@ from psygnal import Signal
 from .._analysis import Analysis, Job, run_in_thread
 from .controls import Panel
 
-__all__ = ["RunPanel", "format_seconds"]
+__all__ = ["RunPanel", "format_seconds", "PREPARING"]
+
+#: said while the Numba kernels are compiled or loaded (the first run of a new install)
+PREPARING = "Preparing the correlation engine (first run only)…"
 
 
 def format_seconds(s: float) -> str:
@@ -31,35 +40,46 @@ def format_seconds(s: float) -> str:
 
 
 class RunPanel(Panel):
-    """Status line, Run and Cancel buttons, progress bar, frames/time left, log.
+    """Status line, Run and Cancel buttons, progress bar, frames and time.
 
     Signals
     -------
     run_requested
         The Run button was clicked.
     running_changed(bool)
-        A run started or ended.
+        A run started or ended (its result layers all shown).
 
     Attributes
     ----------
-    show_results : callable(Analysis), optional
-        Called with every finished (or cancelled) run's analysis; an exception
-        is reported as "could not show the results".
+    show_results : callable(Analysis, prepared) -> iterator, optional
+        Called with every finished (or cancelled) run's analysis and what
+        ``after`` made of it in the worker; each step of the iterator it
+        returns runs in its own turn of the event loop. An exception is
+        reported as "could not show the results".
+    preparing : bool
+        The correlation engine is being prepared (said in the status line).
     """
 
     run_requested = Signal()
     running_changed = Signal(bool)
 
     def __init__(self):
-        self.show_results: Callable[[Analysis], None] | None = None
+        self.show_results: Callable[[Analysis, Any], Iterator | None] | None = None
+        self.preparing = False
         self._running = False
         self._worker = None
+        self._worker_done = True
+        self._steps: Iterator | None = None
         self._cancel = threading.Event()
         self._t0 = 0.0
+        self._frac = 0.0
         self._n_deformed = 0
+        self._problems: tuple[list, list] = ([], [])
         super().__init__(labels=False, margins=None)
 
     def _setup_ui(self) -> None:
+        from qtpy.QtCore import QTimer
+
         self.status = Label(value="")
         self.run_button = PushButton(text="Run")
         self.cancel_button = PushButton(text="Cancel", enabled=False)
@@ -69,35 +89,52 @@ class RunPanel(Panel):
         self.log.read_only = True
         buttons = Container(widgets=[self.run_button, self.cancel_button], layout="horizontal",
                             labels=False)
-        self.extend([self.status, buttons, self.progress, self.eta, self.log])
+        buttons.margins = (0, 0, 0, 0)
+        self.extend([self.status, buttons, self.progress, self.eta])
         self.status.native.setWordWrap(True)
         self.eta.native.setWordWrap(True)
-        self.log.native.setMinimumHeight(90)
-        self.log.native.setMaximumHeight(170)
+        self.log.native.setMinimumHeight(80)
+        self._clock = QTimer()
+        self._clock.setInterval(500)  # elapsed time moves between frames too
 
     def _setup_callbacks(self) -> None:
         self.run_button.changed.connect(self.run_requested.emit)
         self.cancel_button.changed.connect(self.cancel)
+        self._clock.timeout.connect(self._show_time)
 
     # ------------------------------------------------------------ state
     @property
     def running(self) -> bool:
-        """Whether a run is in progress."""
+        """Whether a run is in progress (its result layers not all shown yet)."""
         return self._running
 
     def _set_running(self, running: bool) -> None:
         self._running = running
         self.cancel_button.enabled = running
+        if running:
+            self._clock.start()
+        else:
+            self._clock.stop()
         self.running_changed.emit(running)
 
     def show_problems(self, errors: list[str], warnings: list[str]) -> None:
         """Show the input check in the status line; Run is enabled without errors."""
+        self._problems = (list(errors), list(warnings))
         lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
         lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warnings]
         if not errors:
             lines.insert(0, "<span style='color:#6bd66b'>Ready.</span>")
+        if self.preparing:
+            lines.insert(0, f"<span style='color:#8ab4f8'>{PREPARING}</span>")
         self.status.value = "<br>".join(lines)
         self.run_button.enabled = not errors and not self._running
+
+    def set_preparing(self, preparing: bool) -> None:
+        """Say (or stop saying) that the correlation engine is being prepared."""
+        self.preparing = preparing
+        self.show_problems(*self._problems)
+        if self._running and self._frac == 0:
+            self._show_time()
 
     def write_log(self, text: str) -> None:
         """Append a time-stamped line to the log (scrolled to the end)."""
@@ -107,8 +144,11 @@ class RunPanel(Panel):
         bar.setValue(bar.maximum())
 
     # ------------------------------------------------------------ running
-    def start(self, job: Job) -> None:
-        """Run ``job`` in a worker thread (no-op while one runs)."""
+    def start(self, job: Job, after: Callable[[Analysis], Any] | None = None,
+              before: Callable[[], Any] | None = None) -> None:
+        """Run ``job`` in a worker thread (no-op while one runs); ``before`` runs
+        first in that thread, ``after`` on its analysis, and its outcome goes to
+        :attr:`show_results`."""
         from napari.qt.threading import create_worker
         from superqt.utils import GeneratorWorker
 
@@ -118,22 +158,22 @@ class RunPanel(Panel):
         self._n_deformed = job.n_deformed
         self.write_log(f"Run {time.strftime('%H:%M:%S')}: {job.summary}")
         # superqt's plain worker: errors reach _on_errored only (one notification)
-        worker = create_worker(run_in_thread, job, self._cancel,
+        worker = create_worker(run_in_thread, job, self._cancel, after, before,
                                _worker_class=GeneratorWorker, _ignore_errors=True)
         worker.yielded.connect(self._on_progress)
         worker.returned.connect(self._on_returned)
         worker.errored.connect(self._on_errored)
         worker.finished.connect(self._on_finished)
-        self._worker = worker
+        self._worker, self._worker_done = worker, False
+        self._t0, self._frac = time.perf_counter(), 0.0
         self._set_running(True)
-        self._t0 = time.perf_counter()
         self.progress.value = 0
-        self.eta.value = f"0/{self._n_deformed} frames"
+        self._show_time()
         worker.start()
 
     def cancel(self, *_) -> None:
         """Stop after the frame being computed; finished frames are kept."""
-        if self._running:
+        if self._running and self._worker is not None:
             self._cancel.set()
             self.cancel_button.enabled = False
             self.eta.value = "cancelling after the current frame ..."
@@ -144,41 +184,78 @@ class RunPanel(Panel):
         closed); it works while the panel is torn down."""
         return self._cancel.set
 
-    def _on_progress(self, item) -> None:
-        frame, frac, msg = item
-        frac = float(min(max(frac, 0.0), 1.0))
-        self.progress.value = int(round(1000 * frac))
-        done = int(round(frac * self._n_deformed))
+    def _show_time(self) -> None:
+        """Frames done, time elapsed and left (also between frames: the clock)."""
+        if not self._running or self._cancel.is_set() or self._worker_done:
+            return
+        frac = self._frac
         elapsed = time.perf_counter() - self._t0
+        done = int(round(frac * self._n_deformed))
         left = (f" · about {format_seconds(elapsed * (1 - frac) / frac)} left"
                 if 0 < frac < 1 else "")
-        if not self._cancel.is_set():
-            self.eta.value = (f"{done}/{self._n_deformed} frames · "
-                              f"{format_seconds(elapsed)} elapsed{left}")
+        first = f" · {PREPARING}" if self.preparing and frac == 0 else ""
+        self.eta.value = (f"{done}/{self._n_deformed} frames · {format_seconds(elapsed)} "
+                          f"elapsed{left}{first}")
+
+    def _on_progress(self, item) -> None:
+        frame, frac, msg = item
+        self._frac = float(min(max(frac, 0.0), 1.0))
+        self.progress.value = int(round(1000 * self._frac))
+        self._show_time()
         if "done" in msg or "strain" in msg:
             self.write_log(msg)
 
-    def _on_returned(self, analysis: Analysis) -> None:
-        from napari.utils.notifications import show_error, show_info
+    def _on_returned(self, outcome) -> None:
+        from napari.utils.notifications import show_info
 
-        done = analysis.n_done - 1
+        analysis, prepared = outcome
+        done, total = analysis.n_done - 1, len(analysis.frames) - 1
         state = "cancelled" if analysis.cancelled else "finished"
-        self.write_log(f"{state} in {analysis.seconds:.1f} s: {done}/"
-                       f"{len(analysis.frames) - 1} frames computed")
+        self.progress.value = int(round(1000 * done / max(1, total)))
+        self.write_log(f"{state} in {analysis.seconds:.1f} s: {done}/{total} frames computed")
         last = next((r for r in reversed(analysis.results) if r is not None), None)
         if last is not None and done > 0:
             self.write_log(last.summary())
+        self.eta.value = (f"{done}/{total} frames · {state} in "
+                          f"{format_seconds(analysis.seconds)}; showing the results ...")
+        final = f"{done}/{total} frames · {state} in {format_seconds(analysis.seconds)}"
         try:
-            if self.show_results is not None:
-                self.show_results(analysis)
-        except Exception as exc:  # never crash the viewer on a display problem
-            show_error(f"napari-aldic: could not show the results: {exc}")
-            self.write_log(f"ERROR showing results: {exc}")
+            steps = self.show_results(analysis, prepared) if self.show_results else None
+        except Exception as exc:
+            self._display_failed(exc)
             return
-        self.eta.value = (f"{done}/{len(analysis.frames) - 1} frames · {state} in "
-                          f"{format_seconds(analysis.seconds)}")
         if analysis.cancelled:
             show_info(f"napari-aldic: cancelled; {done} finished frame(s) kept")
+        self._steps = iter(steps) if steps is not None else None
+        self._drive(final)
+
+    def _drive(self, final: str) -> None:
+        """One step of showing the results; the next one in the next turn of the
+        event loop."""
+        from qtpy.QtCore import QTimer
+
+        try:
+            if self._steps is not None:
+                next(self._steps)
+                QTimer.singleShot(0, lambda: self._drive(final))
+                return
+        except StopIteration:
+            pass
+        except Exception as exc:  # never crash the viewer on a display problem
+            self._display_failed(exc)
+            return
+        self._steps = None
+        self.eta.value = final
+        self._maybe_done()
+
+    def _display_failed(self, exc: BaseException) -> None:
+        from napari.utils.notifications import show_error
+
+        show_error(f"napari-aldic: could not show the results: {exc}")
+        self.write_log(f"ERROR showing results: {exc}")
+        self.eta.value = "finished; the results could not be shown (see log)"
+        self._steps = None
+        self._maybe_done()
 
     def _on_errored(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
@@ -189,5 +266,10 @@ class RunPanel(Panel):
         show_error(f"napari-aldic: {msg}")
 
     def _on_finished(self) -> None:
-        self._worker = None
-        self._set_running(False)
+        self._worker, self._worker_done = None, True
+        self._maybe_done()
+
+    def _maybe_done(self) -> None:
+        """The run ends when the worker is done and its results are shown."""
+        if self._running and self._worker_done and self._steps is None:
+            self._set_running(False)

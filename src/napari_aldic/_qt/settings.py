@@ -1,9 +1,12 @@
-"""The settings-file panel: save and load every analysis setting as JSON.
+"""The Project and parameters panel: settings files, project files, defaults, memory.
 
-The file is a :class:`~napari_aldic.engine.Settings` document (parameters,
-units, strain, tracking), so ``napari-aldic run STACK --params FILE.json``
-reads it too. A file is checked completely (by ``Settings`` and against the
-range of every control) before anything changes.
+A settings file is a :class:`~napari_aldic.engine.Settings` document
+(parameters, units, strain, tracking), so ``napari-aldic run STACK --params
+FILE.json`` reads it too. A file is checked completely (by ``Settings`` and
+against the range of every control) before anything changes. A project file
+(:mod:`.project`, opened and saved by :mod:`.project_actions`) holds the whole
+set-up with its layers. The settings of the last run are remembered across
+napari sessions (:mod:`.prefs`); "Restore defaults" forgets them.
 """
 
 from __future__ import annotations
@@ -12,24 +15,31 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from magicgui.widgets import PushButton
+from magicgui.widgets import Container, PushButton
 from psygnal import Signal
 
 from .._analysis import describe_fields
-from ..engine import DICParams, Settings
+from ..engine import DICParams, Settings, Units
 from ..engine.io import read_settings, write_settings
+from . import prefs
 from .controls import Panel, Plan, apply_plan
 from .correlation import CorrelationPanel
+from .display import DisplayPanel
 from .inputs import InputsPanel
+from .project_actions import ProjectActions
 from .strain import StrainPanel
 from .units import UnitsPanel
 
-__all__ = ["SettingsPanel", "JSON_FILTER"]
+__all__ = ["SettingsPanel", "JSON_FILTER", "message"]
 
 JSON_FILTER = "DIC parameters (*.json);;All files (*)"
+#: what "Restore defaults" sets (the frame range: the whole stack)
+DEFAULTS = Settings(DICParams(), Units(), {"window": 5, "method": "plane_fit",
+                                           "measure": "green_lagrange"},
+                    {"reference": "accumulative", "start": 0, "stop": None, "stride": 1})
 
 
-def _message(exc: BaseException) -> str:
+def message(exc: BaseException) -> str:
     """One line describing an error."""
     msg = str(exc) or exc.__class__.__name__
     if isinstance(exc, FileNotFoundError) and not str(exc).strip():
@@ -38,40 +48,61 @@ def _message(exc: BaseException) -> str:
 
 
 class SettingsPanel(Panel):
-    """"Save parameters…" and "Load parameters…" for the other panels' settings.
+    """Save/open analysis (project), save/load parameters, restore defaults.
 
     Signals
     -------
     settings_loaded
-        A settings file was applied to the controls.
+        Settings were applied to the controls.
+    project_opened
+        A project file was opened (image, layers and controls restored).
     """
 
     settings_loaded = Signal()
+    project_opened = Signal()
 
     def __init__(self, inputs: InputsPanel, correlation: CorrelationPanel,
-                 strain: StrainPanel, units: UnitsPanel, log: Callable[[str], None],
-                 apply_units: Callable[[], None]):
+                 strain: StrainPanel, units: UnitsPanel, display: DisplayPanel,
+                 log: Callable[[str], None], apply_units: Callable[[], None], viewer=None):
         self._inputs, self._correlation = inputs, correlation
-        self._strain, self._units = strain, units
+        self._strain, self._units, self._display = strain, units, display
         self._log, self._apply_units = log, apply_units
-        self._folder: Path | None = None  # folder of the last settings file
-        super().__init__(labels=False, layout="horizontal", margins=None)
+        self._folder: Path | None = None  # folder of the last file
+        self.projects = ProjectActions(self, inputs, correlation, display, viewer, log)
+        super().__init__(labels=False, margins=None)
 
     def _setup_ui(self) -> None:
-        self.save_params_button = PushButton(
-            text="Save parameters…",
-            tooltip="Write the analysis settings (correlation, tracking and frame range, "
-                    "strain, units) to a readable JSON file; it also works with "
-                    "'napari-aldic run STACK --params FILE.json'.")
-        self.load_params_button = PushButton(
-            text="Load parameters…",
-            tooltip="Set every parameter from a JSON file saved here or written by "
-                    "'napari-aldic params' / 'run --params-out'.")
-        self.extend([self.save_params_button, self.load_params_button])
+        button = PushButton
+        self.save_project_button = button(
+            text="Save analysis…", tooltip="Save everything set up here (image file, ROI, "
+            "holes, labels, refine region, seeds, probes, parameters, units, display) in one "
+            "project file.")
+        self.open_project_button = button(
+            text="Open analysis…", tooltip="Open a project file: the image and its layers "
+            "are added and every control is set.")
+        self.save_params_button = button(
+            text="Save parameters…", tooltip="Write the analysis settings (correlation, "
+            "tracking and frame range, strain, units) to a readable JSON file; it also works "
+            "with 'napari-aldic run STACK --params FILE.json'.")
+        self.load_params_button = button(
+            text="Load parameters…", tooltip="Set every parameter from a JSON file saved "
+            "here or written by 'napari-aldic params' / 'run --params-out'.")
+        self.defaults_button = button(
+            text="Restore defaults", tooltip="Set every parameter, unit and display choice "
+            "to its default (the last used ones are remembered between napari sessions).")
+        rows = [[self.save_project_button, self.open_project_button],
+                [self.save_params_button, self.load_params_button], [self.defaults_button]]
+        for row in rows:
+            box = Container(widgets=row, layout="horizontal", labels=False)
+            box.margins = (0, 0, 0, 0)
+            self.append(box)
 
     def _setup_callbacks(self) -> None:
         self.save_params_button.changed.connect(self._on_save_clicked)
         self.load_params_button.changed.connect(self._on_load_clicked)
+        self.save_project_button.changed.connect(self.projects.on_save_clicked)
+        self.open_project_button.changed.connect(self.projects.on_open_clicked)
+        self.defaults_button.changed.connect(lambda *_: self.restore_defaults())
 
     # ------------------------------------------------------------ state
     def current_params(self) -> DICParams:
@@ -87,63 +118,59 @@ class SettingsPanel(Panel):
         return Settings(self.current_params(), self._units.units, self._strain.as_dict(),
                         self._correlation.tracking)
 
+    def storable(self, frame_range: bool = True) -> dict:
+        """The settings without seed points (they live in a layer): ``{"settings":
+        Settings document, "init": "fft"|"seeds", "display": {...}}``. Units that
+        are not valid (a pixel size in 'px') are left out."""
+        init = self._correlation.init.value
+        params = self._correlation.params((), init="fft")
+        try:
+            units = self._units.units
+        except ValueError:
+            units = None
+        tracking = self._correlation.tracking
+        if not frame_range:  # a stack's own range, not worth remembering
+            tracking = {k: tracking[k] for k in ("reference", "stride")}
+        s = Settings(params, units, self._strain.as_dict(), tracking)
+        return {"settings": s.to_dict(), "init": init, "display": self._display.choices}
+
     def summary(self) -> str:
         """Every setting in words (for the log)."""
         return (f"{self._correlation.summary()}; {self._strain.summary()}; "
                 f"{self._units.summary()}")
 
-    # ------------------------------------------------------------ files
-    def save(self, path) -> Path | None:
-        """Write the current settings to the JSON file ``path`` (``.json`` is
-        appended when missing). Returns the path written, or ``None`` after an
-        error notification and a log line (nothing is written then)."""
-        from napari.utils.notifications import show_error
-
-        try:
-            written = write_settings(path, self.current())
-        except Exception as exc:  # invalid settings, unwritable file: explain, never crash
-            msg = _message(exc)
-            self._log(f"ERROR saving the parameters to {path}: {msg}")
-            show_error(f"napari-aldic: could not save the parameters: {msg}")
-            return None
-        self._folder = written.parent
-        self._log(f"parameters saved to {written}: {self.summary()}")
-        return written
-
-    def load(self, path) -> bool:
-        """Set every control from a settings file; see ``DICWidget.load_settings``."""
+    # ------------------------------------------------------------ applying
+    def apply(self, s: Settings, source: str, init: str | None = None,
+              quiet: bool = False) -> bool:
+        """Set the controls from ``s`` (and the initial guess ``init``); the units
+        are applied to the layers once. Invalid for a control: nothing changes,
+        an error is logged (and notified unless ``quiet``); returns success."""
         from napari.utils.notifications import show_error, show_warning
 
         try:
-            plan, extra, seeds, notes = self._plan(path)
-        except Exception as exc:  # unreadable or invalid file: nothing is changed
-            msg = _message(exc)
-            self._log(f"ERROR loading parameters from {path}: {msg}")
-            show_error(f"napari-aldic: could not load the parameters: {msg}")
+            plan, extra, seeds, notes = self._plan(s)
+            if init is not None:
+                plan.append((self._correlation.init, init))
+        except Exception as exc:  # a value a control cannot take: nothing is changed
+            self._log(f"ERROR loading parameters from {source}: {message(exc)}")
+            if not quiet:
+                show_error(f"napari-aldic: could not load the parameters: {message(exc)}")
             return False
         units_before = self._units.values
-        try:
-            self._apply(plan, extra, seeds, notes)
-        except Exception as exc:  # pragma: no cover - the plan was checked beforehand
-            msg = _message(exc)
-            self._log(f"ERROR loading parameters from {path}: {msg}")
-            show_error(f"napari-aldic: could not load the parameters: {msg}")
-            self.settings_loaded.emit()
-            return False
+        self._apply(plan, extra, seeds, notes)
         if self._units.values != units_before:
             try:  # rescale the image and its layers once, for all unit controls
                 self._apply_units()
             except Exception as exc:  # pragma: no cover - a layer refusing its scale
-                show_error(f"napari-aldic: could not apply the units: {_message(exc)}")
-                self._log(f"ERROR applying the units: {_message(exc)}")
-        self._folder = Path(os.fspath(path)).expanduser().parent
-        self._log(f"parameters loaded from {path}: {self.summary()}")
+                show_error(f"napari-aldic: could not apply the units: {message(exc)}")
+                self._log(f"ERROR applying the units: {message(exc)}")
+        self._log(f"parameters loaded from {source}: {self.summary()}")
         if extra:
             self._log(f"kept from the file (not shown in the widget): {describe_fields(extra)}")
         for note in notes:
             self._log(note)
         clamped = [n for n in notes if n.startswith("frame range")]
-        if clamped:
+        if clamped and not quiet:
             show_warning("napari-aldic: " + clamped[0])
         self.settings_loaded.emit()
         return True
@@ -164,10 +191,9 @@ class SettingsPanel(Panel):
             self._correlation.extra_params = extra_before
             raise
 
-    def _plan(self, path) -> tuple[Plan, dict, tuple, list[str]]:
-        """Read and check a settings file: ``(plan, extra, seeds, notes)``, the
-        plan a list of ``(control, value)``; raises on any problem."""
-        s = read_settings(path)
+    def _plan(self, s: Settings) -> tuple[Plan, dict, tuple, list[str]]:
+        """The controls for settings ``s``: ``(plan, extra, seeds, notes)``, the plan
+        a list of ``(control, value)``; raises on any value a control cannot take."""
         plan: Plan = []
         notes: list[str] = []
         extra = self._correlation.params_plan(s.params, plan)
@@ -182,10 +208,80 @@ class SettingsPanel(Panel):
             self._units.units_plan(s.units, plan)
         return plan, extra, seeds, notes
 
+    # ------------------------------------------------------------ memory, defaults
+    def remember_last_used(self) -> None:
+        """Store the settings for the next napari session (never an error)."""
+        try:
+            prefs.write_last_used(self.storable(frame_range=False))
+        except Exception as exc:  # pragma: no cover - a convenience only
+            self._log(f"could not remember the parameters: {message(exc)}")
+
+    def restore_last_used(self) -> bool:
+        """Set the controls to the last used settings, if any were stored."""
+        doc = prefs.read_last_used()
+        if doc is None:
+            return False
+        try:
+            s = Settings.from_dict(doc.get("settings") or {})
+        except ValueError:
+            return False  # an outdated file: the defaults stay
+        init = doc.get("init") if doc.get("init") in ("fft", "seeds") else None
+        if init == "seeds" and self._inputs.seeds.value is None:
+            init = "fft"  # no seeds layer in this session
+        ok = self.apply(s, "the last session (Restore defaults resets them)", init, quiet=True)
+        if ok and isinstance(doc.get("display"), dict):
+            self._display.set_choices(doc["display"])
+        return ok
+
+    def restore_defaults(self) -> None:
+        """Every parameter, unit and display choice back to its default."""
+        self._correlation.extra_params = {}
+        self.apply(DEFAULTS, "the defaults", "fft")
+        self._display.set_choices({"show_field": "|u|", "vectors": True, "vector_length": 0.0,
+                                   "mesh": False, "deformed": False, "rigid": False})
+
+    # ------------------------------------------------------------ files
+    def save(self, path) -> Path | None:
+        """Write the current settings to the JSON file ``path`` (``.json`` is
+        appended when missing). Returns the path written, or ``None`` after an
+        error notification and a log line (nothing is written then)."""
+        from napari.utils.notifications import show_error
+
+        try:
+            written = write_settings(path, self.current())
+        except Exception as exc:  # invalid settings, unwritable file: explain, never crash
+            self._log(f"ERROR saving the parameters to {path}: {message(exc)}")
+            show_error(f"napari-aldic: could not save the parameters: {message(exc)}")
+            return None
+        self._folder = written.parent
+        self._log(f"parameters saved to {written}: {self.summary()}")
+        return written
+
+    def load(self, path) -> bool:
+        """Set every control from a settings file; see ``DICWidget.load_settings``."""
+        from napari.utils.notifications import show_error
+
+        try:
+            s = read_settings(path)
+        except Exception as exc:  # unreadable or invalid file: nothing is changed
+            self._log(f"ERROR loading parameters from {path}: {message(exc)}")
+            show_error(f"napari-aldic: could not load the parameters: {message(exc)}")
+            return False
+        self._folder = Path(os.fspath(path)).expanduser().parent
+        return self.apply(s, str(path))
+
+    def save_project(self, path) -> Path | None:
+        """See ``DICWidget.save_project``."""
+        return self.projects.save(path)
+
+    def open_project(self, path) -> bool:
+        """See ``DICWidget.open_project``."""
+        return self.projects.open(path)
+
     # ------------------------------------------------------------ dialogs
     def start_folder(self, name: str = "") -> str:
-        """Where the file dialogs open: the last settings file's folder, else the
-        image's folder, else the working folder."""
+        """Where the file dialogs open: the last file's folder, else the image's
+        folder, else the working folder."""
         folder = self._folder
         if folder is None:
             img = self._inputs.image_layer
@@ -193,15 +289,18 @@ class SettingsPanel(Panel):
             folder = Path(src).parent if src else Path.cwd()
         return str(folder / name) if name else str(folder)
 
+    def stem(self) -> str:
+        """A file name stem from the image's name."""
+        img = self._inputs.image_layer
+        return "".join(c if c.isalnum() or c in "-_." else "_" for c in img.name) \
+            if img is not None else "dic"
+
     def _on_save_clicked(self, *_) -> None:
         from qtpy.QtWidgets import QFileDialog
 
-        img = self._inputs.image_layer
-        stem = "".join(c if c.isalnum() or c in "-_." else "_" for c in img.name) \
-            if img is not None else "dic"
         path, _ = QFileDialog.getSaveFileName(self.native, "Save DIC parameters",
-                                              self.start_folder(f"{stem}_parameters.json"),
-                                              JSON_FILTER)
+                                              self.start_folder(f"{self.stem()}_parameters"
+                                                                ".json"), JSON_FILTER)
         if path:
             self.save(path)
 

@@ -6,7 +6,7 @@ from magicgui.widgets import ComboBox, SpinBox
 from psygnal import Signal
 
 from .._analysis import StrainSettings
-from .controls import Panel, Plan, put, section
+from .controls import Panel, Plan, put
 
 __all__ = ["StrainPanel"]
 
@@ -38,7 +38,7 @@ class StrainPanel(Panel):
                                                 ("infinitesimal", "infinitesimal"),
                                                 ("Euler-Almansi", "euler_almansi")],
                                        tooltip="Finite-strain measure of exx, eyy, exy.")
-        self.extend([section("Strain"), self.strain_window, self.strain_method,
+        self.extend([self.strain_window, self.strain_method,
                      self.strain_measure])
 
     def _setup_callbacks(self) -> None:

@@ -14,7 +14,7 @@ from magicgui.widgets import ComboBox, FloatSpinBox
 from psygnal import Signal
 
 from ..engine import Units
-from .controls import Panel, Plan, put, section
+from .controls import Panel, Plan, put
 
 __all__ = ["UnitsPanel", "LENGTH_UNITS", "TIME_UNITS"]
 
@@ -91,7 +91,7 @@ class UnitsPanel(Panel):
                                            tooltip="Time between frames (time-axis scale).")
         self.time_unit = ComboBox(label="Time unit", value="frame", choices=list(TIME_UNITS),
                                   tooltip="Unit of the frame interval.")
-        self.extend([section("Units"), self.pixel_size, self.unit, self.frame_interval,
+        self.extend([self.pixel_size, self.unit, self.frame_interval,
                      self.time_unit])
 
     def _setup_callbacks(self) -> None:

@@ -1,9 +1,12 @@
 """The dock widget: the panels, composed and wired together.
 
-Inputs, Mesh & correlation, Strain, Units and Display scroll in one area;
-the settings-file buttons, the Run panel (status, Run/Cancel, progress, log)
-stay below it. Each panel is a small class of its own (this package); this
-module only connects them: the input check, the run, the result layers.
+Collapsible sections in one scroll area, in the order a first analysis takes
+(images and region, mesh and correlation, strain, units; display and export
+of the results; project files and parameters; the log); the run controls
+(status, Run/Cancel, progress) stay below it, always in view. Each panel is a
+small class of its own (this package); this module only connects them: the
+input check, the run, the result layers, remembered parameters and the
+background preparation of the correlation engine.
 """
 
 from __future__ import annotations
@@ -15,12 +18,15 @@ from magicgui.widgets import Container
 
 from .._analysis import Analysis, Job
 from ..engine import DICParams
+from . import warmup
 from .checks import Choices, problems
 from .controls import align_labels
 from .correlation import CorrelationPanel
 from .display import DisplayPanel
+from .export import ExportPanel
 from .inputs import InputsPanel
-from .results import ResultLayers
+from .layout import divider, sections_area
+from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
 from .settings import SettingsPanel
 from .strain import StrainPanel
@@ -29,7 +35,7 @@ from .units import UnitsPanel
 if TYPE_CHECKING:  # pragma: no cover
     import napari
 
-__all__ = ["DICWidget"]
+__all__ = ["DICWidget", "SECTIONS"]
 
 #: the panels' controls, also attributes of the widget (``widget.subset``,
 #: ``widget.image`` ...) for scripts and tests
@@ -39,10 +45,20 @@ CONTROLS = {
                     "init", "reference", "start", "stop", "stride"),
     "strain_panel": ("strain_window", "strain_method", "strain_measure"),
     "units": ("pixel_size", "unit", "frame_interval", "time_unit"),
-    "display": ("show_field", "vectors", "vector_length", "mesh", "deformed"),
-    "settings": ("save_params_button", "load_params_button"),
+    "display": ("show_field", "vectors", "vector_length", "mesh", "deformed", "rigid"),
+    "settings": ("save_params_button", "load_params_button", "save_project_button",
+                 "open_project_button", "defaults_button"),
     "run_panel": ("status", "run_button", "cancel_button", "progress", "eta", "log"),
 }
+#: the sections, top to bottom: (title, panel attribute, expanded at first)
+SECTIONS = (("1. Images and region", "inputs", True),
+            ("2. Mesh and correlation", "correlation", True),
+            ("3. Strain", "strain_panel", False),
+            ("4. Units", "units", False),
+            ("5. Display", "display", True),
+            ("6. Export", "exports", False),
+            ("Project and parameters", "settings", False),
+            ("Log", "log", True))
 
 
 class DICWidget(Container):
@@ -56,6 +72,9 @@ class DICWidget(Container):
         self._setup_callbacks()
         self.inputs.assign_existing_layers()
         self._on_image_changed()
+        self.settings.restore_last_used()
+        warmup.start_in_background(self.run_panel.set_preparing, self._on_engine_ready,
+                                   self.native)
 
     def _setup_ui(self) -> None:
         self.inputs = InputsPanel(self._viewer)
@@ -64,24 +83,26 @@ class DICWidget(Container):
         self.units = UnitsPanel()
         self.display = DisplayPanel()
         self.run_panel = RunPanel()
-        self.settings = SettingsPanel(self.inputs, self.correlation, self.strain_panel,
-                                      self.units, log=self.run_panel.write_log,
-                                      apply_units=self._apply_units)
         self._results = ResultLayers(self._viewer)
+        self.exports = ExportPanel(lambda: self._results.analysis, lambda: self.units.units,
+                                   self._current_frame, self.run_panel.write_log)
+        self.settings = SettingsPanel(self.inputs, self.correlation, self.strain_panel,
+                                      self.units, self.display, log=self.run_panel.write_log,
+                                      apply_units=self._apply_units, viewer=self._viewer)
         for panel, names in CONTROLS.items():
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
-        # napari docks ``self.native``: the panels scroll, the run controls stay below
-        panels = [self.inputs, self.correlation, self.strain_panel, self.units, self.display]
-        align_labels(panels)
-        body = Container(scrollable=True, labels=False, widgets=panels)
-        self.run_panel.insert(1, self.settings)  # between the status line and Run
-        scroll = body.root_native_widget
-        scroll.setFrameShape(scroll.Shape.NoFrame)
-        self._body = body  # the scroll area's magicgui container (keeps the panels alive)
-        self.native.layout().addWidget(scroll, 1)
-        self.native.layout().addWidget(self.run_panel.native, 0)
-        self.native.layout().setContentsMargins(0, 0, 0, 0)
+        align_labels([self.inputs, self.correlation, self.strain_panel, self.units,
+                      self.display, self.exports])
+        sections = [(title, getattr(self, attr).native, open_)
+                    for title, attr, open_ in SECTIONS]
+        scroll, self.sections = sections_area(sections)
+        layout = self.native.layout()
+        layout.addWidget(scroll, 1)
+        layout.addWidget(divider(), 0)
+        layout.addWidget(self.run_panel.native, 0)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self.native.setMinimumWidth(330)
 
     def _setup_callbacks(self) -> None:
         self.inputs.image.changed.connect(self._on_image_changed)
@@ -91,26 +112,32 @@ class DICWidget(Container):
         self.strain_panel.settings_changed.connect(self._validate)
         self.units.units_changed.connect(self._apply_units)
         self.display.display_changed.connect(self._refresh_results)
+        self.display.field_chosen.connect(self._results.show_field)
         self.display.vector_length_changed.connect(self._on_vector_length)
         self.settings.settings_loaded.connect(self._validate)
+        self.settings.project_opened.connect(self._on_project_opened)
         self.run_panel.run_requested.connect(self.run)
         self.run_panel.running_changed.connect(self._on_running)
-        self.run_panel.show_results = self._show_analysis
+        self.run_panel.show_results = self._show_steps
         # closing the widget stops a run after its frame and unhooks it from the viewer
         # (the slot holds no reference to the widget, which may be torn down by then)
         stop, unhook = self.run_panel.stopper(), self.inputs.disconnector()
+        remember = self.settings.remember_last_used
         self.native.destroyed.connect(lambda *_: (stop(), unhook()))
+        self._remember = remember
 
     # ------------------------------------------------------------ state
     @property
     def running(self) -> bool:
-        """Whether an analysis is running."""
+        """Whether an analysis is running (its result layers not all shown yet)."""
         return self.run_panel.running
 
     @property
-    def _analysis(self) -> Analysis | None:
+    def analysis(self) -> Analysis | None:
         """The analysis shown in the result layers."""
         return self._results.analysis
+
+    _analysis = analysis  # older name, kept for scripts
 
     def current_settings(self) -> dict[str, Any]:
         """The complete analysis settings of the controls, as
@@ -129,37 +156,49 @@ class DICWidget(Container):
 
     def save_settings(self, path) -> Path | None:
         """Write the current settings to the JSON file ``path`` (``.json`` is
-        appended when missing).
-
-        Returns the path written, or ``None`` after an error notification and a
-        log line (nothing is written then). The file also works with
-        ``napari-aldic run STACK --params FILE.json``.
-        """
+        appended when missing); also read by ``napari-aldic run STACK --params``.
+        Returns the path written, or ``None`` after an error notification."""
         return self.settings.save(path)
 
     def load_settings(self, path) -> bool:
         """Set every control from a settings file (see :meth:`save_settings`;
         also files of ``napari-aldic params`` / ``run --params-out``, or a plain
-        JSON object of DICParams fields).
-
-        The whole file is checked first: an unreadable file or invalid content
-        gives an error notification and a log line, and leaves the widget
-        unchanged (returns ``False``). Sections missing from the file (units,
-        strain, tracking) leave their controls as they are. DICParams fields the
-        widget does not show (e.g. ``interpolation``, ``mu``) are kept for runs
-        and for saving. Seed points of the file are added as a Points layer when
-        no seeds layer with points is chosen. A frame range beyond the current
-        stack is clamped to it (noted in the log).
-        """
+        JSON object of DICParams fields). An invalid file changes nothing
+        (``False``, with an error notification); missing sections leave their
+        controls; DICParams fields the widget does not show are kept for runs;
+        the file's seed points become a Points layer when no seeds are chosen;
+        a frame range beyond the stack is clamped to it."""
         return self.settings.load(path)
+
+    def save_project(self, path) -> Path | None:
+        """Save the whole analysis set-up (image path, ROI/holes/labels/refine/seed
+        and probe layers, parameters, units, display) as a project file."""
+        return self.settings.save_project(path)
+
+    def open_project(self, path) -> bool:
+        """Open a project file: the image and layers are added and every control set."""
+        return self.settings.open_project(path)
+
+    def restore_defaults(self) -> None:
+        """Set every parameter, unit and display control to its default."""
+        self.settings.restore_defaults()
 
     # ------------------------------------------------------------ wiring
     def _use_seeds(self) -> None:
         self.correlation.init.value = "seeds"
 
+    def _on_engine_ready(self, error: str | None) -> None:
+        try:
+            self.run_panel.set_preparing(False)
+            if error:
+                self.run_panel.write_log(f"preparing the correlation engine failed: {error}")
+        except RuntimeError:  # the widget was closed meanwhile
+            pass
+
     def _on_image_changed(self, *_) -> None:
         if self.inputs.choose_first_image():
             return  # the choice comes back here through ``image.changed``
+        self.inputs.match_image()
         shape = self.inputs.stack_shape
         if shape is not None and len(shape) == 3:
             self.correlation.set_frame_count(shape[0])
@@ -168,9 +207,14 @@ class DICWidget(Container):
             self.units.read_image(img)
         self._validate()
 
+    def _on_project_opened(self) -> None:
+        self._on_image_changed()
+        self._refresh_results()
+
     def _apply_units(self) -> None:
         """Apply the units to the image, its input layers and the result layers
         (values of u, v, |u| are shown in the length unit)."""
+        self.exports.refresh()
         if self.inputs.image_layer is None:
             return
         self.units.apply_to(self.inputs.input_layers, self._results.layers)
@@ -181,8 +225,19 @@ class DICWidget(Container):
         self._refresh_results()
 
     def _on_running(self, running: bool) -> None:
-        self.settings.load_params_button.enabled = not running  # a run keeps its settings
+        for button in (self.settings.load_params_button, self.settings.open_project_button,
+                       self.settings.defaults_button):
+            button.enabled = not running  # a run keeps its settings
         self._validate()
+        self.exports.refresh()
+
+    def _current_frame(self) -> int | None:
+        img = self.inputs.image_layer
+        if img is None or img.ndim < 3:
+            return None
+        axis = self._viewer.dims.ndim - img.ndim
+        world = float(self._viewer.dims.point[axis])
+        return int(round((world - float(img.translate[0])) / float(img.scale[0])))
 
     def _choices(self) -> Choices:
         c, inputs = self.correlation, self.inputs
@@ -232,18 +287,54 @@ class DICWidget(Container):
             show_error(f"napari-aldic: could not prepare the run: {exc}")
             self.run_panel.write_log(f"ERROR preparing the run: {exc}")
             return
-        self._results.image = self.inputs.image_layer
-        self.run_panel.start(job)
+        self._remember()
+        image = self.inputs.image_layer
+        self._results.image = image
+        geometry, display = geometry_of(image), self._display_options()
+        # the result layers are made in the worker too: the viewer only adds them
+        self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, True),
+                             before=warmup.wait)
 
     def cancel(self, *_) -> None:
         """Stop after the frame being computed; finished frames are kept."""
         self.run_panel.cancel()
 
     # ------------------------------------------------------------ results
-    def _show_analysis(self, analysis: Analysis) -> None:
+    def show_analysis(self, analysis: Analysis) -> None:
+        """Show ``analysis`` (e.g. of :func:`~napari_aldic._analysis.run_analysis`)
+        as result layers on the chosen image, at once."""
+        for _ in self._show_steps(analysis, None):
+            pass
+
+    def _show_steps(self, analysis: Analysis, prepared):
+        """Show the results step by step (one layer per step)."""
         self._results.analysis = analysis
-        self._results.show(self._display_options(), self.inputs.image_layer)
+        if self._results.image is None:
+            self._results.image = self.inputs.image_layer
+        display = self._display_options()
+        if prepared is None or prepared.display != display:
+            prepared = self._results.prepare(display, self._results.placed_on(
+                self.inputs.image_layer))
+        if prepared is not None:
+            yield from self._results.steps(prepared)
+        self._after_show(display)
         self._results.go_to_last_frame()
+
+    def _after_show(self, display) -> None:
+        self._results.show_field(display.visible_field)
+        last = next((r for r in reversed(self.analysis.results) if r is not None), None)
+        counts = {}
+        if last is not None:
+            import numpy as np
+
+            codes, n = np.unique(np.asarray(last.reason)[~np.asarray(last.valid, bool)],
+                                 return_counts=True)
+            counts = {int(c): int(k) for c, k in zip(codes, n)}
+        self.display.set_legend(counts)
+        self.exports.refresh()
+        where = "deformed" if display.deformed else "reference"
+        self.run_panel.write_log(f"results drawn in the {where} configuration "
+                                 "(Display > deformed configuration)")
 
     def _display_options(self):
         return self.display.display(self.units.length, self.units.time)
@@ -252,7 +343,9 @@ class DICWidget(Container):
         if self._results.analysis is None or self.running:
             return
         try:
-            self._results.show(self._display_options(), self.inputs.image_layer)
+            display = self._display_options()
+            self._results.show(display, self.inputs.image_layer)
+            self._results.show_field(display.visible_field)
         except Exception as exc:
             from napari.utils.notifications import show_error
 

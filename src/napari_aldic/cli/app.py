@@ -5,7 +5,15 @@ from __future__ import annotations
 import sys
 import warnings
 
-from .console import PROG, CLIError, print_error, show_warning, silence_stdout
+from .console import (
+    DEBUG_ENV,
+    PROG,
+    CLIError,
+    print_error,
+    show_traceback,
+    show_warning,
+    silence_stdout,
+)
 from .demo import demo_command
 from .export import export_command
 from .params import params_command
@@ -19,7 +27,12 @@ COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``napari-aldic`` console script; returns the exit code."""
+    """Entry point of the ``napari-aldic`` console script; returns the exit code.
+
+    Every error ends the command with one line, ``napari-aldic: error: ...``,
+    and exit code 2 (130 when interrupted); with the environment variable
+    ``NAPARI_ALDIC_DEBUG=1`` the traceback is printed above that line.
+    """
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -32,9 +45,20 @@ def main(argv: list[str] | None = None) -> int:
         except BrokenPipeError:  # stdout piped into a program that stopped reading
             silence_stdout()
             return 1
-        except (CLIError, ValueError, OSError, NotImplementedError) as exc:
+        except (CLIError, ValueError, TypeError, OSError, NotImplementedError) as exc:
+            show_traceback()
             missing = isinstance(exc, FileNotFoundError) and exc.filename
-            print_error(f"no such file: {exc.filename}" if missing else str(exc))
+            print_error(f"no such file: {exc.filename}" if missing else str(exc) or repr(exc))
+            return 2
+        except MemoryError:
+            show_traceback()
+            print_error("out of memory: the input is too large for this computer (a smaller "
+                        "region, a larger step or fewer frames at once need less)")
+            return 2
+        except Exception as exc:  # a bug or an input nobody foresaw: still one line
+            show_traceback()
+            print_error(f"unexpected {type(exc).__name__}: {exc} (set {DEBUG_ENV}=1 to see "
+                        "where it happened, and please report it)")
             return 2
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted (results already written are kept)", file=sys.stderr)

@@ -5,10 +5,13 @@ from __future__ import annotations
 import os
 import sys
 import time
+import traceback
 
 import numpy as np
 
 PROG = "napari-aldic"
+#: environment variable that adds the traceback to an error line
+DEBUG_ENV = "NAPARI_ALDIC_DEBUG"
 
 
 class CLIError(Exception):
@@ -22,6 +25,13 @@ def one_line(message: str) -> str:
 
 def print_error(message: str) -> None:
     print(f"{PROG}: error: {one_line(message)}", file=sys.stderr)
+
+
+def show_traceback() -> None:
+    """Print the traceback of the error being handled when :data:`DEBUG_ENV`
+    is set (to anything but empty or 0)."""
+    if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+        traceback.print_exc(file=sys.stderr)
 
 
 def show_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -217,9 +217,12 @@ def add_param_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--search", type=int, help="initial search half-range in px (default 20)")
     p.add_argument("--search-max", type=int, dest="search_max",
                    help="largest search half-range in px (default: automatic)")
-    p.add_argument("--method", choices=("local", "aldic"), help="solver (default local)")
+    p.add_argument("--method", choices=("local", "aldic"),
+                   help="solver (default local, the faster one; the napari widget starts "
+                        "with aldic)")
     p.add_argument("--interpolation", choices=("auto", "cubic", "quintic"),
-                   help="B-spline order (default cubic)")
+                   help="B-spline order (default auto: quintic for very fine speckle, "
+                        "else cubic; the choice is recorded in the result)")
     p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
     p.add_argument("--smooth", type=smooth_arg, metavar="auto|PX",
                    help="AL-DIC thin-plate smoothing length in px; 'auto' (default) picks it "

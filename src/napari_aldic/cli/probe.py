@@ -6,10 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from ..engine.probes import (
-    STATUS_NAMES,
     AreaProbe,
     LineProbe,
     PointProbe,
@@ -51,7 +48,8 @@ def probe_command(args) -> int:
     out = export_probes_csv(table, args.output)
     print(f"{PROG} probe: {len(table)} frame(s) ({table.frames[0]} to {table.frames[-1]}), "
           f"{len(probes)} probe(s); lengths in {table.units.unit}")
-    _print_status(table)
+    for line in table.status_summary():
+        print(f"  {line}")
     print(f"  csv: {out.resolve()}")
     print(f"  units and probes: {out.with_suffix('.json').resolve()}")
     if args.plot:
@@ -91,18 +89,3 @@ def probe_set(args) -> ProbeSet:
         raise CLIError("give at least one probe: --line X0 Y0 X1 Y1, --point X Y, "
                        "--area X0 Y0 X1 Y1, --circle CX CY R or --probes FILE.json")
     return probes
-
-
-def _print_status(table) -> None:
-    """One line per probe that is not ok at every frame."""
-    for group in table.groups():
-        status, reasons = table.group_status(group)
-        bad = np.nonzero(status > 0)[0]
-        if not bad.size:
-            continue
-        worst = int(status.max())
-        first = next(reasons[i] for i in bad if reasons[i]) if any(reasons[i] for i in bad) \
-            else ""
-        frames = ", ".join(str(int(table.frames[i])) for i in bad[:6]) + \
-            (" ..." if bad.size > 6 else "")
-        print(f"  {group}: {STATUS_NAMES[worst]} at frame(s) {frames}: {first}")

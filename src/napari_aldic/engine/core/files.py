@@ -9,6 +9,7 @@ import json
 import os
 import secrets
 import socket
+import stat
 import sys
 import tempfile
 import time
@@ -135,7 +136,8 @@ def atomic_write(path):
     try:
         yield tmp
         now = os.lstat(tmp)
-        if (now.st_ino, now.st_dev) != (made.st_ino, made.st_dev):
+        if not stat.S_ISREG(now.st_mode) or (now.st_ino, now.st_dev) != (made.st_ino,
+                                                                          made.st_dev):
             # swapped for another file or a link while we wrote: never rename it
             raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
                               "replaced by another program during the write", path)

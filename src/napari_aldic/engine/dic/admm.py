@@ -61,10 +61,6 @@ class ADMMState:
     iterations: np.ndarray  # local IC-GN iterations of the last ADMM pass
     history: list = field(default_factory=list)  # per ADMM iteration dict
     timing: dict = field(default_factory=dict)
-    # where the images alone put each node with the final warp (no penalty),
-    # NaN where that match failed: the validity test compares it with û
-    u_data: np.ndarray | None = None
-    v_data: np.ndarray | None = None
 
 
 def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
@@ -117,7 +113,6 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     if second_order and noise_var is not None and subset is not None:
         gains = curvature_noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
     grad = solver.gradients(uh, vh)
-    curv = None
     for k in range(max_iter):
         if on_iteration is not None:
             on_iteration(k + 1)
@@ -145,17 +140,7 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
             break
     grad = grad.copy()
     grad[~solver.covered] = grad0[~solver.covered]  # no element: local gradient
-    t = time.perf_counter()
-    if second_order:
-        curv = _warp_curvature(solver, uh, vh, half, slot, gains, noise_var)
-    uvd, _, _, rd = icgn_solve_translation(
-        f, fgx, fgy, g_spline, nodes_x, nodes_y, np.column_stack([uh, vh]), grad,
-        np.column_stack([uh, vh]), 0.0, active, slot, masks, half, icgn_max_iter, icgn_tol,
-        curvature=curv)
-    timing["local"] += time.perf_counter() - t
-    uvd[rd != Reason.OK] = np.nan
-    return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing,
-                     uvd[:, 0].copy(), uvd[:, 1].copy()), solver
+    return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing), solver
 
 
 def _global_step(solver: GlobalSolver, F, W, u, v, vu, vv, timing: dict):

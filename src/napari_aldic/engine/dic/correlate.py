@@ -113,6 +113,9 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     """
     t_start = time.perf_counter()
     params = _merge_params(params, subset, step, method, kwargs)
+    if guess is not None and not isinstance(guess, DICResult):
+        raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
+                        f"{type(guess).__name__}")
     user_report = progress or (lambda frac, msg: None)
 
     def report(frac: float, msg: str) -> None:
@@ -123,6 +126,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
 
     t = time.perf_counter()
     f, g = validate_pair(reference, deformed)
+    params = params.fitted_to(f.shape)  # no search wider than the image
     mask = validate_roi(roi, f.shape)
     base = make_grid(mask, params.subset, params.step)
     ref_spec = resolve_refinement(refine if refine is not None else params.refine)
@@ -297,8 +301,7 @@ def _aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local)
     reason[low] = Reason.LOW_CORRELATION
     reason[poor] = Reason.POOR_MATCH
     conv = reason == Reason.OK
-    reason[validity.global_mismatch(state.uh, state.vh, state.u_data, state.v_data,
-                                    zncc_local, conv)] = Reason.GLOBAL_MISMATCH
+    reason[validity.global_mismatch(zncc, zncc_local, conv)] = Reason.GLOBAL_MISMATCH
     reason[validity.uncertain(zncc_local, reason == Reason.OK)] = Reason.UNCERTAIN
     return reason
 

@@ -296,8 +296,11 @@ def _rotated_rescue(st: _State, candidates: np.ndarray, zmin: np.ndarray,
     pick = candidates[spread_nodes(st.grid.x[candidates], st.grid.y[candidates],
                                    ROTATION_NODES)]
     top = prm.resolved_search_max(st.im.f.shape)
+    # a chance peak of a wide search reaches 0.5-0.65: widen until the peak
+    # is nearly what a correct match gives (0.1 below the ZNCC floor)
+    accept = np.clip(zmin[pick] - 0.1, 0.5, 0.85)
     p0, _ = rotated_search(st.im.f, st.im.g, st.roi, st.grid.x[pick], st.grid.y[pick],
-                           prm.half, min(prm.search, top), top)
+                           prm.half, min(prm.search, top), top, accept)
     p_try = st.p.copy()
     p_try[pick] = p0
     active = np.zeros(st.grid.n, bool)

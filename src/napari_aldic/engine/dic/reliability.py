@@ -49,8 +49,8 @@ MISMATCH_ALLOWANCE = 0.1
 #: the reference residual of a correct match is at most this many times the
 #: image noise variance measured in the images
 NOISE_CAP = 2.0
-#: AL-DIC: how far (px) the global field may depart from a node's own match
-#: beyond noise (smoothing, the finite-element space), and how many standard
+#: AL-DIC: how far (px, as a misfit of the subset) the global field may
+#: depart from a node's own match beyond noise, and how many standard
 #: uncertainties of that match the noise may take
 GLOBAL_TOLERANCE = 0.2
 GLOBAL_SIGMAS = 4.0
@@ -199,12 +199,23 @@ class Validity:
         s = self.std(zncc)
         return candidates & ~(np.max(s, axis=1) <= limit)
 
-    def global_mismatch(self, uh, vh, u_data, v_data, zncc_local, candidates) -> np.ndarray:
-        """AL-DIC: ``candidates`` where the global field ``(uh, vh)`` departs
-        from the node's own best match with the same warp ``(u_data,
-        v_data)`` by more than ``GLOBAL_TOLERANCE`` plus ``GLOBAL_SIGMAS``
-        standard uncertainties of that match (or where it has none)."""
-        s = np.max(self.std(zncc_local), axis=1)
-        d = np.hypot(uh - u_data, vh - v_data)
-        return candidates & ~(d <= GLOBAL_TOLERANCE + GLOBAL_SIGMAS * np.nan_to_num(s))
+    def misfit(self, zncc_from: np.ndarray, zncc_to: np.ndarray) -> np.ndarray:
+        """Displacement (px) that would lower a match's ZNCC from ``zncc_from``
+        to ``zncc_to``, at most: the sum of squared differences grows by
+        ``δᵀHδ = 2 m V ΔZNCC`` for a shift ``δ`` from the optimum, so
+        ``|δ| <= sqrt(2 m V ΔZNCC / λ_min(H))`` (0 where ZNCC did not drop)."""
+        st = self.stats
+        tr = st.hxx + st.hyy
+        lam = 0.5 * (tr - np.sqrt((st.hxx - st.hyy) ** 2 + 4 * st.hxy**2))
+        drop = np.maximum(np.nan_to_num(zncc_from - zncc_to, nan=np.inf), 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.sqrt(2.0 * st.m * st.var_f * drop / lam)
 
+    def global_mismatch(self, zncc_global, zncc_local, candidates) -> np.ndarray:
+        """AL-DIC: ``candidates`` whose match with the global field's warp
+        (``zncc_global``) is worse than their own affine match
+        (``zncc_local``) by more than a misfit of ``GLOBAL_TOLERANCE`` plus
+        ``GLOBAL_SIGMAS`` standard uncertainties of the local match."""
+        s = np.max(self.std(zncc_local), axis=1)
+        d = self.misfit(zncc_local, zncc_global)
+        return candidates & ~(d <= GLOBAL_TOLERANCE + GLOBAL_SIGMAS * np.nan_to_num(s))

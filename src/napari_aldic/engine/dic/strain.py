@@ -33,6 +33,7 @@ Derived quantities, for the in-plane tensor ``[[exx, exy], [exy, eyy]]``
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,6 +100,39 @@ def _grid_of(result: DICResult):
                     result.grid_iy, result.grid_xs, result.grid_ys)
 
 
+#: largest neighbour table (bytes) a plane-fit window may need
+_MAX_TABLE_BYTES = 4 << 30
+
+
+def _check_arguments(result, window, method: str, measure: str) -> None:
+    """Refuse wrong types and windows too large to mean anything, at once."""
+    if not isinstance(result, DICResult):
+        hint = {"SequenceResult": "; pass one frame, e.g. seq[k]",
+                "StrainResult": " (that is already a strain)"}.get(type(result).__name__, "")
+        if isinstance(result, (str, os.PathLike)):
+            hint = "; read the file first with load_result(path)"
+        raise TypeError(f"compute_strain needs a DICResult (the result of one frame), not "
+                        f"{type(result).__name__}{hint}")
+    if method not in METHODS:
+        raise ValueError(f"method={method!r} must be one of {METHODS}")
+    if measure not in MEASURES:
+        raise ValueError(f"measure={measure!r} must be one of {MEASURES}")
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3 \
+            or window % 2 == 0:
+        raise ValueError(f"window={window!r} must be an odd number of nodes >= 3 (e.g. 5)")
+    rows, cols = result.grid_shape
+    widest = 2 * max(rows, cols, 2) - 1  # from a corner node, every node is in the window
+    if window > widest:
+        raise ValueError(f"window={window} nodes is wider than the result's node lattice "
+                         f"({rows} x {cols} nodes); {widest} already takes every node into "
+                         "each fit (strain windows are usually 3 to 15 nodes)")
+    table = len(result) * int(window) ** 2 * 8
+    if method == "plane_fit" and table > _MAX_TABLE_BYTES:
+        raise ValueError(f"window={window} nodes needs a {table / 2**30:.1f} GiB neighbour "
+                         f"table for {len(result)} nodes; choose a smaller window "
+                         "(strain windows are usually 3 to 15 nodes)")
+
+
 def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit",
                    measure: str = "green_lagrange", roi=None) -> StrainResult:
     """Strain at the nodes of ``result``.
@@ -118,14 +152,16 @@ def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit"
     Returns
     -------
     StrainResult
+
+    Raises
+    ------
+    TypeError
+        ``result`` is not a DICResult (e.g. a whole sequence or a file name).
+    ValueError
+        An unknown method or measure, or a window that is even, under 3, wider
+        than the node lattice or too large to hold in memory.
     """
-    if method not in METHODS:
-        raise ValueError(f"method={method!r} must be one of {METHODS}")
-    if measure not in MEASURES:
-        raise ValueError(f"measure={measure!r} must be one of {MEASURES}")
-    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3 \
-            or window % 2 == 0:
-        raise ValueError(f"window={window!r} must be an odd number of nodes >= 3 (e.g. 5)")
+    _check_arguments(result, window, method, measure)
     if roi is None:
         roi = getattr(result, "roi", None)
     if roi is None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 from pathlib import Path
@@ -43,7 +44,7 @@ def export_csv(data, path, *, units=None, strain=True, frames=None) -> Path:
         unit_map.update({k: u for k, (_, u) in first.items()})
         fh.write(f"# {software_name()} result export (CSV): one row per node per frame\n")
         if info.get("source"):
-            fh.write(f"# source: {info['source']}\n")
+            fh.write(f"# source: {_one_line(info['source'])}\n")
         fh.write(f"# settings: {json.dumps(units.to_dict())}\n")
         fh.write(f"# units: {json.dumps(unit_map, ensure_ascii=False)}\n")
         if info["strain"]:
@@ -54,8 +55,11 @@ def export_csv(data, path, *, units=None, strain=True, frames=None) -> Path:
                  "y = row (downwards), pixel centres at integers\n")
         fh.write(f"# untrusted nodes: {UNTRUSTED_RULE}\n")
         fh.write("# reason codes: " + "; ".join(reason_lines()) + "\n")
-        header = [f"{k} [{unit_map[k]}]" if unit_map[k] else k for k in names]
-        fh.write(",".join(header) + "\n")
+        # units are the user's text: one line per cell, quoted by the csv module
+        # where needed (the exact units are in the "# units:" JSON line)
+        header = [f"{k} [{' '.join(unit_map[k].split())}]" if unit_map[k] else k
+                  for k in names]
+        csv.writer(fh, lineterminator="\n").writerow(header)
         for fr in fr_list:
             cols = frame_columns(fr, units)
             if list(cols) != list(first):
@@ -71,6 +75,11 @@ def export_csv(data, path, *, units=None, strain=True, frames=None) -> Path:
                 for k in cols]
             np.savetxt(fh, np.column_stack(block), fmt=fmt, delimiter=",")
     return path
+
+
+def _one_line(text) -> str:
+    """``text`` for a ``#`` header line: line breaks written as ``\\n``."""
+    return str(text).replace("\r", "\\r").replace("\n", "\\n")
 
 
 def read_csv(path) -> dict[str, Any]:
@@ -90,7 +99,7 @@ def read_csv(path) -> dict[str, Any]:
                 key, _, val = body.partition(":")
                 header[key.strip()] = val.strip()
             line = fh.readline()
-        names_raw = line.rstrip("\n").split(",")
+        names_raw = next(csv.reader([line]))
         data = np.loadtxt(fh, delimiter=",", ndmin=2)
     names, units = [], {}
     for raw in names_raw:

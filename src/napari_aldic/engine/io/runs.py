@@ -50,12 +50,12 @@ def _frame_of(res: DICResult, default: int) -> int:
 def load_run(folder):
     """Read the results of a run folder as a ``SequenceResult``.
 
-    ``folder`` is an ``out_dir`` of ``track`` (``sequence.json`` and
-    ``frame_#####.npz``) or a folder of result ``.npz`` files (e.g. the
-    ``frame###.npz`` of ``napari-aldic run``). Frames are ordered by their
-    frame number (stored in each result, else the digits of the file name).
-    Frames not on disk, such as the reference frame 0 that ``track`` does
-    not write, are ``None``.
+    ``folder`` is a run folder of ``track`` or ``napari-aldic run``
+    (``sequence.json`` and ``frame_#####.npz``; the frames share the
+    folder's one ROI array) or a folder of result ``.npz`` files (e.g. the
+    ``frame###.npz`` of older ``napari-aldic run`` versions). Frames are
+    ordered by their frame number (stored in each result, else the digits of
+    the file name). Frames not on disk (not computed yet) are ``None``.
     """
     folder = Path(os.fspath(folder)).expanduser()
     if not folder.is_dir():
@@ -248,6 +248,37 @@ class FrameSet(list):
 
 
 
+#: fields of every element of the ``frames`` struct array that load_mat needs
+_MAT_NODE_FIELDS = ("x_px", "y_px", "u_px", "v_px", "dudx", "dudy", "dvdx", "dvdy", "valid",
+                    "zncc", "reason", "iterations", "grid_ix", "grid_iy")
+_MAT_FIELDS = _MAT_NODE_FIELDS + ("grid_xs", "grid_ys", "u_local", "v_local", "elements",
+                                  "hanging", "meta_json")
+
+
+def _check_mat(d: dict, path: Path) -> None:
+    """Refuse a napari-aldic .mat that lacks what :func:`load_mat` reads."""
+    missing = [k for k in ("params_json", "image_shape", "frames") if k not in d]
+    if missing:
+        raise ValueError(f"{path} has no {', '.join(repr(k) for k in missing)} variable(s): "
+                         "not a complete napari-aldic .mat export")
+    if np.ravel(d["image_shape"]).size != 2:
+        raise ValueError(f"{path}: image_shape must hold two numbers (rows, cols)")
+    st = d["frames"]
+    names = st.dtype.names or ()
+    if not names or st.ndim != 2 or st.shape[0] != 1 or st.size == 0:
+        raise ValueError(f"{path}: 'frames' is not a 1 x F struct array of frames")
+    for j in range(st.shape[1]):
+        lost = [k for k in _MAT_FIELDS if k not in names]
+        if lost:
+            raise ValueError(f"{path}: frames({j + 1}) has no field {lost[0]!r}"
+                             + (f" (nor {lost[1:]})" if len(lost) > 1 else ""))
+        el = st[0, j]
+        sizes = {k: np.size(el[k]) for k in _MAT_NODE_FIELDS}
+        if len(set(sizes.values())) != 1:
+            raise ValueError(f"{path}: the per-node fields of frames({j + 1}) differ in length "
+                             f"({sizes}); the file is damaged or edited")
+
+
 def load_mat(path) -> list[DICResult]:
     """Rebuild the results stored in a ``.mat`` written by :func:`export_mat`
     (every ``DICResult`` field, in pixels, exactly as saved)."""
@@ -256,11 +287,18 @@ def load_mat(path) -> list[DICResult]:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no MATLAB file at {path}")
-    d = sio.loadmat(path, squeeze_me=False, struct_as_record=True)
+    try:
+        d = sio.loadmat(path, squeeze_me=False, struct_as_record=True)
+    except Exception as exc:  # scipy raises several types for a file it cannot parse
+        raise ValueError(f"cannot read {path}: not a MATLAB file, or damaged ({exc})") from None
     fmt = d.get("format")
-    if fmt is None or str(np.ravel(fmt)[0]) != MAT_FORMAT:
+    if fmt is None or np.size(fmt) == 0 or str(np.ravel(fmt)[0]) != MAT_FORMAT:
         raise ValueError(f"{path} is not a napari-aldic .mat export")
-    params = DICParams.from_dict(json.loads(str(np.ravel(d["params_json"])[0])))
+    _check_mat(d, path)
+    try:
+        params = DICParams.from_dict(json.loads(str(np.ravel(d["params_json"])[0])))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"cannot read {path}: its params_json is invalid ({exc})") from None
     shape = tuple(int(s) for s in np.ravel(d["image_shape"]))
     roi = d["roi"].astype(bool) if "roi" in d else None
     st = d["frames"]

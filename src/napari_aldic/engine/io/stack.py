@@ -18,10 +18,14 @@ Every error names the file: :class:`FileNotFoundError` for a missing path,
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import threading
 import warnings
+from collections.abc import Iterable
+from contextlib import contextmanager
+from numbers import Integral, Real
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +33,7 @@ import numpy as np
 from ..core.images import as_gray_float
 
 __all__ = ["FrameSource", "open_stack", "read_image", "image_files", "natural_key",
-           "grey_frame", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
+           "grey_frame", "frame_numbers", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
 
 #: file name endings read as TIFF (with tifffile; pages can be stack frames)
 TIFF_SUFFIXES = (".tif", ".tiff")
@@ -117,6 +121,61 @@ def _one_frame(img: np.ndarray, path: Path) -> np.ndarray:
     return img
 
 
+def _size(shape) -> str:
+    """``"96 x 128 pixels"`` (with the channels of colour images)."""
+    text = f"{shape[0]} x {shape[1]} pixels"
+    return text + (f" x {shape[2]} channels" if len(shape) > 2 else "")
+
+
+@contextmanager
+def _tiff_log():
+    """Collect what tifffile logs while a file is opened: a broken chain of
+    page directories is only logged (and the pages after it silently lost)."""
+    found: list[str] = []
+
+    class _Keep(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if "offset" in msg or "corrupt" in msg.lower() or "truncat" in msg.lower():
+                found.append(msg.split("> ", 1)[-1])
+
+    log = logging.getLogger("tifffile")
+    handler, propagate = _Keep(logging.WARNING), log.propagate
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        yield found
+    finally:
+        log.removeHandler(handler)
+        log.propagate = propagate
+
+
+def _truncation(tf, series, size: int, n_frames: int) -> str | None:
+    """``"truncated: page i of n ..."`` when the image data of a page lies
+    past the end of the file (``size`` bytes), else None."""
+    if series.dataoffset is not None:  # one contiguous block of every frame
+        end = series.dataoffset + series.nbytes
+        if end <= size:
+            return None
+        first = max(0, (size - series.dataoffset) * n_frames // max(series.nbytes, 1))
+        return (f"truncated: page {first} of {n_frames} ends past the end of the file "
+                f"({size} bytes; the frames need {end})")
+    pages = tf.pages
+    n = len(pages)
+    first = n
+    while first > 0:  # truncation cuts the last pages: look backwards
+        page = pages[first - 1]
+        ends = [o + c for o, c in zip(page.dataoffsets, page.databytecounts)]
+        if not ends or max(ends) <= size:
+            break
+        first -= 1
+    if first == n:
+        return None
+    return (f"truncated: page {first} of {n} needs bytes up to "
+            f"{max(o + c for o, c in zip(pages[first].dataoffsets, pages[first].databytecounts))}"
+            f" but the file ends at byte {size}; pages 0 to {first - 1} are complete")
+
+
 class FrameSource:
     """The frames of a stack, read one at a time when asked for.
 
@@ -192,7 +251,7 @@ class FrameSource:
 
     def _use_files(self, files: list[Path]) -> None:
         self._files = files
-        self.frame_shape = tuple(self._read_file(0).shape)
+        self.frame_shape = tuple(_one_frame(read_image(files[0]), files[0]).shape)
         self.shape = (len(files),) + self.frame_shape[:2]
 
     def _use_array(self, stack) -> None:
@@ -207,15 +266,22 @@ class FrameSource:
         import tifffile
 
         try:
-            with tifffile.TiffFile(path) as tf:
+            with _tiff_log() as damage, tifffile.TiffFile(path) as tf:
                 series = tf.series[0]
                 shape, axes = tuple(series.shape), str(series.axes)
                 n_pages = len(series.pages)
                 page_shape = tuple(series.pages[0].shape) if n_pages else None
+                frame_axes = len(shape) - (3 if axes.endswith("S") else 2)
+                n = int(np.prod(shape[:frame_axes])) if frame_axes > 0 else 1
+                cut = _truncation(tf, series, path.stat().st_size, n)
+                if damage and not cut:
+                    cut = (f"damaged: {damage[0]}; only pages 0 to {len(tf.pages) - 1} can be "
+                           "read")
         except Exception as exc:
             raise ValueError(f"cannot read TIFF stack {path}: {exc}") from None
-        frame_axes = len(shape) - (3 if axes.endswith("S") else 2)
-        n = int(np.prod(shape[:frame_axes])) if frame_axes > 0 else 1
+        if cut:
+            raise ValueError(f"TIFF stack {path} is {cut} (an interrupted copy or "
+                             "acquisition?)")
         if n < 2:
             raise ValueError(f"{path} holds a single frame (shape {shape}); a sequence needs "
                              "a reference and at least one deformed frame")
@@ -241,7 +307,12 @@ class FrameSource:
         return np.asarray(self._arr[k])
 
     def _read_file(self, k: int) -> np.ndarray:
-        return _one_frame(read_image(self._files[k]), self._files[k])
+        img = _one_frame(read_image(self._files[k]), self._files[k])
+        if tuple(img.shape) != self.frame_shape:
+            raise ValueError(f"{self._files[k]} is {_size(img.shape)}, but "
+                             f"{self._files[0].name} (frame 0) is {_size(self.frame_shape)}; "
+                             "every image of a sequence must have the same size")
+        return img
 
     def _read_tiff(self, k: int) -> np.ndarray:
         import tifffile
@@ -257,7 +328,8 @@ class FrameSource:
                     self._handle = tifffile.TiffFile(self._tiff)
                 return self._handle.asarray(series=0, key=k)
         except Exception as exc:
-            raise ValueError(f"cannot read frame {k} of {self._tiff}: {exc}") from None
+            page = f" (page {k})" if self._pages else ""
+            raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: {exc}") from None
 
     def frame_name(self, k: int) -> str:
         """A readable name of frame ``k``: its file, ``STACK.tif[k]`` or ``frame k``."""
@@ -302,3 +374,34 @@ def open_stack(stack) -> FrameSource:
     """A :class:`FrameSource` for an array, a TIFF stack path, an image folder
     or a list of image files (a FrameSource is returned as it is)."""
     return stack if isinstance(stack, FrameSource) else FrameSource(stack)
+
+
+def frame_numbers(frames, n: int) -> list[int]:
+    """The frame numbers to analyse in a stack of ``n`` frames (None: all).
+
+    Raises
+    ------
+    TypeError
+        ``frames`` is not a list of whole numbers.
+    ValueError
+        Fewer than two frames, not starting at 0, not increasing, or past the
+        last frame.
+    """
+    if frames is None:
+        return list(range(n))
+    if isinstance(frames, (str, bytes, dict)) or not isinstance(frames, Iterable):
+        raise TypeError(f"frames={frames!r} must be a list of frame numbers starting with 0, "
+                        f"not {type(frames).__name__}")
+    idx = []
+    for k in frames:
+        whole = isinstance(k, Integral) or (isinstance(k, Real) and float(k).is_integer())
+        if isinstance(k, (bool, np.bool_)) or not whole:
+            raise TypeError(f"frame {k!r} in frames is not a whole number")
+        idx.append(int(k))
+    if len(idx) < 2:
+        raise ValueError(f"frames={idx} must hold frame 0 and at least one more frame to "
+                         "track")
+    if idx[0] != 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= n:
+        raise ValueError(f"frames must start at 0, increase and stay below {n} (the stack "
+                         f"has {n} frames); got {idx}")
+    return idx

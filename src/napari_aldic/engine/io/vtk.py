@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import base64
+import re
 from pathlib import Path
 from typing import Any
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -35,6 +37,15 @@ def result_cells(res: DICResult) -> np.ndarray:
                     res.grid_xs, res.grid_ys)
     roi = res.roi if res.roi is not None else np.ones(res.image_shape, bool)
     return np.asarray(uniform_mesh(grid, np.asarray(roi, bool)).elements, np.int64)
+
+
+def _xml_comment(text: str) -> str:
+    """``text`` made safe inside ``<!-- -->``: no ``--`` (which XML forbids in
+    comments, and which ``-->`` would end it with) and no control characters."""
+    text = re.sub(r"[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]", "?", text)
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text
 
 
 _VTK_TYPES = {np.dtype(np.float64): "Float64", np.dtype(np.float32): "Float32",
@@ -87,7 +98,7 @@ def _vtu_text(fr: Frame, units: Units, encoding: str, info: dict,
     if units.has_time:
         unit_note += (f"; velocity in {units.velocity_unit}, strain rates in "
                       f"{units.rate_unit}, time in {units.time_unit}")
-    out = ['<?xml version="1.0"?>\n', f"<!-- {unit_note}. -->\n",
+    out = ['<?xml version="1.0"?>\n', f"<!-- {_xml_comment(unit_note)}. -->\n",
            '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" '
            'header_type="UInt32">\n', "  <UnstructuredGrid>\n", "    <FieldData>\n"]
     field = [("frame", np.array([fr.index], np.int64)),
@@ -166,7 +177,7 @@ def export_vtu(data, path, *, units=None, strain=True, frames=None,
         for fr, target in zip(fr_list, targets):
             t = units.time(fr.index) if units.has_time else fr.index
             lines.append(f'    <DataSet timestep="{t!r}" group="" part="0" '
-                         f'file="{target.name}"/>\n')
+                         f'file={quoteattr(target.name)}/>\n')
         lines.append("  </Collection>\n</VTKFile>\n")
         with atomic_write(pvd) as tmp, open(tmp, "w", encoding="utf-8") as fh:
             fh.write("".join(lines))

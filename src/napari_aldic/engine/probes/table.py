@@ -128,6 +128,22 @@ class ProbeTable:
                 reasons.append(next(iter(texts), ""))
         return status, reasons
 
+    def status_summary(self, max_frames: int = 6) -> list[str]:
+        """One line per probe that is not ok at every frame: its worst status, the
+        frames (``max_frames`` at most) and the first reason."""
+        out = []
+        for group in self.groups():
+            status, reasons = self.group_status(group)
+            bad = np.nonzero(status > OK)[0]
+            if not bad.size:
+                continue
+            frames = ", ".join(str(int(self.frames[i])) for i in bad[:max_frames])
+            more = " ..." if bad.size > max_frames else ""
+            why = next((reasons[i] for i in bad if reasons[i]), "")
+            out.append(f"{group}: {STATUS_NAMES[int(status.max())]} at frame(s) "
+                       f"{frames}{more}: {why}")
+        return out
+
     def units_of(self) -> dict[str, str]:
         """Unit of every column (``""`` dimensionless)."""
         return {n: c.unit for n, c in self.columns.items()}

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["draw_probe_curves", "draw_stress_strain", "draw_kymograph", "default_plot_columns",
-           "probe_figure", "probe_page", "stress_strain_column"]
+           "probe_figure", "probe_page", "stress_strain_column", "with_probe_page"]
 
 _A4 = (8.27, 11.69)
 DEGRADED = 1
@@ -174,6 +174,14 @@ def probe_page(table):
     text = "; ".join(_probe_lines(table))
     if len(text) > 400:
         text = text[:397] + "..."
-    fig.get_layout_engine().set(rect=(0, 0.04, 1, 0.96))
-    fig.text(0.02, 0.01, text, fontsize=6.5, wrap=True, va="bottom")
+    notes = [text, *table.status_summary()[:6]]
+    fig.get_layout_engine().set(rect=(0, 0.02 + 0.012 * len(notes), 1,
+                                      0.98 - 0.012 * len(notes)))
+    fig.text(0.02, 0.01, "\n".join(notes), fontsize=6.5, wrap=True, va="bottom")
     return fig
+
+
+def with_probe_page(pages, table):
+    """The figures of ``pages`` (an iterable), then the probe page of ``table``."""
+    yield from pages
+    yield probe_page(table)

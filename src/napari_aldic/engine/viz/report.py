@@ -37,6 +37,7 @@ from ..io.runs import Frame, collect_frames
 from ..io.vtk import result_cells
 from .figures import draw_field, field_values
 from .layout import A4, A4_LANDSCAPE, compact_ticks, map_grid, wrap
+from .probe_page import with_probe_page
 from .provenance import analysis_page
 from .report_stats import profiles_page, summary_page, validity_page
 from .style import (
@@ -168,9 +169,10 @@ def _mesh_page(fr_list, units, info, line, image):
     title = (f"Mesh and nodes, {frame_title(fr, units)}: {len(res)} nodes, {len(cells)} Q4 "
              f"cells; subset {p.subset} px, step {p.step} px, method {p.method}")
     ax.set_title("\n".join(wrap(title, 7.0, 11)), fontsize=11)
-    where = dict(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=2) if tall else \
-        dict(loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    ax.legend(fontsize=8, title="node status (count)", title_fontsize=9, **where)
+    # a figure legend "outside" gets its own room from the constrained layout
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center" if tall else
+               "outside right upper", ncol=2 if tall else 1, fontsize=8,
+               title="node status (count)", title_fontsize=9)
     return fig
 
 
@@ -243,7 +245,7 @@ def _pages(all_frames, shown, units, info, line, limits, image):
 
 
 def export_report(data, path, *, frames=None, line=None, units=None, strain=True,
-                  image=None, title: str | None = None) -> Path:
+                  image=None, title: str | None = None, probes=None) -> Path:
     """Write a multipage PDF report of an analysis.
 
     Parameters
@@ -259,19 +261,30 @@ def export_report(data, path, *, frames=None, line=None, units=None, strain=True
     strain : bool or dict of compute_strain options, default True
     image : (H, W) array, optional
         Reference image drawn under the maps.
+    probes : ProbeTable, optional
+        Probe values (:func:`napari_aldic.engine.probes.measure_probes`): one more
+        page, last, with their curves and the stress-strain curve.
 
-    The report has ``report_page_count(len(frames), line, n_total)`` pages:
-    ``3 + len(frames)``, plus one with ``line`` and one (statistics against
-    frame) when the data hold more than one frame.
+    Returns
+    -------
+    Path
+        The PDF written. It has ``report_page_count(len(frames), line,
+        n_total)`` pages: ``3 + len(frames)``, plus one with ``line`` and one
+        (statistics against frame) when the data hold more than one frame
+        (plus the probe page with ``probes``).
     """
+    import matplotlib
     from matplotlib.backends.backend_pdf import PdfPages
 
     path = target_path(path, (".pdf",))
     pages = report_pages(data, frames=frames, line=line, units=units, strain=strain,
                          image=image)
+    if probes is not None:
+        pages = with_probe_page(pages, probes)
     meta = {"Title": title or "napari-aldic DIC report", "Creator": software_name(),
             "Subject": "DIC analysis"}
-    with atomic_write(path) as tmp:
+    # units, names and titles are the user's text: "$...$" in them is not mathtext
+    with matplotlib.rc_context({"text.parse_math": False}), atomic_write(path) as tmp:
         with PdfPages(tmp, metadata=meta) as pdf:
             for fig in pages:
                 pdf.savefig(fig)

@@ -33,9 +33,11 @@ SIGNED_KINDS = ("length", "velocity", "strain", "angle", "rate")
 #: fields of a signed kind that are never negative
 NON_NEGATIVE_FIELDS = ("magnitude", "von_mises", "max_shear")
 _LIMIT_MODES = ("range", "symmetric", "from_zero")
-#: one colour per reason code, no two alike (the tab10 colours; green only for converged)
+#: one colour per reason code, no two alike (tab10 and a few darker ones; green only
+#: for converged)
 REASON_COLOURS = {0: "#2ca02c", 1: "#1f77b4", 2: "#ff7f0e", 3: "#d62728", 4: "#9467bd",
-                  5: "#8c564b", 6: "#e377c2", 7: "#bcbd22", 8: "#17becf"}
+                  5: "#8c564b", 6: "#e377c2", 7: "#bcbd22", 8: "#17becf", 9: "#7f7f7f",
+                  10: "#000080", 11: "#ffd700", 12: "#800000"}
 
 
 def reason_colour(code: int) -> str:

@@ -38,7 +38,7 @@ from ..core.params import DICParams
 from ..core.progress import Cancelled
 from ..core.results import DICResult, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
-from ..io.stack import open_stack
+from ..io.stack import frame_numbers, open_stack
 from .runfolder import MANIFEST, refine_record, roi_record, run_folder, run_id, stack_record
 
 __all__ = ["track", "TrackError", "RunFolderError"]
@@ -107,10 +107,11 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
 
 class TrackError(ValueError):
     """A frame of :func:`track` could not be read or analysed (an unreadable
-    file, a frame of another size, ...). The frames finished before it are
-    not lost: ``partial`` is the :class:`SequenceResult` of the run so far
-    (frames not computed are ``None``; ``partial.meta["failed_frame"]`` is
-    ``frame``), and the original error is ``__cause__``."""
+    file, a frame of another size, ...). The frames finished before it (with
+    a ``scheduler``: every frame finished) are not lost: ``partial`` is the
+    :class:`SequenceResult` of the run so far (frames not computed are
+    ``None``; ``partial.meta["failed_frame"]`` is ``frame``), and the
+    original error is ``__cause__``."""
 
     def __init__(self, message: str, partial: SequenceResult, frame: int):
         super().__init__(message)
@@ -139,13 +140,20 @@ def _run_parallel(run: _SequenceRun, stack, todo, scheduler, workers, cancel) ->
                 break  # its reference frame is not final yet (composition order)
             run.finish(i, incs.pop(i))
 
-    def collect(fu, i, others) -> None:
-        try:
-            incs[i] = fu.result()
-        except Exception as exc:
+    def collect(done: list, others) -> None:
+        """Keep the pairs of ``done`` (frame order) that succeeded, finish what
+        can be finished, then raise the first failure."""
+        bad = None
+        for fu, i in sorted(done, key=lambda fi: fi[1]):
+            try:
+                incs[i] = fu.result()
+            except Exception as exc:
+                bad = bad or (i, exc)
+        flush()
+        if bad is not None:
             for other in others:
                 other.cancel()
-            raise run.failed(run.idx[i], exc) from exc
+            raise run.failed(run.idx[bad[0]], bad[1]) from bad[1]
 
     if scheduler == "threads":
         from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
@@ -157,9 +165,7 @@ def _run_parallel(run: _SequenceRun, stack, todo, scheduler, workers, cancel) ->
             pending = set(futs)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fu in done:
-                    collect(fu, futs[fu], pending)
-                flush()
+                collect([(fu, futs[fu]) for fu in done], pending)
                 if cancel is not None and cancel():
                     for fu in pending:
                         fu.cancel()
@@ -172,8 +178,7 @@ def _run_parallel(run: _SequenceRun, stack, todo, scheduler, workers, cancel) ->
         futs = {client.submit(_pair_job, *args(i), run.params, run.refine, pure=False): i
                 for i in todo}
         for fu in as_completed(list(futs)):
-            collect(fu, futs[fu], futs)
-            flush()
+            collect([(fu, futs[fu])], futs)
             if cancel is not None and cancel():
                 for other in futs:
                     other.cancel()
@@ -256,9 +261,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     src = open_stack(stack)
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
-    idx = list(range(len(src))) if frames is None else [int(k) for k in frames]
-    if idx[0] != 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= len(src):
-        raise ValueError(f"frames must start at 0, increase and stay below {len(src)}")
+    idx = frame_numbers(frames, len(src))
     run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
                        dict(meta or {}), progress or (lambda k, frac, msg: None), on_frame)
     if out_dir is None:
@@ -364,7 +367,7 @@ class _SequenceRun:
         where = f" and in {self.out}" if self.out is not None else ""
         return TrackError(
             f"frame {k} ({self.src.frame_name(k)}) could not be analysed: {exc}. The {n} "
-            f"frame(s) finished before it are kept (in the error's .partial{where})",
+            f"finished frame(s) are kept (in the error's .partial{where})",
             self.partial(failed_frame=k, error=str(exc), cancelled=False), k)
 
     # ------------------------------------------------------------ running

@@ -1,0 +1,58 @@
+"""The dock's layout: collapsible sections in one scroll area, run controls below.
+
+A first-time user reads the sections top to bottom (images and region, mesh and
+correlation, strain, units, then Run below, then display and export); every
+section folds away. At 1280 x 720 only the scroll area shrinks: the status
+line, Run, Cancel and the progress stay in view.
+"""
+
+from __future__ import annotations
+
+from qtpy.QtCore import Qt
+from qtpy.QtWidgets import QFrame, QScrollArea, QVBoxLayout, QWidget
+from superqt import QCollapsible
+
+__all__ = ["sections_area", "divider", "Section"]
+
+#: ``(title, widget, expanded)``
+Section = tuple[str, QWidget, bool]
+
+
+def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QCollapsible]]:
+    """A scroll area holding one collapsible section per ``(title, widget,
+    expanded)``; returns it and the sections by title."""
+    inner = QWidget()
+    layout = QVBoxLayout(inner)
+    layout.setContentsMargins(2, 2, 2, 2)
+    layout.setSpacing(0)
+    found: dict[str, QCollapsible] = {}
+    for title, widget, expanded in sections:
+        box = QCollapsible(title)
+        box.setDuration(0)  # no animation: the scroll area resizes at once
+        box.layout().setContentsMargins(0, 0, 0, 4)
+        box.addWidget(widget)
+        if expanded:
+            box.expand(animate=False)
+        else:
+            box.collapse(animate=False)
+        button = box.toggleButton()
+        font = button.font()
+        font.setBold(True)
+        button.setFont(font)
+        layout.addWidget(box)
+        found[title] = box
+    layout.addStretch(1)
+    scroll = QScrollArea()
+    scroll.setWidgetResizable(True)
+    scroll.setWidget(inner)
+    scroll.setFrameShape(QFrame.Shape.NoFrame)
+    scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    return scroll, found
+
+
+def divider() -> QFrame:
+    """A thin horizontal line between the scroll area and the run controls."""
+    line = QFrame()
+    line.setFrameShape(QFrame.Shape.HLine)
+    line.setFrameShadow(QFrame.Shadow.Sunken)
+    return line

@@ -1,0 +1,175 @@
+"""Save and open project files from the dock widget (see :mod:`.project`).
+
+Opening a project: the whole file is read and checked first (nothing changes
+when it is invalid); then the image is opened (or reused when the viewer has
+it already), chosen, the settings applied (units rescale the image), and the
+stored layers added with their roles and the display choices restored.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from ..engine import Settings
+from .project import PROBE_KEY, image_record, layer_data, layer_record, read_project, write_project
+
+__all__ = ["ProjectActions", "PROJECT_FILTER"]
+
+PROJECT_FILTER = "napari-aldic analysis (*.json);;All files (*)"
+_CHOICES = ("roi_add", "roi_subtract")
+_SINGLE = ("roi_labels", "brush", "seeds")
+
+
+def _same_path(layer, path) -> bool:
+    meta = layer.metadata or {}
+    src = getattr(getattr(layer, "source", None), "path", None) or meta.get("source")
+    if isinstance(path, list) or isinstance(src, list):
+        return [str(p) for p in (src or [])] == [str(p) for p in (path or [])]
+    return src is not None and Path(str(src)) == Path(str(path))
+
+
+class ProjectActions:
+    """Project files for a :class:`~.settings.SettingsPanel` (``panel``) in ``viewer``."""
+
+    def __init__(self, panel, inputs, correlation, display, viewer,
+                 log: Callable[[str], None]):
+        self._panel, self._viewer, self._log = panel, viewer, log
+        self._inputs, self._correlation, self._display = inputs, correlation, display
+
+    # ------------------------------------------------------------ saving
+    def document(self) -> dict:
+        """The project document of the widget's current set-up."""
+        from .. import __version__
+
+        img = self._inputs.image_layer
+        if img is None:
+            raise ValueError("choose an image stack first")
+        records, seen = [], set()
+        for role in _CHOICES:
+            for lay in getattr(self._inputs, role).value:
+                records.append(layer_record(lay, role))
+                seen.add(id(lay))
+        for role in _SINGLE:
+            lay = getattr(self._inputs, role).value
+            if lay is not None:
+                records.append(layer_record(lay, role))
+                seen.add(id(lay))
+        for lay in self._viewer.layers:  # probes, picked by another dock
+            if PROBE_KEY in (lay.metadata or {}) and id(lay) not in seen and \
+                    lay.__class__.__name__ in ("Points", "Shapes"):
+                records.append(layer_record(lay, "probe"))
+        return {"software": f"napari-aldic {__version__}", "image": image_record(img),
+                **self._panel.storable(), "layers": records}
+
+    def save(self, path) -> Path | None:
+        """Write the project file ``path``; ``None`` after an error notification."""
+        from napari.utils.notifications import show_error
+
+        from .settings import message
+
+        try:
+            written = write_project(path, self.document())
+        except Exception as exc:  # nothing to refer to, unwritable file: explain
+            self._log(f"ERROR saving the analysis to {path}: {message(exc)}")
+            show_error(f"napari-aldic: could not save the analysis: {message(exc)}")
+            return None
+        self._log(f"analysis saved to {written}")
+        return written
+
+    # ------------------------------------------------------------ opening
+    def open(self, path) -> bool:
+        """Open the project file ``path``; ``False`` after an error notification."""
+        from napari.utils.notifications import show_error
+
+        from .settings import message
+
+        try:
+            doc = read_project(path)
+            settings = Settings.from_dict(doc.get("settings") or {})
+            image = self._image(doc["image"])
+        except Exception as exc:  # invalid file or missing image: nothing is changed
+            self._log(f"ERROR opening the analysis {path}: {message(exc)}")
+            show_error(f"napari-aldic: could not open the analysis: {message(exc)}")
+            return False
+        self._inputs.image.value = image
+        init = doc.get("init") or "fft"
+        self._panel.apply(settings, str(path), "fft")
+        self._add_layers(doc.get("layers", []))
+        if init == "seeds" and self._inputs.seeds.value is not None:
+            self._correlation.init.value = "seeds"
+        self._display.set_choices(doc.get("display") or {})
+        self._log(f"analysis opened from {path}: image '{image.name}', "
+                  f"{len(doc.get('layers', []))} layer(s)")
+        self._panel.project_opened.emit()
+        return True
+
+    def _image(self, rec: dict):
+        """The project's image layer: the one in the viewer, or opened now."""
+        import napari.layers as nl
+
+        path, sample = rec.get("path"), rec.get("sample")
+        for lay in self._viewer.layers:
+            if isinstance(lay, nl.Image) and (
+                    (path and _same_path(lay, path)) or
+                    (sample and tuple(getattr(lay.source, "sample", None) or ()) ==
+                     tuple(sample))):
+                return lay
+        if sample:
+            added = self._viewer.open_sample(sample[0], sample[1])
+            images = [lay for lay in added if isinstance(lay, nl.Image)]
+            for lay in added:  # the project's own layers replace the sample's extras
+                if lay not in images[:1]:
+                    self._viewer.layers.remove(lay)
+            return images[0]
+        paths = path if isinstance(path, list) else [path]
+        missing = [p for p in paths if not Path(os.fspath(p)).exists()]
+        if missing:
+            raise FileNotFoundError(f"the image {missing[0]} of the project is not there "
+                                    "(moved or renamed?); put it back or edit the 'path' in "
+                                    "the project file")
+        from .._reader import get_reader
+
+        plugin = "napari-aldic" if get_reader(path) is not None else None
+        added = self._viewer.open(path, plugin=plugin, stack=isinstance(path, list) and
+                                  plugin is None)
+        images = [lay for lay in added if isinstance(lay, nl.Image)]
+        if not images:
+            raise ValueError(f"{path} did not open as an image")
+        return images[0]
+
+    def _add_layers(self, records: list) -> None:
+        """Add the stored layers (after the units: they carry their own scale) and
+        choose them for their roles."""
+        from napari.layers import Layer
+
+        chosen: dict[str, list] = {role: [] for role in (*_CHOICES, *_SINGLE)}
+        for rec in records:
+            data, kw, kind = layer_data(rec)
+            layer = self._viewer.add_layer(Layer.create(data, kw, kind))
+            if rec["role"] in chosen:
+                chosen[rec["role"]].append(layer)
+        for role in _CHOICES:
+            getattr(self._inputs, role).value = chosen[role]
+        for role in _SINGLE:
+            if chosen[role]:
+                getattr(self._inputs, role).value = chosen[role][0]
+
+    # ------------------------------------------------------------ dialogs
+    def on_save_clicked(self, *_) -> None:
+        from qtpy.QtWidgets import QFileDialog
+
+        start = self._panel.start_folder(f"{self._panel.stem()}_analysis.json")
+        path, _ = QFileDialog.getSaveFileName(self._panel.native, "Save the analysis",
+                                              start, PROJECT_FILTER)
+        if path:
+            self.save(path)
+
+    def on_open_clicked(self, *_) -> None:
+        from qtpy.QtWidgets import QFileDialog
+
+        path, _ = QFileDialog.getOpenFileName(self._panel.native, "Open an analysis",
+                                              self._panel.start_folder(), PROJECT_FILTER)
+        if path:
+            self.open(path)
