@@ -241,7 +241,7 @@ def bad_inputs(demo, stack_case, tmp_path):
 
 @pytest.mark.parametrize("case, expect", [
     ("missing", "no such file"),
-    ("mismatch", "differs from deformed image shape"),
+    ("mismatch", "small.tif is 64 x 80 pixels, but reference.tif (frame 0) is 128 x 128"),
     ("even_subset", "subset=30"),
     ("unknown_key", "bogus"),
     ("broken_json", "not valid JSON"),

@@ -93,3 +93,16 @@ def test_export_says_when_unit_options_replace_the_stored_units(tmp_path, pair):
                              tmp_path / "b", "--no-strain", *extra])
         assert rc == 0 and "warning" not in err, err
     assert "1 px = 0.05 mm; frame interval 2 s" in out  # stored units kept, interval added
+
+
+def test_option_help_states_the_engine_defaults():
+    from napari_aldic.engine import DICParams
+
+    rc, out, _ = _run(["run", "--help"])
+    assert rc == 0
+    text = " ".join(out.split("options:", 1)[1].split())
+    defaults = DICParams()
+    for option in ("subset", "step", "search", "method", "interpolation"):
+        helps = re.search(rf"--{option} \S+ (.*?)(?= --|$)", text).group(1)
+        stated = re.search(r"default (\w+)", helps).group(1)
+        assert stated == str(getattr(defaults, option)), (option, helps)
