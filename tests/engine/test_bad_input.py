@@ -5,6 +5,8 @@ One table, :data:`CASES`: each case builds a bad input in a temporary folder,
 feeds it to the engine and names the error type and a pattern its message
 must match. A case that works on a file records it in ``ctx.file``; the
 message must then name that file (and the test checks the pattern too).
+User text in written files (units, names) is tested in test_user_text_exports.py,
+the command line's one-line errors in tests/cli/test_cli_errors.py.
 """
 
 from __future__ import annotations
@@ -179,88 +181,54 @@ for _label, _value in (("nan", math.nan), ("inf", math.inf)):
         _param_case("seeds", [(10, 20), (30, _value)]))
 
 
-@case("param_seeds_in_correlate_nan", ValueError, r"seed 0 x=nan must be a finite number")
-def _(ctx):
-    correlate(*ctx.pair, init="seeds", seeds=[(math.nan, 40)])
+def _stack(ctx):
+    return np.stack([ctx.pair[0], ctx.pair[1]])
 
 
-@case("param_zncc_rel_in_track_nan", ValueError, r"zncc_rel=nan")
-def _(ctx):
-    track(np.stack([ctx.pair[0], ctx.pair[1]]), zncc_rel=math.nan)
-
-
-# =================================================================== unbounded values
-@case("max_iter_huge", ValueError, r"max_iter=1000000000 must be between 1 and 10000")
-def _(ctx):
-    DICParams(max_iter=10**9)
-
-
-@case("admm_max_iter_huge", ValueError, r"admm_max_iter=100000 must be between 1 and 1000")
-def _(ctx):
-    DICParams(admm_max_iter=100_000)
-
-
-@case("strain_window_beyond_lattice", ValueError,
-      r"window=10001 nodes is wider than the result's node lattice \(12 x 12 nodes\)")
-def _(ctx):
-    compute_strain(ctx.res, window=10001)
-
-
-@case("strain_window_fem_beyond_lattice", ValueError, r"window=99 nodes is wider")
-def _(ctx):
-    compute_strain(ctx.res, window=99, method="fem")
-
-
-# =================================================================== wrong types
-@case("strain_of_an_array", TypeError, r"compute_strain needs a DICResult .* not ndarray")
-def _(ctx):
-    compute_strain(np.zeros(5))
-
-
-@case("strain_of_a_sequence", TypeError, r"not SequenceResult.*seq\[k\]")
-def _(ctx):
-    seq = track(np.stack([ctx.pair[0], ctx.pair[1]]), subset=31, step=32)
-    compute_strain(seq)
-
-
-@case("strain_of_a_path", TypeError, r"not str.*load_result")
-def _(ctx):
-    compute_strain(str(ctx.good))
-
-
-@case("strain_window_text", ValueError, r"window='5' must be an odd number")
-def _(ctx):
-    compute_strain(ctx.res, window="5")
-
-
-@case("guess_text", TypeError, r"guess must be a DICResult .* not str")
-def _(ctx):
-    correlate(*ctx.pair, guess="previous")
-
-
-@case("guess_array", TypeError, r"guess must be a DICResult .* not ndarray")
-def _(ctx):
-    correlate(*ctx.pair, guess=np.zeros((144, 2)))
-
-
-@case("track_no_frames", ValueError, r"frames=\[\] .* frame 0 and at least one")
-def _(ctx):
-    track(np.stack([ctx.pair[0], ctx.pair[1]]), frames=[])
-
-
-@case("track_one_frame", ValueError, r"frames=\[0\] .* frame 0 and at least one")
-def _(ctx):
-    track(np.stack([ctx.pair[0], ctx.pair[1]]), frames=[0])
-
-
-@case("track_frames_text", TypeError, r"frames='all' must be a list of frame numbers")
-def _(ctx):
-    track(np.stack([ctx.pair[0], ctx.pair[1]]), frames="all")
-
-
-@case("track_frames_fraction", TypeError, r"frame 1.5 .* whole number")
-def _(ctx):
-    track(np.stack([ctx.pair[0], ctx.pair[1]]), frames=[0, 1.5])
+#: calls with a bad argument: name -> (error type, pattern, function(ctx))
+CALLS = {
+    "param_seeds_in_correlate_nan": (ValueError, r"seed 0 x=nan must be a finite number",
+                                     lambda c: correlate(*c.pair, init="seeds",
+                                                         seeds=[(math.nan, 40)])),
+    "param_zncc_rel_in_track_nan": (ValueError, r"zncc_rel=nan",
+                                    lambda c: track(_stack(c), zncc_rel=math.nan)),
+    # unbounded values
+    "max_iter_huge": (ValueError, r"max_iter=1000000000 must be between 1 and 10000",
+                      lambda c: DICParams(max_iter=10**9)),
+    "tol_below_float32_resolution": (ValueError, r"tol=1e-300 must be in \[1e-06, 1\) pixel",
+                                     lambda c: DICParams(tol=1e-300)),
+    "admm_max_iter_huge": (ValueError, r"admm_max_iter=100000 must be between 1 and 1000",
+                           lambda c: DICParams(admm_max_iter=100_000)),
+    "strain_window_beyond_lattice": (
+        ValueError, r"window=10001 nodes is wider than the result's node lattice \(12 x 12 "
+                    r"nodes\)", lambda c: compute_strain(c.res, window=10001)),
+    "strain_window_fem_beyond_lattice": (
+        ValueError, r"window=99 nodes is wider",
+        lambda c: compute_strain(c.res, window=99, method="fem")),
+    # wrong types
+    "strain_of_an_array": (TypeError, r"compute_strain needs a DICResult .* not ndarray",
+                           lambda c: compute_strain(np.zeros(5))),
+    "strain_of_a_sequence": (TypeError, r"not SequenceResult.*seq\[k\]",
+                             lambda c: compute_strain(track(_stack(c), subset=31, step=32))),
+    "strain_of_a_path": (TypeError, r"not str.*load_result",
+                         lambda c: compute_strain(str(c.good))),
+    "strain_window_text": (ValueError, r"window='5' must be an odd number",
+                           lambda c: compute_strain(c.res, window="5")),
+    "guess_text": (TypeError, r"guess must be a DICResult .* not str",
+                   lambda c: correlate(*c.pair, guess="previous")),
+    "guess_array": (TypeError, r"guess must be a DICResult .* not ndarray",
+                    lambda c: correlate(*c.pair, guess=np.zeros((144, 2)))),
+    "track_no_frames": (ValueError, r"frames=\[\] .* frame 0 and at least one",
+                        lambda c: track(_stack(c), frames=[])),
+    "track_one_frame": (ValueError, r"frames=\[0\] .* frame 0 and at least one",
+                        lambda c: track(_stack(c), frames=[0])),
+    "track_frames_text": (TypeError, r"frames='all' must be a list of frame numbers",
+                          lambda c: track(_stack(c), frames="all")),
+    "track_frames_fraction": (TypeError, r"frame 1.5 .* whole number",
+                              lambda c: track(_stack(c), frames=[0, 1.5])),
+}
+for _name, (_error, _pattern, _call) in CALLS.items():
+    case(_name, _error, _pattern)(_call)
 
 
 # =================================================================== images
@@ -325,94 +293,51 @@ def _(ctx):
     load_result(ctx.file)
 
 
-@case("npz_u_5_entries", ValueError, r"array 'u' has shape \(5,\) but 'x' has 144 entries")
-def _(ctx):
-    load_result(_edited(ctx, u=np.zeros(5)))
+_SIDE = 1 << 20  # the largest image side a header may give: 1 TiB of pixels
+_NODE_ARRAYS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc", "reason",
+                "iterations", "grid_ix", "grid_iy")
+_PICKLE = io.BytesIO()
+np.save(_PICKLE, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+#: edited result files: name -> (changes for _edited, pattern of the message)
+NPZ_EDITS = {
+    "u_5_entries": (dict(u=np.zeros(5)), r"array 'u' has shape \(5,\) but 'x' has 144 entries"),
+    "header_4000_for_128": (dict(doc={"image_shape": [4000, 4000]}),
+                            r"its ROI holds \(2048,\) uint8 but image_shape 4000 x 4000 .* "
+                            r"needs \(2000000,\)"),
+    "header_smaller_than_nodes": (dict(doc={"image_shape": [64, 64]}, roi_packed=None),
+                                  r"node coordinates .* outside the 64 x 64 image of its header"),
+    "bomb_one_array": (dict(u=_npy_claiming((10**10,))),
+                       r"array 'u' has shape \(10000000000,\) but 'x' has 144 entries"),
+    "bomb_every_node_array": ({k: _npy_claiming((10**9,)) for k in _NODE_ARRAYS},
+                              r"declares 1000000000 nodes for a 128 x 128 image"),
+    "bomb_roi": (dict(roi_packed=_npy_claiming((10**11,), "|u1")),
+                 r"its ROI holds \(100000000000,\) uint8"),
+    "bomb_huge_image": (dict(doc={"image_shape": [_SIDE, _SIDE]},
+                             roi_packed=_npy_claiming(((_SIDE * _SIDE) // 8,), "|u1")),
+                        r"would need .* GiB, more than this computer's memory"),
+    "bomb_elements": (dict(elements=_npy_claiming((10**9, 4), "<i8")),
+                      r"array 'elements' has shape \(1000000000, 4\)"),
+    "bomb_header": (dict(header=_npy_claiming((), "<U100000000")),
+                    r"header is not a text of at most 64 MB"),
+    "missing_x": (dict(x=None), r"incomplete: array\(s\) \['x'\] are missing"),
+    "pickled_objects": (dict(meta=_PICKLE.getvalue()),
+                        r"array 'meta' holds Python objects \(pickled"),
+    "text_coordinates": (dict(x=np.array(["abc"] * 144)),
+                         r"array 'x' has dtype <U3; expected numbers"),
+    "no_header": (dict(header=None), r"not a napari-aldic result file \(no header\)"),
+    "header_not_json": (dict(header=np.array("{not json")), r"header is not valid JSON"),
+    "header_bad_params": (dict(doc={"params": {"subset": 30}}),
+                          r"parameters in its header are invalid: .*subset=30"),
+    "header_bad_shape": (dict(doc={"image_shape": [128]}), r"image_shape \[128\] in its header"),
+}
 
 
-@case("npz_header_4000_for_128", ValueError,
-      r"its ROI holds \(2048,\) uint8 but image_shape 4000 x 4000 .* needs \(2000000,\)")
-def _(ctx):
-    load_result(_edited(ctx, doc={"image_shape": [4000, 4000]}))
+def _npz_case(changes):
+    return lambda ctx: load_result(_edited(ctx, **changes))
 
 
-@case("npz_header_smaller_than_nodes", ValueError,
-      r"node coordinates .* outside the 64 x 64 image of its header")
-def _(ctx):
-    load_result(_edited(ctx, doc={"image_shape": [64, 64]}, roi_packed=None))
-
-
-@case("npz_bomb_one_array", ValueError,
-      r"array 'u' has shape \(10000000000,\) but 'x' has 144 entries")
-def _(ctx):
-    load_result(_edited(ctx, u=_npy_claiming((10**10,))))
-
-
-@case("npz_bomb_every_node_array", ValueError,
-      r"declares 1000000000 nodes for a 128 x 128 image")
-def _(ctx):
-    node_arrays = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc",
-                   "reason", "iterations", "grid_ix", "grid_iy")
-    load_result(_edited(ctx, **{k: _npy_claiming((10**9,)) for k in node_arrays}))
-
-
-@case("npz_bomb_roi", ValueError, r"its ROI holds \(100000000000,\) uint8")
-def _(ctx):
-    load_result(_edited(ctx, roi_packed=_npy_claiming((10**11,), "|u1")))
-
-
-@case("npz_bomb_huge_image", ValueError, r"would need .* GiB, more than this computer's memory")
-def _(ctx):
-    side = 1 << 20  # the largest side a header may give: 1 TiB of pixels
-    load_result(_edited(ctx, doc={"image_shape": [side, side]},
-                        roi_packed=_npy_claiming(((side * side) // 8,), "|u1")))
-
-
-@case("npz_bomb_elements", ValueError, r"array 'elements' has shape \(1000000000, 4\)")
-def _(ctx):
-    load_result(_edited(ctx, elements=_npy_claiming((10**9, 4), "<i8")))
-
-
-@case("npz_bomb_header", ValueError, r"header is not a text of at most 64 MB")
-def _(ctx):
-    load_result(_edited(ctx, header=_npy_claiming((), "<U100000000")))
-
-
-@case("npz_missing_x", ValueError, r"incomplete: array\(s\) \['x'\] are missing")
-def _(ctx):
-    load_result(_edited(ctx, x=None))
-
-
-@case("npz_pickled_objects", ValueError, r"array 'meta' holds Python objects \(pickled")
-def _(ctx):
-    buf = io.BytesIO()
-    np.save(buf, np.array([{"a": 1}], dtype=object), allow_pickle=True)
-    load_result(_edited(ctx, meta=buf.getvalue()))
-
-
-@case("npz_text_coordinates", ValueError, r"array 'x' has dtype <U3; expected numbers")
-def _(ctx):
-    load_result(_edited(ctx, x=np.array(["abc"] * 144)))
-
-
-@case("npz_no_header", ValueError, r"not a napari-aldic result file \(no header\)")
-def _(ctx):
-    load_result(_edited(ctx, header=None))
-
-
-@case("npz_header_not_json", ValueError, r"header is not valid JSON")
-def _(ctx):
-    load_result(_edited(ctx, header=np.array("{not json")))
-
-
-@case("npz_header_bad_params", ValueError, r"parameters in its header are invalid: .*subset=30")
-def _(ctx):
-    load_result(_edited(ctx, doc={"params": {"subset": 30}}))
-
-
-@case("npz_header_bad_shape", ValueError, r"image_shape \[128\] in its header")
-def _(ctx):
-    load_result(_edited(ctx, doc={"image_shape": [128]}))
+for _name, (_changes, _pattern) in NPZ_EDITS.items():
+    case(f"npz_{_name}", ValueError, _pattern)(_npz_case(_changes))
 
 
 @case("npz_lattice_index_out_of_range", ValueError, r"'grid_ix' points outside the 12")
@@ -652,80 +577,3 @@ def test_full_lattice_strain_window_still_works(result):
 def test_good_file_still_loads(ctx):
     back = load_result(ctx.good)
     assert np.array_equal(back.u, ctx.res.u) and np.array_equal(back.roi, ctx.res.roi)
-
-
-
-# =================================================================== user text in files
-#: a unit and a time unit that would break a naive CSV header, XML or mathtext
-NASTY_UNIT = 'µm "q", a&b\n--> $\\frac{x}$'
-NASTY_TIME = "s$^$ <&>\n--"
-#: a file name with XML and CSV specials
-NASTY_NAME = 'run "a"&b --> $x$'
-
-
-@pytest.fixture
-def frames_nasty(result, tmp_path):
-    """Two frames saved in a folder with a nasty name, and nasty units."""
-    from dataclasses import replace
-
-    from napari_aldic.engine import Units
-
-    a = replace(result, meta={**result.meta, "frame": 1})
-    b = replace(result, u=result.u * 2, meta={**result.meta, "frame": 2})
-    folder = tmp_path / NASTY_NAME
-    folder.mkdir()
-    a.save(folder / "frame_00001.npz")
-    b.save(folder / "frame_00002.npz")
-    units = Units(pixel_size=0.5, unit=NASTY_UNIT, frame_interval=2.0, time_unit=NASTY_TIME)
-    return folder, units
-
-
-def test_user_text_does_not_break_the_csv(frames_nasty, result, tmp_path):
-    import csv
-
-    from napari_aldic.engine.io import export_csv, read_csv
-
-    folder, units = frames_nasty
-    path = export_csv(folder, tmp_path / f"{NASTY_NAME}.csv", units=units, strain=False)
-    with open(path, encoding="utf-8", newline="") as fh:
-        body = [line for line in fh if not line.startswith("#")]
-    rows = list(csv.reader(body))
-    header = rows[0]
-    assert len(rows) == 1 + 2 * len(result)
-    assert all(len(r) == len(header) for r in rows)
-    assert "u [" + " ".join(NASTY_UNIT.split()) + "]" in header
-    back = read_csv(path)
-    assert back["units"]["u"] == NASTY_UNIT  # exact, from the JSON header line
-    assert back["settings"] == units
-    u = back["columns"]["u"].reshape(2, -1)
-    ok = result.valid
-    assert np.allclose(u[0][ok], 0.5 * result.u[ok]) and np.allclose(u[1][ok], result.u[ok])
-
-
-def test_user_text_does_not_break_vtu_and_pvd(frames_nasty, tmp_path):
-    import xml.etree.ElementTree as ET
-
-    from napari_aldic.engine.io import export_vtu, read_vtu
-
-    folder, units = frames_nasty
-    written = export_vtu(folder, tmp_path / f"{NASTY_NAME}.vtu", units=units, strain=False)
-    assert len(written) == 3 and written[-1].suffix == ".pvd"
-    for path in written:
-        ET.parse(path)  # well-formed XML, comments included
-    sets = ET.parse(written[-1]).getroot().findall("Collection/DataSet")
-    assert [d.get("file") for d in sets] == [p.name for p in written[:2]]
-    assert all((tmp_path / d.get("file")).exists() for d in sets)
-    back = read_vtu(written[1])
-    assert np.array_equal(back["field_data"]["frame"], [2])
-
-
-def test_user_text_does_not_break_the_pdf_report(frames_nasty, tmp_path):
-    from napari_aldic.engine import export_report
-    from napari_aldic.engine.viz import report_page_count
-
-    folder, units = frames_nasty
-    path = export_report(folder, tmp_path / f"{NASTY_NAME}.pdf", units=units,
-                         title=NASTY_UNIT)
-    data = path.read_bytes()
-    assert data.startswith(b"%PDF")
-    assert len(re.findall(rb"/Type\s*/Page\b", data)) == report_page_count(2, n_total=2)

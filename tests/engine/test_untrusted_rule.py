@@ -10,8 +10,14 @@ import pytest
 import scipy.io as sio
 
 from napari_aldic.engine import DICResult, Units, track
-from napari_aldic.engine.io import export_csv, export_davis, export_mat, export_vtu, read_csv, \
-    read_vtu
+from napari_aldic.engine.io import (
+    export_csv,
+    export_davis,
+    export_mat,
+    export_vtu,
+    read_csv,
+    read_vtu,
+)
 
 UM = Units(pixel_size=0.5, unit="um", frame_interval=0.2, time_unit="s")
 

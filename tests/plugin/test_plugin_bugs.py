@@ -321,7 +321,7 @@ def test_bug12_elapsed_time_moves_and_cancel_leaves_the_bar_at_the_frames_done(
     qtbot.waitUntil(done.is_set, timeout=60_000) if w.running else None
     assert done.is_set(), w.log.value
     w.cancel_button.clicked()
-    qtbot.waitUntil(lambda: not w.running, timeout=60_000)
+    qtbot.waitUntil(lambda: not w.running, timeout=20_000) if print("DBG", w.run_panel._worker_done, w.run_panel._steps, w.eta.value) is None else None
     a = w.analysis
     n_done = a.n_done - 1
     assert a.cancelled and 1 <= n_done < 7

@@ -14,12 +14,14 @@ from typing import Any, Literal, NoReturn
 
 import numpy as np
 
-__all__ = ["DICParams", "MAX_ITER_CAP", "ADMM_ITER_CAP"]
+__all__ = ["DICParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL"]
 
 #: caps on the iteration counts: more never helps, and a huge value would make
 #: a failing node (or ADMM loop) look like a hung program
 MAX_ITER_CAP = 10_000
 ADMM_ITER_CAP = 1_000
+#: finest IC-GN tolerance (pixels): float32 interpolation noise is about 1e-7 px
+MIN_TOL = 1e-6
 
 Method = Literal["local", "aldic"]
 Init = Literal["fft", "seeds"]
@@ -72,7 +74,8 @@ class DICParams:
     tol : float, default 1e-3
         Convergence tolerance in pixels on the IC-GN parameter update
         ``sqrt(du^2 + dv^2 + (h*d(du/dx))^2 + ...)`` (gradient terms scaled by
-        the half-width so all terms are displacements at the subset edge).
+        the half-width so all terms are displacements at the subset edge); at
+        least :data:`MIN_TOL`.
     zncc_min : float, default 0.6
         Nodes whose final zero-normalised cross-correlation is lower are
         retried from an individual cross-correlation guess and, if still
@@ -205,8 +208,9 @@ class DICParams:
             _bad(f"init_spacing={self.init_spacing} must be >= 1 pixel or None")
         if not 1 <= self.max_iter <= MAX_ITER_CAP:
             _bad(f"max_iter={self.max_iter} must be between 1 and {MAX_ITER_CAP}")
-        if not (0 < self.tol < 1):
-            _bad(f"tol={self.tol} must be in (0, 1) pixel")
+        if not (MIN_TOL <= self.tol < 1):
+            _bad(f"tol={self.tol} must be in [{MIN_TOL:g}, 1) pixel: a finer tolerance is "
+                 "below what float32 images resolve, so no node would converge")
         if not (-1 <= self.zncc_min < 1):
             _bad(f"zncc_min={self.zncc_min} must be in [-1, 1)")
         if self.zncc_rel < 0:

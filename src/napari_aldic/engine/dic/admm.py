@@ -177,6 +177,7 @@ def _progress(k: int, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok) -> dict:
     stopping criterion), the primal residual ``û - u`` on trusted nodes and
     the mean local IC-GN iterations."""
     change = float(np.sqrt(np.mean((uh_new - uh) ** 2 + (vh_new - vh) ** 2)))
-    primal = float(np.sqrt(np.mean(((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted])))
+    gap = ((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted]
+    primal = float(np.sqrt(np.mean(gap))) if gap.size else float("nan")
     return {"iteration": k + 1, "uhat_change_px": change, "primal_residual_px": primal,
             "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0}

@@ -41,7 +41,7 @@ _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
 
 
 def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, masks,
-               half, max_iter=40, tol=1e-3, out=None):
+               half, max_iter=40, tol=1e-3, out=None, stats=None):
     """Run IC-GN at the ``active`` nodes.
 
     Parameters
@@ -61,6 +61,10 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         Subset half-width in pixels.
     out : tuple or None
         ``(p, zncc, iters, reason)`` arrays to update in place.
+    stats : (n, 5) float64 or None
+        Receives, at the active nodes, the reference subset statistics
+        ``(m, var_f, hxx, hxy, hyy)`` (see
+        :class:`~napari_aldic.engine.dic.reliability.SubsetStats`).
 
     Returns
     -------
@@ -71,9 +75,11 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         out = (np.array(p_init, dtype=np.float64, copy=True), np.full(n, np.nan),
                np.zeros(n, np.int32), np.full(n, _NOT_CONVERGED, np.int8))
     p, zn, it, rs = out
+    if stats is None:
+        stats = np.empty((n, 5))
     icgn_affine(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
                 np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
-                int(half), int(max_iter), float(tol), p, zn, it, rs)
+                int(half), int(max_iter), float(tol), p, zn, it, rs, stats)
     return p, zn, it, rs
 
 

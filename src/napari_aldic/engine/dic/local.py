@@ -37,13 +37,9 @@ __all__ = ["Images", "prepare_images", "solve_local"]
 
 ProgressFn = Callable[[float, str], None]
 
-#: nodes searched with rotated subsets per rescue round
+#: most nodes searched with rotated subsets (once per analysis, when no
+#: coarse node, or no node at all after the repair waves, matches)
 ROTATION_NODES = 8
-#: a rotated search is tried when at least this fraction of the usable nodes
-#: still has no acceptable match after the repair waves...
-ROTATION_TRIGGER = 0.05
-#: ... or this fraction of the coarse nodes after the initial guess
-ROTATION_TRIGGER_COARSE = 0.25
 
 
 @dataclass
@@ -83,6 +79,8 @@ class _State:
         self.iters = np.zeros(n, np.int32)
         self.reason = sub.reason.astype(np.int8).copy()
         self.beyond = np.zeros(n, bool)
+        self.searched = np.zeros(n, bool)  # own NCC search done
+        self.rotation_tried = False
         self._nbrs5 = None
 
     @property
@@ -99,7 +97,7 @@ class _State:
         im, g, prm = self.im, self.grid, self.params
         return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, g.x, g.y, p_init, active,
                           self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
-                          out=out)
+                          out=out, stats=self.validity.stats.table)
 
     def store(self, res, nodes: np.ndarray) -> None:
         rp, rz, ri, rr = res
@@ -129,6 +127,8 @@ class _State:
         res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], prm.half,
                                   min(prm.search, top), top, masks, accept=accept)
         self.beyond[nodes] = (res.search >= top) & (res.on_border | ~(res.peak >= accept))
+        if params is None:
+            self.searched[nodes] = True
         p0 = np.zeros((nodes.size, 6))
         p0[:, 0] = res.u
         p0[:, 3] = res.v
@@ -229,7 +229,7 @@ def _propagate_seeds(st: _State) -> None:
     solved = active & st.acceptable(zmin)
     missing = seed_nodes[~solved[seed_nodes]]
     if missing.size:  # perhaps a large rotation
-        solved[_rotated_rescue(st, missing, zmin, whole)] = True
+        solved[_rotated_rescue(st, missing, zmin, whole, all_nodes=True)] = True
     if not solved.any():
         raise ValueError("no seed could be matched in the deformed image; move the seeds to "
                          "well-textured material")
@@ -288,27 +288,41 @@ def _extrapolate(p_from: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarr
 
 
 def _rotated_rescue(st: _State, candidates: np.ndarray, zmin: np.ndarray,
-                    params: DICParams | None = None) -> np.ndarray:
-    """Rotated-subset search at up to :data:`ROTATION_NODES` of the
-    ``candidates`` (spread over them), IC-GN from the best angle; returns the
-    nodes now acceptable (their state stored)."""
+                    params: DICParams | None = None, all_nodes: bool = False) -> np.ndarray:
+    """Rotated-subset search (over ``search_max``) and IC-GN from the best
+    angle at the ``candidates``, or at up to :data:`ROTATION_NODES` of them
+    (the two nearest the middle of the ROI, then spread over the rest), two
+    at a time until one matches; returns the nodes now acceptable (their
+    state stored)."""
     prm = params or st.params
-    pick = candidates[spread_nodes(st.grid.x[candidates], st.grid.y[candidates],
-                                   ROTATION_NODES)]
+    st.rotation_tried = True
     top = prm.resolved_search_max(st.im.f.shape)
-    # a chance peak of a wide search reaches 0.5-0.65: widen until the peak
-    # is nearly what a correct match gives (0.1 below the ZNCC floor)
-    accept = np.clip(zmin[pick] - 0.1, 0.5, 0.85)
-    p0, _ = rotated_search(st.im.f, st.im.g, st.roi, st.grid.x[pick], st.grid.y[pick],
-                           prm.half, min(prm.search, top), top, accept)
-    p_try = st.p.copy()
-    p_try[pick] = p0
-    active = np.zeros(st.grid.n, bool)
-    active[pick] = True
-    rp, rz, ri, rr = st.run(active, p_try)
-    ok = (rr[pick] == Reason.OK) & (rz[pick] >= zmin[pick])
-    st.store((rp, rz, ri, rr), pick[ok])
-    return pick[ok]
+    if all_nodes:
+        rounds = [candidates]
+    else:
+        # first the two nearest the middle of the ROI (a specimen turns about
+        # a point inside it, where displacements are smallest), then spread
+        x, y = st.grid.x[candidates], st.grid.y[candidates]
+        use = st.usable
+        d = np.hypot(x - st.grid.x[use].mean(), y - st.grid.y[use].mean())
+        near = candidates[np.argsort(d, kind="stable")[:2]]
+        rest = np.setdiff1d(candidates, near)
+        pick = np.concatenate([near, rest[spread_nodes(st.grid.x[rest], st.grid.y[rest],
+                                                       ROTATION_NODES - near.size)]])
+        rounds = [pick[i:i + 2] for i in range(0, pick.size, 2)]
+    for nodes in rounds:
+        p0, _ = rotated_search(st.im.f, st.im.g, st.roi, st.grid.x[nodes],
+                               st.grid.y[nodes], prm.half, top)
+        p_try = st.p.copy()
+        p_try[nodes] = p0
+        active = np.zeros(st.grid.n, bool)
+        active[nodes] = True
+        rp, rz, ri, rr = st.run(active, p_try)
+        ok = (rr[nodes] == Reason.OK) & (rz[nodes] >= zmin[nodes])
+        st.store((rp, rz, ri, rr), nodes[ok])
+        if ok.any():
+            return nodes[ok]
+    return nodes[:0]
 
 
 def _guess_from_result(grid: NodeGrid, guess) -> np.ndarray:
@@ -349,7 +363,7 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
     zmin = st.floor()
     good = st.acceptable(zmin)
     failed = coarse[~good[coarse] & (st.reason[coarse] != Reason.OUT_OF_IMAGE)]
-    if failed.size and failed.size >= ROTATION_TRIGGER_COARSE * coarse.size:
+    if failed.size and not good[coarse].any():
         _rotated_rescue(st, failed, zmin)  # e.g. a large rotation
         good = st.acceptable(zmin)
     good_c = coarse[good[coarse]]
@@ -391,14 +405,12 @@ def _repair(st: _State, report: ProgressFn) -> None:
     repair_waves()
     if st.params.init != "fft":  # seeds: motion may exceed any FFT range
         return
-    for _ in range(2):  # regions that turned by a large angle
-        bad = bad_nodes()
-        if bad.size < max(1, ROTATION_TRIGGER * usable.sum()):
-            break
-        if not _rotated_rescue(st, bad, zmin).size:
-            break
-        repair_waves()
     bad = bad_nodes()
+    if bad.size and not st.rotation_tried and not good_nodes().any():
+        if _rotated_rescue(st, bad, zmin).size:  # e.g. a large rotation
+            repair_waves()
+    bad = bad_nodes()
+    bad = bad[~st.searched[bad]]  # a node's own search gives the same peak again
     if bad.size:
         p_try = st.p.copy()
         p_try[bad] = st.ncc_guess(bad)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .init_guess import ncc_search_widening
+from .init_guess import ncc_search
 
 __all__ = ["ANGLE_STEP", "rotated_search", "spread_nodes"]
 
@@ -47,13 +47,12 @@ def _templates(f, roi, xs, ys, half: int, theta: float):
     return T.reshape(X.shape).astype(np.float32), use.astype(np.uint8)
 
 
-def rotated_search(f, g, roi, xs, ys, half: int, search: int, search_max: int,
-                   accept=0.8, angles_deg=None):
+def rotated_search(f, g, roi, xs, ys, half: int, search: int, angles_deg=None):
     """Best rotated cross-correlation match at nodes ``(xs, ys)``.
 
-    Each angle's search widens up to ``search_max`` until its peak reaches
-    ``accept`` (a number or one per node): in a wide search chance peaks
-    reach 0.5-0.6, while the right angle gives nearly 1 on clean images.
+    Every candidate angle is searched over the whole range ``[-search,
+    search]²`` at once (a widening search would stop on the first chance
+    peak of 0.5-0.6; the right angle peaks near 1 on clean images).
 
     Returns ``(p0, peak)``: affine starting parameters ``(k, 6)`` (the peak's
     displacement and ``F = R(θ) - I`` of the best angle) and the peak ZNCC
@@ -69,9 +68,8 @@ def rotated_search(f, g, roi, xs, ys, half: int, search: int, search_max: int,
     for a in angles_deg:
         th = np.deg2rad(a)
         T, use = _templates(f, roi, xs, ys, half, th)
-        masks = None if use.all() else use
-        res = ncc_search_widening(f, g, xs, ys, half, search, search_max, masks,
-                                  accept=accept, templates=T)
+        res = ncc_search(f, g, xs, ys, half, search, None if use.all() else use,
+                         templates=T)
         better = res.peak > best
         best[better] = res.peak[better]
         c, s = np.cos(th), np.sin(th)

@@ -296,7 +296,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
-                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out):
+                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     Per node: gather the subset, build the reference Hessian and its Cholesky
@@ -322,6 +322,10 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
         Subset half-width, iteration cap, convergence tolerance.
     p_out, zncc_out, iters_out, reason_out : (n, 6), (n,), (n,), (n,)
         Receive parameters, ZNCC, iterations and status.
+    stats_out : (n, 5) float64
+        Receives the reference subset's statistics as
+        :func:`~.subset.subset_stats` computes them (free here: the sums are
+        needed anyway).
     """
     n = nx.size
     c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
@@ -340,6 +344,11 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                 dxs, dys, gx, gy, fs, m, fm, H)
             sj = (sj0, sj1, sj2, sj3, sj4, sj5)
             bf = (b00, b01, b02, b03, b04, b05)
+            stats_out[k, 0] = m
+            stats_out[k, 1] = df2 / m
+            stats_out[k, 2] = H[0, 0]
+            stats_out[k, 3] = H[3, 0]
+            stats_out[k, 4] = H[3, 3]
             p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
                  p_init[k, 5])
             if df2 <= 1e-6 * m or not cholesky6(H, L):

@@ -337,7 +337,8 @@ def frame_figure(series: FieldSeries, fr: Frame, *, image=None, cmap=None,
     ax = fig.add_subplot()
     im = draw_field(ax, fr, field, units, cmap or series.cmap, series.vmin, series.vmax,
                     image=image)
-    fig.colorbar(im, ax=ax, label=field_label(field, units, series.info), shrink=0.9)
+    bar = fig.colorbar(im, ax=ax, label=field_label(field, units, series.info), shrink=0.9)
+    compact_ticks(bar.ax.yaxis)
     ax.set_title(title or f"{field_title(field)} - {frame_title(fr, units)}", fontsize=10)
     return fig
 
