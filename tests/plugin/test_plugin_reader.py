@@ -18,6 +18,11 @@ from napari_aldic.engine.io import read_csv
 from napari_aldic.engine.viz import to_deformed
 
 
+def _by_field(layers) -> dict:
+    """Layer-data tuples by the field they show (names carry the unit)."""
+    return {kw["metadata"]["napari_aldic"]["field"]: (d, kw, k) for d, kw, k in layers}
+
+
 def test_tiff_stack_opens_as_one_lazy_16bit_layer(tmp_path):
     import dask.array as da
 
@@ -79,18 +84,20 @@ def test_result_file_reopens_as_result_layers(tmp_path, speckle_stack):
     path = res.save(tmp_path / "pair.npz")
     reader = get_reader(str(path))
     assert callable(reader)
-    layers = {kw["name"]: (data, kw, kind) for data, kw, kind in reader(str(path))}
-    assert {"DIC u", "DIC v", "DIC |u|", "DIC exx", "DIC von Mises", "DIC displacement",
-            "DIC unreliable nodes"} <= set(layers)
-    u, kw, kind = layers["DIC u"]
+    layers = _by_field(reader(str(path)))
+    assert {"u", "v", "|u|", "exx", "von Mises", "displacement", "unreliable nodes"} <= \
+        set(layers)
+    u, kw, kind = layers["u"]
+    assert kw["name"] == "DIC u [px]"  # the unit is in the name (and the status bar)
     assert kind == "image" and u.ndim == 2
     np.testing.assert_allclose(u, res.to_grid("u"), equal_nan=True, rtol=1e-6)
     # one lattice pixel per node: scale = step, origin at the first node
     assert kw["scale"] == (8.0, 8.0)
     assert kw["translate"] == (float(res.grid_ys[0]), float(res.grid_xs[0]))
-    lo, hi = kw["contrast_limits"]
-    assert lo == -hi  # symmetric limits for a diverging colormap
-    vec, vkw, vkind = layers["DIC displacement"]
+    lo, hi = kw["contrast_limits"]  # robust limits from the data
+    assert np.nanmin(u) <= lo < hi <= np.nanmax(u)
+    assert np.mean((u >= lo) & (u <= hi)) > 0.95 * np.isfinite(u).mean()
+    vec, vkw, vkind = layers["displacement"]
     assert vkind == "vectors" and len(vkw["features"]["u"]) == res.n_valid
 
 
@@ -98,15 +105,15 @@ def test_sequence_writer_and_reader_round_trip(tmp_path, speckle_stack):
     stack = speckle_stack()
     analysis = run_analysis(stack, None, DICParams(subset=21, step=12))
     geo = Geometry((1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
-    layers = {kw["name"]: (d, kw, k) for d, kw, k in analysis_layers(analysis, geo)}
-    data, kw, _ = layers["DIC u"]
+    layers = _by_field(analysis_layers(analysis, geo))
+    data, kw, _ = layers["u"]
     assert data.shape[0] == 3
     written = write_results(str(tmp_path / "run.npz"), data, kw)
     assert len(written) == 3 and (tmp_path / "run" / "frame_00002.npz").exists()
-    back = {k["name"]: d for d, k, _ in get_reader(str(tmp_path / "run"))(str(tmp_path / "run"))}
-    np.testing.assert_allclose(back["DIC u"], data, equal_nan=True)
-    np.testing.assert_allclose(back["DIC exx"], layers["DIC exx"][0], equal_nan=True,
-                               atol=1e-9)
+    back = {f: d for f, (d, _, _) in _by_field(get_reader(str(tmp_path / "run"))(
+        str(tmp_path / "run"))).items()}
+    np.testing.assert_allclose(back["u"], data, equal_nan=True)
+    np.testing.assert_allclose(back["exx"], layers["exx"][0], equal_nan=True, atol=1e-9)
     # the engine's exports, in the physical units of the layer
     kw_um = {**kw, "metadata": {**kw["metadata"], "napari_aldic": {
         **kw["metadata"]["napari_aldic"], "pixel_size": 0.5, "length_unit": "um",
@@ -121,8 +128,9 @@ def test_sequence_writer_and_reader_round_trip(tmp_path, speckle_stack):
     assert Path(mat_path).stat().st_size > 1000
     # saved units come back with the layers: scale, axis units and displayed values
     write_results(str(tmp_path / "run_um.npz"), data, kw_um)
-    back = {k["name"]: (d, k) for d, k, _ in read_results(str(tmp_path / "run_um"))}
-    u_um, ukw = back["DIC u"]
+    back = _by_field(read_results(str(tmp_path / "run_um")))
+    u_um, ukw, _ = back["u"]
+    assert ukw["name"] == "DIC u [um]"
     np.testing.assert_allclose(u_um, 0.5 * data, equal_nan=True, rtol=1e-6)
     assert ukw["scale"] == (2.0, 6.0, 6.0) and ukw["units"] == ("s", "um", "um")
     with pytest.raises(ValueError, match="no napari-aldic results"):

@@ -94,7 +94,7 @@ class RunPanel(Panel):
         self.status.native.setWordWrap(True)
         self.eta.native.setWordWrap(True)
         self.log.native.setMinimumHeight(80)
-        self._clock = QTimer()
+        self._clock = QTimer(self.native)
         self._clock.setInterval(500)  # elapsed time moves between frames too
 
     def _setup_callbacks(self) -> None:

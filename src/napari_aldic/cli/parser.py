@@ -106,6 +106,15 @@ def add_run(sub) -> None:
                      help="stacks: correlate every frame against frame 0 (accumulative) "
                           "or against the previous frame, composed back to frame 0 "
                           "(incremental); results always refer to frame 0")
+    run.add_argument("--scheduler", metavar="ADDRESS|threads|processes",
+                     help="stacks: run the frames in parallel on local threads, on local "
+                          "worker processes, or on the dask cluster at ADDRESS (e.g. "
+                          "tcp://head:8786; workers read their frames from the stack "
+                          "themselves, see docs/cluster.md); default: one frame after the "
+                          "other")
+    run.add_argument("--workers", type=int, metavar="N",
+                     help="with --scheduler threads or processes: N frames at a time "
+                          "(default: the CPU count)")
     run.add_argument("--params-out", type=Path, metavar="FILE.json", dest="params_out",
                      help="also write the complete parameters used (file and options "
                           "merged) to FILE.json, for --params of a later run")

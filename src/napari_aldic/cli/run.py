@@ -67,11 +67,26 @@ def _run_folder(src, folder: Path, roi, params, units, args) -> None:
     t0 = time.perf_counter()
     track(src, roi=roi, params=params, reference=args.reference, out_dir=folder,
           meta={"units": units.to_dict()} if units is not None else None,
-          progress=progress, on_frame=show)
+          progress=progress, on_frame=show, scheduler=_scheduler(args),
+          workers=getattr(args, "workers", None))
     clear_bar()
     done = n - 1 - len(loaded)
     print(f"{done} frames in {time.perf_counter() - t0:.2f} s"
           + (f"; {len(loaded)} finished frame(s) resumed from {folder}" if loaded else ""))
+
+
+def _scheduler(args):
+    """``--scheduler``: None (frames in turn), "threads", "processes" or a
+    dask scheduler address; ``--workers`` must be positive."""
+    sched, n = getattr(args, "scheduler", None), getattr(args, "workers", None)
+    if n is not None and n < 1:
+        raise CLIError(f"--workers {n} must be at least 1")
+    if sched is None or sched in ("threads", "processes"):
+        return sched
+    if "://" not in sched and ":" not in sched:
+        raise CLIError(f"--scheduler {sched!r} is not 'threads', 'processes' or a dask "
+                       "scheduler address such as tcp://host:8786")
+    return sched
 
 
 def run_folder_of(output: Path | None, pair: bool) -> Path | None:

@@ -178,6 +178,6 @@ def _progress(k: int, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok) -> dict:
     the mean local IC-GN iterations."""
     change = float(np.sqrt(np.mean((uh_new - uh) ** 2 + (vh_new - vh) ** 2)))
     gap = ((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted]
-    primal = float(np.sqrt(np.mean(gap))) if gap.size else float("nan")
+    primal = float(np.sqrt(np.mean(gap))) if gap.size else 0.0
     return {"iteration": k + 1, "uhat_change_px": change, "primal_residual_px": primal,
             "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0}

@@ -331,6 +331,12 @@ class FrameSource:
             page = f" (page {k})" if self._pages else ""
             raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: {exc}") from None
 
+    @property
+    def in_memory(self) -> bool:
+        """True for an array (its pickle holds every frame); False for files
+        (its pickle is the path: workers read their frames themselves)."""
+        return self._arr is not None
+
     def frame_name(self, k: int) -> str:
         """A readable name of frame ``k``: its file, ``STACK.tif[k]`` or ``frame k``."""
         if self._files is not None:

@@ -25,7 +25,8 @@ __all__ = ["tracking_text", "image_sources", "parameter_rows", "analysis_page"]
 _ALDIC_ONLY = ("mu", "beta", "smooth", "second_order_warp", "admm_max_iter", "admm_tol",
                "refine")
 #: parameters in pixels
-_PX = ("subset", "step", "search", "search_max", "init_spacing", "tol", "admm_tol")
+_PX = ("subset", "step", "search", "search_max", "init_spacing", "tol", "admm_tol",
+       "max_uncertainty")
 
 
 def _moving(frames):

@@ -168,10 +168,11 @@ def _mesh_page(fr_list, units, info, line, image):
     p = info["params"]
     title = (f"Mesh and nodes, {frame_title(fr, units)}: {len(res)} nodes, {len(cells)} Q4 "
              f"cells; subset {p.subset} px, step {p.step} px, method {p.method}")
-    ax.set_title("\n".join(wrap(title, 7.0, 11)), fontsize=11)
+    # the figure's title, not the axes': a narrow map's title would cover its tick labels
+    fig.suptitle("\n".join(wrap(title, fig.get_size_inches()[0] - 0.8, 11)), fontsize=11)
     # a figure legend "outside" gets its own room from the constrained layout
     fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center" if tall else
-               "outside right upper", ncol=2 if tall else 1, fontsize=8,
+               "outside right center", ncol=2 if tall else 1, fontsize=8,
                title="node status (count)", title_fontsize=9)
     return fig
 

@@ -24,9 +24,9 @@ carries the frames finished before it.
 
 from __future__ import annotations
 
-import os
 import time
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,9 +39,34 @@ from ..core.progress import Cancelled
 from ..core.results import DICResult, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
 from ..io.stack import frame_numbers, open_stack
+from ..io.zarrstore import FieldStore
+from .cluster import run_parallel
 from .runfolder import MANIFEST, refine_record, roi_record, run_folder, run_id, stack_record
 
 __all__ = ["track", "TrackError", "RunFolderError"]
+
+_ON_DISK = object()  # a finished frame kept only in the run folder
+
+
+class _StoredFrames(Sequence):
+    """The frames of a run with a run folder: results still needed for
+    composition are in memory, the others are read from their file when
+    asked for (client memory does not grow with the number of frames)."""
+
+    def __init__(self, items: list, load: Callable[[int], DICResult]):
+        self._items, self._load = items, load
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        r = self._items[i]
+        return self._load(i % len(self)) if r is _ON_DISK else r
+
+    def __repr__(self) -> str:
+        return f"<{len(self)} frames, read from the run folder when used>"
 
 def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
     """Bilinear interpolation of a node field at points (NaN where not possible)."""
@@ -119,76 +144,6 @@ class TrackError(ValueError):
         self.frame = frame
 
 
-def _pair_job(stack, ref_k: int, k: int, roi, params: DICParams, refine=None) -> DICResult:
-    """One frame pair (runs in a worker thread or process)."""
-    src = open_stack(stack)
-    return correlate(src[ref_k], src[k], roi=roi, params=params, refine=refine)
-
-
-def _run_parallel(run: _SequenceRun, stack, todo, scheduler, workers, cancel) -> bool:
-    """Run the pairs of ``todo`` concurrently; finish frames in order as their
-    references become available. Returns True if cancelled."""
-    spec = run.src.name if run.src.name is not None else stack
-    incs: dict = {}
-
-    def args(i):
-        return spec, run.ref_of(i), run.idx[i], run.roi_for(run.ref_of(i))
-
-    def flush():
-        for i in sorted(incs):
-            if run.results[run.idx.index(run.ref_of(i))] is None:
-                break  # its reference frame is not final yet (composition order)
-            run.finish(i, incs.pop(i))
-
-    def collect(done: list, others) -> None:
-        """Keep the pairs of ``done`` (frame order) that succeeded, finish what
-        can be finished, then raise the first failure."""
-        bad = None
-        for fu, i in sorted(done, key=lambda fi: fi[1]):
-            try:
-                incs[i] = fu.result()
-            except Exception as exc:
-                bad = bad or (i, exc)
-        flush()
-        if bad is not None:
-            for other in others:
-                other.cancel()
-            raise run.failed(run.idx[bad[0]], bad[1]) from bad[1]
-
-    if scheduler == "threads":
-        from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-
-        n = workers or os.cpu_count() or 1
-        one = run.params.replace(n_threads=1)  # frames are the parallel unit
-        with ThreadPoolExecutor(max_workers=n) as ex:
-            futs = {ex.submit(_pair_job, *args(i), one, run.refine): i for i in todo}
-            pending = set(futs)
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                collect([(fu, futs[fu]) for fu in done], pending)
-                if cancel is not None and cancel():
-                    for fu in pending:
-                        fu.cancel()
-                    return True
-        return False
-    from distributed import Client, as_completed
-
-    client = Client(scheduler) if isinstance(scheduler, str) else scheduler
-    try:
-        futs = {client.submit(_pair_job, *args(i), run.params, run.refine, pure=False): i
-                for i in todo}
-        for fu in as_completed(list(futs)):
-            collect([(fu, futs[fu])], futs)
-            if cancel is not None and cancel():
-                for other in futs:
-                    other.cancel()
-                return True
-        return False
-    finally:
-        if isinstance(scheduler, str):
-            client.close()
-
-
 def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
           reference: str = "accumulative", *, update_every: int | None = None,
           rois=None, frames=None, out_dir=None, params: DICParams | None = None,
@@ -212,21 +167,29 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     frames : sequence of int, optional
         Frames to analyse (must start with 0 and increase); default all.
     out_dir : path, optional
-        A run folder: each frame's result is written as it finishes, and
-        rerunning resumes. The folder is locked while the run writes it
+        A run folder: each frame's result is written as it finishes (its
+        ``frame_#####.npz`` and a slice of the field store ``fields.zarr``,
+        :mod:`~napari_aldic.engine.io.zarrstore`), and rerunning resumes.
+        Only the frames that later frames are composed with stay in memory;
+        the returned frames are read from the folder when used. The folder
+        is locked while the run writes it
         (a second process gets :class:`RunFolderError`), and a folder that
         holds another analysis, or whose inputs changed (parameters, ROI,
         refinement, reference mode, frames, stack contents), is refused
         with :class:`RunFolderError` naming what changed (see
         :mod:`~napari_aldic.engine.workflow.runfolder`).
-    scheduler : None, "threads", a ``dask.distributed.Client`` or its address
+    scheduler : None, "threads", "processes", a ``dask.distributed.Client`` or its address
         ``None`` runs frames one after the other, each starting from the
         previous frame's field. Otherwise the frame pairs, which do not
         depend on each other, run concurrently: on local threads (the Numba
-        kernels release the GIL; each frame then uses one thread) or on a
-        dask cluster; each frame then starts from its own FFT/seed guess.
+        kernels release the GIL; each frame then uses one thread), on a
+        local dask cluster of ``workers`` one-thread processes
+        (``"processes"``) or on a dask cluster; each frame then starts from
+        its own FFT/seed guess. On a cluster, workers read their frames
+        themselves (see :mod:`~napari_aldic.engine.workflow.cluster`).
     workers : int, optional
-        Concurrent frames for ``scheduler="threads"`` (default: CPU count).
+        Concurrent frames for ``scheduler="threads"`` and worker processes
+        for ``"processes"`` (default: CPU count).
     refine : preset name, Refinement or dict, optional
         Quadtree refinement for every frame (as in ``correlate``), e.g. a
         ``Refinement(brush=mask)`` painted region.
@@ -291,9 +254,12 @@ class _SequenceRun:
     out: Path | None = None
     run_id: str | None = None
     results: list = field(init=False)
+    store: FieldStore | None = None
 
     def __post_init__(self):
         self.results = [None] * len(self.idx)
+        self._users: Counter = Counter()  # index -> frames still to compose with it
+        self._pos = {k: i for i, k in enumerate(self.idx)}
         self._whole = None  # the one ROI array of a run without per-frame ROIs
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
 
@@ -353,10 +319,19 @@ class _SequenceRun:
             if entry[2] is None:
                 entry[2] = write_roi_file(self.out, res.roi)
             ref = entry[2]
-        res.save(self.path_of(k), roi_file=ref)
+        i = self._pos[k]
+        self.store.write(i, res)  # the fields first: the result file says "done"
+        path = res.save(self.path_of(k), roi_file=ref)
+        self.store.mark_done(i, res, path)
+
+    def load_frame(self, i: int) -> DICResult:
+        return load_result(self.path_of(self.idx[i]))
 
     def partial(self, **meta) -> SequenceResult:
-        return SequenceResult(list(self.results), self.params, self.reference,
+        frames = list(self.results)
+        if self.out is not None:
+            frames = _StoredFrames(frames, self.load_frame)
+        return SequenceResult(frames, self.params, self.reference,
                               {"frames": self.idx, "update_every": self.update_every,
                                "source": self.src.name, **meta})
 
@@ -378,7 +353,7 @@ class _SequenceRun:
         if scheduler is None:
             cancelled = self.serial(todo, ref_img, cancel)
         else:
-            cancelled = _run_parallel(self, stack, todo, scheduler, workers, cancel)
+            cancelled = run_parallel(self, todo, scheduler, workers, cancel)
         return self.partial(seconds=time.perf_counter() - t0, cancelled=cancelled)
 
     def start(self):
@@ -388,32 +363,58 @@ class _SequenceRun:
         self.results[0] = reference_result(ref_img, roi=self.roi_for(0), params=self.params,
                                            refine=self.refine)
         self.results[0].meta.update(self.extra)
-        if self.out is not None and not self.path_of(0).exists():
-            self.save(self.results[0], 0)
+        if self.out is not None:
+            try:
+                self.store = FieldStore(self.out, self.run_id, self.idx,
+                                        self.results[0].grid_xs, self.results[0].grid_ys)
+            except ValueError as exc:
+                raise RunFolderError(str(exc), self.out) from None
+            if not self.path_of(0).exists():
+                self.save(self.results[0], 0)
         return ref_img
 
     def load_finished(self) -> list[int]:
-        """Load the frames already in ``out``; returns the indices still to do."""
+        """Find the frames already in ``out``; returns the indices still to
+        do. Frames the store records as finished (with their result file
+        unchanged) are not read; only those the remaining frames are
+        composed with are loaded."""
+        if self.out is None:
+            return list(range(1, len(self.idx)))
+        trusted = self.store.trusted()
         todo = []
         for i in range(len(self.idx)):
             pth = self.path_of(self.idx[i])
-            if pth is None or not pth.exists():
+            if not pth.exists():
                 todo.append(i)
-                continue
-            try:
-                res = load_result(pth)
-            except Exception as exc:  # damaged: say which file, and how to recover
-                raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete "
-                                     "that file to compute its frame again", self.out) from None
-            if res.meta.get("run_id") != self.run_id:
-                raise RunFolderError(f"{pth} belongs to another analysis than "
-                                     f"{self.out / MANIFEST} (results must not mix); remove "
-                                     "it or choose an empty folder", self.out)
-            if i:
-                self.results[i] = res
+            elif not trusted[i]:
+                self._verify(i, pth)
+            if i and pth.exists():
+                self.results[i] = _ON_DISK
                 self.report(self.idx[i], i / (len(self.idx) - 1),
                             f"frame {self.idx[i]}: loaded from {pth.name}")
-        return [i for i in todo if i]
+        todo = [i for i in todo if i]
+        for i in todo:
+            self._users[self._pos[self.ref_of(i)]] += 1
+        for j in self._users:
+            if self.results[j] is _ON_DISK:
+                self.results[j] = self.load_frame(j)
+        return todo
+
+    def _verify(self, i: int, pth: Path) -> None:
+        """Check a result file not recorded in the store (a run killed
+        between the two writes, or a folder of an earlier version) and add
+        it to the store."""
+        try:
+            res = load_result(pth)
+        except Exception as exc:  # damaged: say which file, and how to recover
+            raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete "
+                                 "that file to compute its frame again", self.out) from None
+        if res.meta.get("run_id") != self.run_id:
+            raise RunFolderError(f"{pth} belongs to another analysis than "
+                                 f"{self.out / MANIFEST} (results must not mix); remove "
+                                 "it or choose an empty folder", self.out)
+        self.store.write(i, res)
+        self.store.mark_done(i, res, pth)
 
     def finish(self, i: int, inc: DICResult) -> None:
         """Compose the increment of ``idx[i]`` back to frame 0, record, save
@@ -435,6 +436,12 @@ class _SequenceRun:
             self.on_frame(k, res)
         self.report(k, i / (len(self.idx) - 1),
                     f"frame {k} done: {res.n_valid}/{len(res)} valid")
+        if self.out is not None:  # keep only what later frames are composed with
+            j = self._pos[r]
+            self._users[j] -= 1
+            for m in (i, j):
+                if m and self._users[m] <= 0:
+                    self.results[m] = _ON_DISK
 
     def serial(self, todo: list[int], ref_img, cancel) -> bool:
         """Correlate the frames of ``todo`` one after the other, each from the

@@ -1,0 +1,130 @@
+"""Scale benchmark: long sequences on a dask cluster (issue 13, section 3).
+
+Usage::
+
+    python benchmarks/bench_scale.py cluster [--frames 200] [--size 256] [--workers 2]
+
+``cluster``: a ``--frames``-frame ``--size``² uint8 TIFF stack (a speckle
+pattern translated by 0.05 px more each frame, 1 grey level of noise) is
+tracked by ``track(path, scheduler=client, out_dir=...)`` on a
+``LocalCluster`` of ``--workers`` one-thread worker processes (subset 31,
+step 16, accumulative). Reported: the client process's resident memory
+(VmRSS; the LocalCluster's scheduler lives in it too) after frame 20 and
+after the last frame, frames per second, the largest task graph dask warned
+about ("Sending large graph"), and the time to read one frame of the TIFF
+through one open ``FrameSource`` versus opening the file for every frame.
+The stack is generated once into ``benchmarks/_cache/`` (not tracked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+CACHE = HERE / "_cache"
+
+
+def rss_mb() -> float:
+    """Resident memory of this process (MB), from /proc."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def make_stack(frames: int, size: int) -> Path:
+    import tifffile
+
+    from napari_aldic.engine import synthetic as S
+
+    path = CACHE / f"scale_{frames}x{size}.tif"
+    if path.exists():
+        return path
+    CACHE.mkdir(exist_ok=True)
+    pat = S.make_pattern((size, size), seed=3, margin=16)
+    stack = np.stack([S.render(pat, (size, size), S.Affine.strain_rotation(t=(0.05 * k, 0.0)),
+                               n_quad=1, noise=1.0, seed=k) for k in range(frames)])
+    tifffile.imwrite(path, np.clip(stack, 0, 255).astype(np.uint8), photometric="minisblack")
+    return path
+
+
+def tiff_reads(path: Path, n: int = 20) -> dict:
+    """ms per frame: one open FrameSource vs a FrameSource (file) per frame."""
+    from napari_aldic.engine.io import FrameSource
+
+    with FrameSource(path) as src:
+        ks = np.linspace(1, len(src) - 1, n).astype(int)
+        t = time.perf_counter()
+        for k in ks:
+            src[k]
+        kept = (time.perf_counter() - t) / n
+    t = time.perf_counter()
+    for k in ks:
+        with FrameSource(path) as one:
+            one[k]
+    fresh = (time.perf_counter() - t) / n
+    return {"open_ms_per_frame": 1e3 * kept, "reopen_ms_per_frame": 1e3 * fresh}
+
+
+def cluster(frames: int, size: int, workers: int) -> dict:
+    from distributed import Client, LocalCluster
+
+    from napari_aldic.engine import track
+
+    path = make_stack(frames, size)
+    out = Path(tempfile.mkdtemp(prefix="bench_scale_"))
+    rss: dict = {}
+    graphs: list[str] = []
+    t0 = time.perf_counter()
+
+    def on_frame(k, res):
+        if k in (20, frames - 1):
+            rss[k] = rss_mb()
+
+    try:
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as lc, Client(lc) as client, \
+                warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            start = rss_mb()
+            seq = track(path, subset=31, step=16, scheduler=client, out_dir=out / "run",
+                        on_frame=on_frame)
+            graphs = [str(w.message).split(".")[0] for w in caught
+                      if "large graph" in str(w.message)]
+        seconds = time.perf_counter() - t0
+        last = seq[frames - 1]
+        truth = 0.05 * (frames - 1)
+        err = float(np.nanmax(np.abs(last.u[last.valid] - truth)))
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    return {"frames": frames, "size": size, "workers": workers,
+            "client_rss_mb_start": round(start, 1),
+            "client_rss_mb_frame20": round(rss[20], 1),
+            f"client_rss_mb_frame{frames - 1}": round(rss[frames - 1], 1),
+            "rss_growth_mb": round(rss[frames - 1] - rss[20], 1),
+            "frames_per_s": round((frames - 1) / seconds, 2),
+            "large_graph_warnings": graphs, "last_frame_max_error_px": round(err, 4),
+            **{k: round(v, 2) for k, v in tiff_reads(path).items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("part", choices=["cluster"])
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    if args.part == "cluster":
+        print(json.dumps(cluster(args.frames, args.size, args.workers), indent=1))
+
+
+if __name__ == "__main__":
+    main()

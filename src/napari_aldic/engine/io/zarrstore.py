@@ -1,0 +1,144 @@
+"""The stacked field store of a run folder: ``fields.zarr``.
+
+``track(out_dir=...)`` writes each finished frame twice: its exact result
+file ``frame_#####.npz`` (every node, quadtree nodes included, and the full
+metadata: the record that ``load_run``, exports and resuming read), and one
+slice of this chunked zarr store, so that a long sequence can be read field
+by field, frame range by frame range, without loading result files:
+
+* ``u``, ``v``, ``dudx``, ``dudy``, ``dvdx``, ``dvdy``, ``zncc`` -- float64,
+  shape ``(T, ny, nx)`` on the node lattice (rows = y; ``T`` analysed
+  frames, in the order of ``attrs["frames"]``), one chunk per frame (frames
+  finishing in any order never share a chunk); untrusted nodes keep their
+  values, see ``valid``;
+* ``valid`` (bool) and ``reason`` (int8, :class:`~napari_aldic.engine.Reason`
+  codes; -1 where no node is), same shape;
+* per-frame metadata, shape ``(T,)``: ``done`` (bool), ``frame`` and
+  ``reference_frame`` (int32, -1 until done), ``n_valid`` (int64), and the
+  size and modification time of the frame's result file (``file_size``,
+  ``file_mtime_ns``), which let a resumed run trust a finished frame
+  without reading its file;
+* ``attrs``: ``format`` ("napari-aldic-fields"), ``format_version``,
+  ``run_id`` (as in ``sequence.json``), ``frames``, ``grid_xs``, ``grid_ys``.
+
+Open it with ``zarr.open_group(folder / "fields.zarr", mode="r")`` or
+:func:`open_fields`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["FieldStore", "open_fields", "STORE_NAME", "STORE_FIELDS"]
+
+STORE_NAME = "fields.zarr"
+STORE_FORMAT = "napari-aldic-fields"
+STORE_VERSION = 1
+#: the node fields stored as (T, ny, nx) float64 arrays
+STORE_FIELDS = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
+_PER_FRAME = {"done": (bool, False), "frame": ("int32", -1), "reference_frame": ("int32", -1),
+              "n_valid": ("int64", 0), "file_size": ("int64", -1),
+              "file_mtime_ns": ("int64", -1)}
+
+
+def open_fields(folder):
+    """The ``fields.zarr`` group of run ``folder``, read-only."""
+    import zarr
+
+    path = Path(os.fspath(folder)).expanduser() / STORE_NAME
+    if not path.is_dir():
+        raise FileNotFoundError(f"no field store at {path}")
+    return zarr.open_group(str(path), mode="r")
+
+
+class FieldStore:
+    """Writer of a run folder's ``fields.zarr`` (one process writes it, under
+    the run folder's lock).
+
+    Parameters
+    ----------
+    folder : Path
+        The run folder.
+    run_id : str
+        The run's identity digest; a store of another run is refused.
+    frames : list of int
+        The analysed frame numbers (``T = len(frames)``).
+    grid_xs, grid_ys : array
+        The node lattice (of frame 0's result).
+    """
+
+    def __init__(self, folder: Path, run_id: str, frames: list[int], grid_xs, grid_ys):
+        import zarr
+
+        self.path = Path(folder) / STORE_NAME
+        self.frames = list(frames)
+        shape = (len(self.frames), len(grid_ys), len(grid_xs))
+        self.grid_shape = shape[1:]
+        fresh = not self.path.exists()
+        self.group = zarr.open_group(str(self.path), mode="a")
+        if not fresh:
+            old = dict(self.group.attrs)
+            if old.get("run_id") != run_id or old.get("frames") != self.frames:
+                raise ValueError(f"{self.path} holds the fields of another analysis (run "
+                                 f"{old.get('run_id')}, this run {run_id}); delete it to "
+                                 "write it again from the result files")
+            return
+        self.group.attrs.update({"format": STORE_FORMAT, "format_version": STORE_VERSION,
+                                 "run_id": run_id, "frames": self.frames,
+                                 "grid_xs": [float(x) for x in grid_xs],
+                                 "grid_ys": [float(y) for y in grid_ys]})
+        chunks = (1,) + shape[1:]
+        for name in STORE_FIELDS:
+            self.group.create_array(name, shape=shape, chunks=chunks, dtype="float64",
+                                    fill_value=np.nan)
+        self.group.create_array("valid", shape=shape, chunks=chunks, dtype=bool,
+                                fill_value=False)
+        self.group.create_array("reason", shape=shape, chunks=chunks, dtype="int8",
+                                fill_value=-1)
+        n = len(self.frames)
+        for name, (dtype, fill) in _PER_FRAME.items():
+            self.group.create_array(name, shape=(n,), chunks=(min(n, 4096),), dtype=dtype,
+                                    fill_value=fill)
+
+    def write(self, i: int, res) -> None:
+        """Write the fields of ``frames[i]`` (its result ``res``); call
+        :meth:`mark_done` once its result file is on disk."""
+        if tuple(res.grid_shape) != self.grid_shape:
+            raise ValueError(f"frame {self.frames[i]} has a node lattice of shape "
+                             f"{tuple(res.grid_shape)}, the field store {self.grid_shape}")
+        for name in STORE_FIELDS:
+            self.group[name][i] = res.to_grid(name, invalid=None)
+        on = res.grid_ix >= 0
+        for name, values, fill in (("valid", res.valid, False), ("reason", res.reason, -1)):
+            grid = np.full(self.grid_shape, fill, dtype=np.asarray(values).dtype)
+            grid[res.grid_iy[on], res.grid_ix[on]] = np.asarray(values)[on]
+            self.group[name][i] = grid
+
+    def mark_done(self, i: int, res, file: Path | None) -> None:
+        """Record frame ``frames[i]`` as finished (and its result file's size
+        and modification time)."""
+        st = os.stat(file) if file is not None else None
+        self.group["frame"][i] = self.frames[i]
+        self.group["reference_frame"][i] = int(res.meta.get("reference_frame", 0))
+        self.group["n_valid"][i] = int(res.n_valid)
+        self.group["file_size"][i] = st.st_size if st else -1
+        self.group["file_mtime_ns"][i] = st.st_mtime_ns if st else -1
+        self.group["done"][i] = True
+
+    def trusted(self) -> np.ndarray:
+        """Per analysed frame: finished in the store, and its result file is
+        the one written then (same size and modification time)."""
+        done = np.asarray(self.group["done"][:])
+        size = np.asarray(self.group["file_size"][:])
+        mtime = np.asarray(self.group["file_mtime_ns"][:])
+        ok = np.zeros(len(self.frames), bool)
+        for i in np.nonzero(done)[0]:
+            try:
+                st = os.stat(self.path.parent / f"frame_{self.frames[i]:05d}.npz")
+            except OSError:
+                continue
+            ok[i] = st.st_size == size[i] and st.st_mtime_ns == mtime[i]
+        return ok
