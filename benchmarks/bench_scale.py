@@ -8,9 +8,10 @@ Usage::
 pattern translated by 0.05 px more each frame, 1 grey level of noise) is
 tracked by ``track(path, scheduler=client, out_dir=...)`` on a
 ``LocalCluster`` of ``--workers`` one-thread worker processes (subset 31,
-step 16, accumulative). Reported: the client process's resident memory
+step ``--step``, default 16; accumulative). Reported: the client process's resident memory
 (VmRSS; the LocalCluster's scheduler lives in it too) after frame 20 and
-after the last frame, frames per second, the largest task graph dask warned
+after the last frame, frames per second (``--in-memory``: the stack given
+as an array), the largest task graph dask warned
 about ("Sending large graph"), and the time to read one frame of the TIFF
 through one open ``FrameSource`` versus opening the file for every frame.
 The stack is generated once into ``benchmarks/_cache/`` (not tracked).
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import tempfile
 import time
@@ -74,12 +76,17 @@ def tiff_reads(path: Path, n: int = 20) -> dict:
     return {"open_ms_per_frame": 1e3 * kept, "reopen_ms_per_frame": 1e3 * fresh}
 
 
-def cluster(frames: int, size: int, workers: int) -> dict:
+def cluster(frames: int, size: int, workers: int, step: int = 16,
+            in_memory: bool = False) -> dict:
     from distributed import Client, LocalCluster
 
     from napari_aldic.engine import track
 
     path = make_stack(frames, size)
+    if in_memory:  # frames scattered one by one instead of read by the workers
+        import tifffile
+
+        stack = tifffile.imread(path)
     out = Path(tempfile.mkdtemp(prefix="bench_scale_"))
     rss: dict = {}
     graphs: list[str] = []
@@ -95,23 +102,27 @@ def cluster(frames: int, size: int, workers: int) -> dict:
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             start = rss_mb()
-            seq = track(path, subset=31, step=16, scheduler=client, out_dir=out / "run",
-                        on_frame=on_frame)
-            graphs = [str(w.message).split(".")[0] for w in caught
-                      if "large graph" in str(w.message)]
+            seq = track(stack if in_memory else path, subset=31, step=step, scheduler=client,
+                        out_dir=out / "run", on_frame=on_frame)
+            graphs = [re.search(r"large graph of size ([\d.]+ \w+)", str(w.message))
+                      for w in caught]
+            graphs = [g.group(1) for g in graphs if g]
         seconds = time.perf_counter() - t0
         last = seq[frames - 1]
         truth = 0.05 * (frames - 1)
         err = float(np.nanmax(np.abs(last.u[last.valid] - truth)))
     finally:
         shutil.rmtree(out, ignore_errors=True)
-    return {"frames": frames, "size": size, "workers": workers,
+    return {"frames": frames, "size": size, "workers": workers, "step": step,
+            "in_memory": in_memory,
+            "nodes": len(last),
             "client_rss_mb_start": round(start, 1),
             "client_rss_mb_frame20": round(rss[20], 1),
             f"client_rss_mb_frame{frames - 1}": round(rss[frames - 1], 1),
             "rss_growth_mb": round(rss[frames - 1] - rss[20], 1),
             "frames_per_s": round((frames - 1) / seconds, 2),
-            "large_graph_warnings": graphs, "last_frame_max_error_px": round(err, 4),
+            "large_graph_warnings": len(graphs), "large_graph_first": graphs[:1],
+            "last_frame_max_error_px": round(err, 4),
             **{k: round(v, 2) for k, v in tiff_reads(path).items()}}
 
 
@@ -121,9 +132,13 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--in-memory", action="store_true", dest="in_memory",
+                    help="pass the stack as an array instead of its path")
+    ap.add_argument("--step", type=int, default=16, help="node spacing (4: ~4k nodes/frame)")
     args = ap.parse_args()
     if args.part == "cluster":
-        print(json.dumps(cluster(args.frames, args.size, args.workers), indent=1))
+        print(json.dumps(cluster(args.frames, args.size, args.workers, args.step,
+                                 args.in_memory), indent=1))
 
 
 if __name__ == "__main__":

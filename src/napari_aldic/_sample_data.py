@@ -9,6 +9,7 @@ functions also work in scripts and tests.
 * :func:`make_strain_sequence` - 5 frames of uniform strain growing 0 -> 2 %
 * :func:`make_plate_with_hole` - Kirsch field around a hole, with its ROI
 * :func:`load_open_hole_pair` - real open-hole tension images (CFRP coupon)
+* :func:`load_crack_sequence` - real crack growing from a notch (6 frames, cropped)
 
 The synthetic pairs carry their exact displacement in the layer ``metadata``
 under ``"truth"``.
@@ -21,11 +22,13 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["make_translation_pair", "make_crack_pair", "make_strain_sequence",
-           "make_plate_with_hole", "load_open_hole_pair", "sample_data_dir", "open_hole_roi"]
+           "make_plate_with_hole", "load_open_hole_pair", "load_crack_sequence",
+           "sample_data_dir", "open_hole_roi", "CRACK_FILE"]
 
 #: translation of :func:`make_translation_pair`, pixels (u along x, v along y)
 TRANSLATION = (0.45, -0.3)
 OPEN_HOLE_FILES = ("oht_cfrp_00.tiff", "oht_cfrp_11.tiff")
+CRACK_FILE = "crack_notch_crop.tif"
 
 
 def make_translation_pair():
@@ -161,3 +164,23 @@ def load_open_hole_pair():
                  "contrast_limits": (0, 255)}, "image"),
         (roi, {"name": "ROI (estimated, hole excluded)", "opacity": 0.3}, "labels"),
     ]
+
+
+def load_crack_sequence():
+    """A real crack growing from a notch: 6 frames of 384 x 384 px (uint8),
+    cropped from the 2D_ALDIC crack sequence (Jin Yang, BSD-3-Clause; see
+    ``README.md`` and ``LICENSE-2D_ALDIC-data.txt`` beside the file).
+
+    The specimen moves ~57 px upwards over the frames while the crack opens;
+    the notch and the background (white, at the left) must be left out of the
+    region of interest. The user guide walks through this analysis.
+    """
+    import tifffile
+
+    path = sample_data_dir("crack_sequence") / CRACK_FILE
+    stack = tifffile.imread(path)
+    meta = {"source": str(path),
+            "description": "crack growing from a notch; 2D_ALDIC (Jin Yang), BSD-3-Clause, "
+                           "cropped and converted to 8 bits (see README.md beside the file)"}
+    return [(stack, {"name": "crack from a notch (real)", "metadata": meta,
+                     "contrast_limits": (0, 255), "axis_labels": ("t", "y", "x")}, "image")]

@@ -140,8 +140,8 @@ def test_run_stack_into_folder_with_plot(stack_case, tmp_path):
     rc, _, err = _run(["run", path, "-o", tmp_path / "results", "--step", 16, "--plot"])
     assert rc == 0, err
     names = sorted(p.name for p in (tmp_path / "results").iterdir())
-    assert names[:-2] == ["frame_00000.npz", "frame_00001.npz", "frame_00001.png",
-                          "frame_00002.npz", "frame_00002.png"]
+    assert names[:-2] == ["fields.zarr", "frame_00000.npz", "frame_00001.npz",
+                          "frame_00001.png", "frame_00002.npz", "frame_00002.png"]
     assert names[-2].startswith("roi_") and names[-1] == "sequence.json"
 
 

@@ -162,3 +162,11 @@ def test_cli_scheduler_option(tif, tmp_path):
     with redirect_stdout(io.StringIO()), redirect_stderr(err := io.StringIO()):
         rc = main(["run", str(tif), "-o", str(tmp_path / "b"), "--scheduler", "cluster"])
     assert rc == 2 and "'cluster' is not 'threads', 'processes' or a dask" in err.getvalue()
+
+
+@pytest.mark.slow  # starts two worker processes (about 10 s)
+def test_processes_scheduler_equals_threads(tif, tmp_path):
+    pytest.importorskip("distributed")
+    threaded = track(tif, scheduler="threads", workers=2, **FAST)
+    _same(track(tif, scheduler="processes", workers=2, out_dir=tmp_path / "run", **FAST),
+          threaded)

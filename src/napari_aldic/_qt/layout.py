@@ -8,7 +8,7 @@ line, Run, Cancel and the progress stay in view.
 
 from __future__ import annotations
 
-from qtpy.QtCore import Qt
+from qtpy.QtCore import QEvent, QSize, Qt
 from qtpy.QtWidgets import QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
@@ -16,6 +16,30 @@ __all__ = ["sections_area", "divider", "Section"]
 
 #: ``(title, widget, expanded)``
 Section = tuple[str, QWidget, bool]
+
+
+class _Scroll(QScrollArea):
+    """A vertical scroll area at least as wide as its content needs, so that the
+    dock never cuts controls off at the right."""
+
+    def _wide(self, hint: QSize) -> QSize:
+        inner = self.widget()
+        if inner is None:
+            return hint
+        need = inner.minimumSizeHint().width() + self.verticalScrollBar().sizeHint().width()
+        return QSize(max(hint.width(), need + 2 * self.frameWidth()), hint.height())
+
+    def minimumSizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
+        return self._wide(super().minimumSizeHint())
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
+        # the content's needs changed (e.g. a long layer name): ask the dock again
+        if obj is self.widget() and event.type() == QEvent.Type.LayoutRequest:
+            self.updateGeometry()
+        return super().eventFilter(obj, event)
+
+    def sizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
+        return self._wide(super().sizeHint())
 
 
 def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QCollapsible]]:
@@ -42,9 +66,10 @@ def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QColl
         layout.addWidget(box)
         found[title] = box
     layout.addStretch(1)
-    scroll = QScrollArea()
+    scroll = _Scroll()
     scroll.setWidgetResizable(True)
     scroll.setWidget(inner)
+    inner.installEventFilter(scroll)
     scroll.setFrameShape(QFrame.Shape.NoFrame)
     scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
     return scroll, found

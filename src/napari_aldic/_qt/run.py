@@ -27,6 +27,8 @@ from .controls import Panel
 
 __all__ = ["RunPanel", "format_seconds", "PREPARING"]
 
+#: pause between two steps of showing the results (one layer each), in ms
+STEP_PAUSE_MS = 15
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = "Preparing the correlation engine (first run only)…"
 
@@ -91,8 +93,12 @@ class RunPanel(Panel):
                             labels=False)
         buttons.margins = (0, 0, 0, 0)
         self.extend([self.status, buttons, self.progress, self.eta])
-        self.status.native.setWordWrap(True)
-        self.eta.native.setWordWrap(True)
+        from qtpy.QtWidgets import QSizePolicy
+
+        for label in (self.status, self.eta):
+            label.native.setWordWrap(True)  # every line shown: the label grows, not clips
+            label.native.setSizePolicy(QSizePolicy.Policy.Preferred,
+                                       QSizePolicy.Policy.Minimum)
         self.log.native.setMinimumHeight(80)
         self._clock = QTimer(self.native)
         self._clock.setInterval(500)  # elapsed time moves between frames too
@@ -237,7 +243,8 @@ class RunPanel(Panel):
         try:
             if self._steps is not None:
                 next(self._steps)
-                QTimer.singleShot(0, lambda: self._drive(final))
+                # a short pause: the event loop (paint, input) runs between two steps
+                QTimer.singleShot(STEP_PAUSE_MS, lambda: self._drive(final))
                 return
         except StopIteration:
             pass

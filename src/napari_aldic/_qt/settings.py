@@ -19,7 +19,7 @@ from magicgui.widgets import Container, PushButton
 from psygnal import Signal
 
 from .._analysis import describe_fields
-from ..engine import DICParams, Settings, Units
+from ..engine import DICParams, Settings
 from ..engine.io import read_settings, write_settings
 from . import prefs
 from .controls import Panel, Plan, apply_plan
@@ -33,10 +33,9 @@ from .units import UnitsPanel
 __all__ = ["SettingsPanel", "JSON_FILTER", "message"]
 
 JSON_FILTER = "DIC parameters (*.json);;All files (*)"
-#: what "Restore defaults" sets (the frame range: the whole stack)
-DEFAULTS = Settings(DICParams(), Units(), {"window": 5, "method": "plane_fit",
-                                           "measure": "green_lagrange"},
-                    {"reference": "accumulative", "start": 0, "stop": None, "stride": 1})
+#: the display choices "Restore defaults" sets
+DISPLAY_DEFAULTS = {"show_field": "|u|", "vectors": True, "vector_length": 0.0, "mesh": False,
+                    "deformed": False, "rigid": False}
 
 
 def message(exc: BaseException) -> str:
@@ -69,6 +68,12 @@ class SettingsPanel(Panel):
         self._log, self._apply_units = log, apply_units
         self._folder: Path | None = None  # folder of the last file
         self.projects = ProjectActions(self, inputs, correlation, display, viewer, log)
+        c = correlation  # the controls' first values are the defaults
+        self._defaults = [(w, w.value) for w in (
+            c.method, c.subset, c.step, c.search, c.refine, c.smooth, c.smooth_px, c.init,
+            c.reference, c.start, c.stride, strain.strain_window, strain.strain_method,
+            strain.strain_measure, units.unit, units.pixel_size, units.time_unit,
+            units.frame_interval)]
         super().__init__(labels=False, margins=None)
 
     def _setup_ui(self) -> None:
@@ -234,11 +239,18 @@ class SettingsPanel(Panel):
         return ok
 
     def restore_defaults(self) -> None:
-        """Every parameter, unit and display choice back to its default."""
+        """Every parameter, unit and display choice back to its default (the frame
+        range: the whole stack)."""
+        units_before = self._units.values
+        with self._units.quiet():
+            apply_plan([*self._defaults, (self._correlation.stop,
+                                          int(self._correlation.stop.max))])
         self._correlation.extra_params = {}
-        self.apply(DEFAULTS, "the defaults", "fft")
-        self._display.set_choices({"show_field": "|u|", "vectors": True, "vector_length": 0.0,
-                                   "mesh": False, "deformed": False, "rigid": False})
+        if self._units.values != units_before:
+            self._apply_units()
+        self._display.set_choices(DISPLAY_DEFAULTS)
+        self._log(f"defaults restored: {self.summary()}")
+        self.settings_loaded.emit()
 
     # ------------------------------------------------------------ files
     def save(self, path) -> Path | None:

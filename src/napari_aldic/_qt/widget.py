@@ -50,6 +50,8 @@ CONTROLS = {
                  "open_project_button", "defaults_button"),
     "run_panel": ("status", "run_button", "cancel_button", "progress", "eta", "log"),
 }
+#: make the result layer objects in the run's worker thread too (not only their data)
+LAYERS_IN_WORKER = True
 #: the sections, top to bottom: (title, panel attribute, expanded at first)
 SECTIONS = (("1. Images and region", "inputs", True),
             ("2. Mesh and correlation", "correlation", True),
@@ -97,6 +99,7 @@ class DICWidget(Container):
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
         scroll, self.sections = sections_area(sections)
+        self.scroll_area = scroll
         layout = self.native.layout()
         layout.addWidget(scroll, 1)
         layout.addWidget(divider(), 0)
@@ -292,7 +295,7 @@ class DICWidget(Container):
         self._results.image = image
         geometry, display = geometry_of(image), self._display_options()
         # the result layers are made in the worker too: the viewer only adds them
-        self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, True),
+        self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, LAYERS_IN_WORKER),
                              before=warmup.wait)
 
     def cancel(self, *_) -> None:
@@ -317,11 +320,13 @@ class DICWidget(Container):
                 self.inputs.image_layer))
         if prepared is not None:
             yield from self._results.steps(prepared)
+        self._results.show_field(display.visible_field)
+        yield
         self._after_show(display)
+        yield
         self._results.go_to_last_frame()
 
     def _after_show(self, display) -> None:
-        self._results.show_field(display.visible_field)
         last = next((r for r in reversed(self.analysis.results) if r is not None), None)
         counts = {}
         if last is not None:

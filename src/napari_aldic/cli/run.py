@@ -1,7 +1,9 @@
 """``napari-aldic run``: correlate a pair, a TIFF stack or a folder of images
 against frame 0. A pair given ``-o OUT.npz`` writes one result file; a stack
 (or any input given ``-o FOLDER``) writes a run folder in ``track``'s format
-(``sequence.json``, ``frame_#####.npz``), which the same command resumes."""
+(``sequence.json``, ``frame_#####.npz``, ``fields.zarr``), which the same command
+resumes; ``--scheduler threads|processes|ADDRESS`` runs its frames in parallel
+(on a dask cluster at ADDRESS: docs/cluster.md)."""
 
 from __future__ import annotations
 

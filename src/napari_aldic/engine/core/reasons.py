@@ -35,9 +35,9 @@ class Reason(IntEnum):
     BEYOND_SEARCH = 10
     #: predicted standard uncertainty of ``u`` or ``v`` above ``max_uncertainty``
     UNCERTAIN = 11
-    #: AL-DIC: the global field departs from what the node's own subset
-    #: matches best by more than its noise allows (e.g. smoothed across an
-    #: unmasked crack)
+    #: AL-DIC: the subset matches the global field's warp clearly worse than
+    #: its own local match, beyond what noise allows (e.g. a field smoothed
+    #: across an unmasked crack)
     GLOBAL_MISMATCH = 12
 
     @classmethod
@@ -56,5 +56,5 @@ class Reason(IntEnum):
             9: "poor match (residual above image noise)",
             10: "motion beyond the search range",
             11: "uncertain (noise)",
-            12: "global field departs from the subset match",
+            12: "global field departs from the subset match (AL-DIC)",
         }.get(int(code), f"unknown ({code})")

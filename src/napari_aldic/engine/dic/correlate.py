@@ -163,6 +163,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         meta["admm_history"] = sol.history
     if sol.regularisation is not None:
         meta["regularisation"] = sol.regularisation
+    if sol.validity is not None:
+        meta["validity"] = sol.validity
     timing["total"] = time.perf_counter() - t_start
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
@@ -187,6 +189,8 @@ class _Solution:
     v_local: np.ndarray | None = None
     history: list | None = None
     regularisation: dict | None = None
+    std: np.ndarray | None = None  # (n, 2) standard uncertainty of the local u, v (px)
+    validity: dict | None = None  # noise levels behind the validity tests
 
 
 def reference_result(image, roi=None, params: DICParams | None = None,
@@ -232,7 +236,8 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
                                          validity, guess=guess)
     mesh = qmesh.mesh if qmesh is not None else None
     sol = _Solution(sub, p[:, 0].copy(), p[:, 3].copy(), p[:, [1, 2, 4, 5]].copy(), zncc,
-                    reason, iters, mesh)
+                    reason, iters, mesh, std=validity.std(zncc),
+                    validity=validity.summary(zncc, reason == Reason.OK))
     if params.method != "aldic":
         return sol
     report(0.85, "AL-DIC iterations")
@@ -267,7 +272,8 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     reason = _aldic_reasons(validity, state, trusted, reason, zncc, zncc_local)
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
-                     sol.u, sol.v, state.history, dict(table, smooth_px=smooth))
+                     sol.u, sol.v, state.history, dict(table, smooth_px=smooth),
+                     sol.std, validity.summary(zncc_local, reason == Reason.OK))
 
 
 def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: float) -> str:

@@ -125,7 +125,10 @@ class _Shipper:
     def __init__(self, run, client):
         self.run, self.client = run, client
         self.files = not run.src.in_memory
-        self.source = client.scatter(run.src, broadcast=True) if self.files else None
+        # hash=False: a new key per run, so no worker reuses a source (and its
+        # open file) of an earlier run on a file rewritten since
+        self.source = (client.scatter(run.src, broadcast=True, hash=False) if self.files
+                       else None)
         self.refine = (client.scatter(run.refine, broadcast=True, hash=False)
                        if run.refine is not None else None)
         self._refs: dict = {}  # reference frame -> scattered image (accumulative)
@@ -166,21 +169,24 @@ def _run_dask(run, client, todo: list[int], cancel) -> bool:
 
     ship = _Shipper(run, client)
     params = one_thread(run.params)
-    window = max(2, 2 * sum(client.nthreads().values()))
     queue = iter(todo)
     futs: dict = {}
     ac = as_completed()
     col = _Collector(run)
 
-    def submit_next() -> None:
-        i = next(queue, None)
-        if i is not None:
+    def top_up() -> None:
+        """Two tasks per worker thread in flight (workers may join late, e.g.
+        batch jobs that start after the run)."""
+        window = max(2, 2 * sum(client.nthreads().values()))
+        while len(futs) < window:
+            i = next(queue, None)
+            if i is None:
+                return
             fu = ship.submit(i, params)
             futs[fu] = i
             ac.add(fu)
 
-    for _ in range(window):
-        submit_next()
+    top_up()
     for fu in ac:
         i = futs.pop(fu)
         col.collect([(fu, i)], list(futs))
@@ -189,5 +195,5 @@ def _run_dask(run, client, todo: list[int], cancel) -> bool:
             for other in futs:
                 other.cancel()
             return True
-        submit_next()
+        top_up()
     return False
