@@ -121,13 +121,6 @@ class InputsPanel(Panel):
                      self.brush, self.seeds, buttons])
         for sel in (self.roi_add, self.roi_subtract):
             sel.native.setMaximumHeight(64)
-        from qtpy.QtWidgets import QComboBox
-
-        for combo in (self.image, self.roi_labels, self.brush, self.seeds):
-            # long layer names must not widen the dock beyond the window
-            combo.native.setSizeAdjustPolicy(
-                QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
-            combo.native.setMinimumContentsLength(12)
 
     def _setup_callbacks(self) -> None:
         layers = self._viewer.layers

@@ -9,7 +9,7 @@ line, Run, Cancel and the progress stay in view.
 from __future__ import annotations
 
 from qtpy.QtCore import QEvent, QSize, Qt
-from qtpy.QtWidgets import QFrame, QScrollArea, QVBoxLayout, QWidget
+from qtpy.QtWidgets import QComboBox, QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
 __all__ = ["sections_area", "divider", "Section"]
@@ -66,6 +66,11 @@ def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QColl
         layout.addWidget(box)
         found[title] = box
     layout.addStretch(1)
+    for combo in inner.findChildren(QComboBox):
+        # long choices (layer names, formats) must not widen the dock beyond the window
+        combo.setSizeAdjustPolicy(
+            QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
+        combo.setMinimumContentsLength(10)
     scroll = _Scroll()
     scroll.setWidgetResizable(True)
     scroll.setWidget(inner)

@@ -105,7 +105,6 @@ class DICWidget(Container):
         layout.addWidget(divider(), 0)
         layout.addWidget(self.run_panel.native, 0)
         layout.setContentsMargins(0, 0, 0, 0)
-        self.native.setMinimumWidth(330)
 
     def _setup_callbacks(self) -> None:
         self.inputs.image.changed.connect(self._on_image_changed)

@@ -157,7 +157,8 @@ def _mesh_page(fr_list, units, info, line, image):
         ax.plot(res.x[sel] * ps, res.y[sel] * ps, linestyle="none",
                 marker="o" if code == 0 else "x", markersize=2.5 if code == 0 else 6,
                 markeredgewidth=1.0 if code == 0 else 1.8, color=reason_colour(code),
-                label=f"{int(code)}: {Reason.describe(int(code))} ({int(sel.sum())})")
+                label="\n".join(wrap(f"{int(code)}: {Reason.describe(int(code))} "
+                                     f"({int(sel.sum())})", 3.2, 8)))
     if line is not None:
         ax.plot([line[0] * ps, line[2] * ps], [line[1] * ps, line[3] * ps], "-", color="m",
                 lw=1.5, label="profile line")
