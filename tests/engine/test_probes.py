@@ -361,6 +361,17 @@ def test_each_load_dialect_parses_to_the_same_loads(dialect, tmp_path):
     np.testing.assert_array_equal(rec.frame, np.arange(LOAD_T.size))
 
 
+def test_german_export_with_compound_names_bom_and_crlf(tmp_path):
+    # testXpert in German: "Standardkraft", "Prüfzeit"; Excel adds a BOM and CRLF
+    path = tmp_path / "de.csv"
+    path.write_bytes("\ufeffPrüfung 7\r\nPrüfzeit;Standardkraft;Dehnung\r\ns;kN;%\r\n"
+                     "0,0;0,005;0\r\n0,5;1,25;0,1\r\n1,0;2,5;0,2\r\n".encode("utf-8"))
+    rec = read_load_csv(path)
+    assert rec.columns["load"] == "Standardkraft" and rec.columns["time"] == "Prüfzeit"
+    np.testing.assert_allclose(rec.load_N, [5.0, 1250.0, 2500.0], rtol=1e-12)
+    np.testing.assert_allclose(rec.time_s, [0.0, 0.5, 1.0], rtol=1e-12)
+
+
 def test_time_sync_interpolates_and_never_extrapolates(tmp_path):
     rec = read_load_csv(_write_load(tmp_path / "l.csv", "comma_plain"))
     frames = np.arange(7)

@@ -290,6 +290,10 @@ def test_displacement_figure_uses_units_and_the_data_range(tall_pair, tall_resul
     # u changes sign: a symmetric diverging scale
     ulo, uhi = axes[0].images[-1].get_clim()
     assert ulo == pytest.approx(-uhi)
+    # the v bar spans about 0.0003 mm near -0.25 mm: its tick labels must differ
+    fig.canvas.draw()
+    labels = [t.get_text() for t in bars[1].get_yticklabels() if t.get_text()]
+    assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
 
 
 def test_field_figures_are_laid_out_cleanly(export_sequence, tall_result):

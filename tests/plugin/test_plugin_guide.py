@@ -103,19 +103,23 @@ def test_guide_analysis_of_the_shipped_crack_sequence(make_napari_viewer, qtbot,
     assert abs(at(330, 248) - at(330, 208)) < 0.2 * opening
     assert np.nanmedian(last) < -50  # the specimen moved ~57 px up
 
-    # rigid-body motion removed for display: the opening stands out in v
+    # rigid-body motion removed, fields on the deformed specimen: the opening stands out
     w.rigid.value = True
+    w.deformed.value = True
     w.show_field.value = "v"
     viewer.dims.set_current_step(0, 5)
     qtbot.wait(200)
     save_screenshot(viewer, tmp_path / "guide_2_displacement.png")
     w.show_field.value = "eyy"
-    w.deformed.value = True
     w.vectors.value = False
+    w.scroll_area.ensureWidgetVisible(w.display.legend.native)
     qtbot.wait(200)
+    assert "Unreliable nodes (last frame)" in w.display.legend.value
     save_screenshot(viewer, tmp_path / "guide_3_strain.png")
     w.sections["6. Export"].expand(animate=False)
     w.exports.format.value = "csv"
+    qtbot.wait(100)
+    w.scroll_area.ensureWidgetVisible(w.exports.export_button.native)
     qtbot.wait(200)
     save_screenshot(viewer, tmp_path / "guide_4_export.png")
     written = w.exports.export(tmp_path / "crack.csv")

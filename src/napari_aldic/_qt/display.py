@@ -80,8 +80,15 @@ class DisplayPanel(Panel):
         self.note = Label(value=_NOTE_REFERENCE)
         self.legend = Label(value="Unreliable nodes: run an analysis first.")
         self.extend([self.show_field, toggles, self.vector_length, self.note, self.legend])
+        from qtpy.QtWidgets import QSizePolicy
+
         for label in (self.note, self.legend):
             label.native.setWordWrap(True)
+            # wrapped text takes the width there is (never widens the dock), and the
+            # height it needs then
+            label.native.setSizePolicy(QSizePolicy.Policy.Preferred,
+                                       QSizePolicy.Policy.Minimum)
+            label.native.setMinimumWidth(120)
 
     def _setup_callbacks(self) -> None:
         for w in (self.mesh, self.deformed, self.vectors, self.rigid):

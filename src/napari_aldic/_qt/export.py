@@ -93,7 +93,12 @@ class ExportPanel(Panel):
                                                 "chosen format.")
         self.extend([self.format, self.field, self.frames, self.fps, self.units_note,
                      self.export_button])
+        from qtpy.QtWidgets import QSizePolicy
+
         self.units_note.native.setWordWrap(True)
+        self.units_note.native.setSizePolicy(QSizePolicy.Policy.Preferred,
+                                             QSizePolicy.Policy.Minimum)
+        self.units_note.native.setMinimumWidth(120)
         self._on_format()
 
     def _setup_callbacks(self) -> None:

@@ -180,8 +180,15 @@ class ResultLayers:
                 self._viewer.layers.remove(old)
                 yield
         for (data, kw, kind), premade in zip(prepared.tuples, prepared.layers):
+            show = premade is not None and kw.get("visible", True) and \
+                self.layer(kw["metadata"]["napari_aldic"]["field"]) is None
+            if show:  # added hidden, shown in the next step: its first drawing is slow
+                premade.visible = False
             self._put(data, kw, kind, premade)
             yield
+            if show:
+                premade.visible = True
+                yield
 
     def _put(self, data, kw: dict, kind: str, premade=None) -> None:
         """Add a layer, or update the one of that field (replaced at the same place
@@ -205,13 +212,22 @@ class ResultLayers:
     def show_field(self, key: str) -> None:
         """Make field ``key`` the visible, active result image (its colour bar
         shown); the other field images are hidden."""
+        for _ in self.field_steps(key):
+            pass
+
+    def field_steps(self, key: str) -> Iterator[None]:
+        """:meth:`show_field` in three steps (visibility, colour bar, active layer)."""
         target = self.layer(key)
         for k in DISPLAY_FIELDS:
             lay = self.layer(k)
             if lay is not None:
                 lay.visible = k == key
-                if hasattr(lay, "colorbar"):
-                    lay.colorbar.visible = k == key
+        yield
+        for k in DISPLAY_FIELDS:
+            lay = self.layer(k)
+            if lay is not None and hasattr(lay, "colorbar"):
+                lay.colorbar.visible = k == key
+        yield
         if target is not None:
             self._viewer.layers.selection.active = target
 

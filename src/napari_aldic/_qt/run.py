@@ -99,6 +99,7 @@ class RunPanel(Panel):
             label.native.setWordWrap(True)  # every line shown: the label grows, not clips
             label.native.setSizePolicy(QSizePolicy.Policy.Preferred,
                                        QSizePolicy.Policy.Minimum)
+            label.native.setMinimumWidth(120)
         self.log.native.setMinimumHeight(80)
         self._clock = QTimer(self.native)
         self._clock.setInterval(500)  # elapsed time moves between frames too

@@ -319,7 +319,7 @@ class DICWidget(Container):
                 self.inputs.image_layer))
         if prepared is not None:
             yield from self._results.steps(prepared)
-        self._results.show_field(display.visible_field)
+        yield from self._results.field_steps(display.visible_field)
         yield
         self._after_show(display)
         yield

@@ -20,7 +20,7 @@ _FORMAT = "napari-aldic-result"
 _FORMAT_VERSION = 1
 _ARRAYS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc",
            "reason", "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys")
-_OPTIONAL = ("u_local", "v_local", "elements", "hanging")
+_OPTIONAL = ("u_local", "v_local", "u_std", "v_std", "elements", "hanging")
 
 
 @dataclass
@@ -59,6 +59,12 @@ class DICResult:
     u_local, v_local : (n,) float64 or None
         For ``method="aldic"``: the last local (subset) displacements, kept
         for inspection; ``u``/``v`` are then the compatible global field.
+    u_std, v_std : (n,) float64 or None
+        Predicted standard uncertainty of ``u`` and ``v`` at each node (pixels),
+        from the subset's Gauss-Newton matrix and its correlation residual
+        (``dic.reliability``); a node whose larger value exceeds
+        ``params.max_uncertainty`` is flagged ``UNCERTAIN``. NaN where the
+        subset did not converge.
     elements : (E, 4) int64 or None
         Q4 elements (corner node indices) of the AL-DIC / quadtree mesh.
     hanging : (H, 3) int64 or None
@@ -88,6 +94,8 @@ class DICResult:
     meta: dict[str, Any] = field(default_factory=dict)
     u_local: np.ndarray | None = None
     v_local: np.ndarray | None = None
+    u_std: np.ndarray | None = None
+    v_std: np.ndarray | None = None
     elements: np.ndarray | None = None
     hanging: np.ndarray | None = None
     roi: np.ndarray | None = None

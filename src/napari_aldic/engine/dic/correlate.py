@@ -349,6 +349,8 @@ def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: di
         grid_ix=grid.ix, grid_iy=grid.iy, grid_xs=grid.xs, grid_ys=grid.ys,
         image_shape=tuple(shape), params=params, meta=meta,
         u_local=sol.u_local, v_local=sol.v_local,
+        u_std=None if sol.std is None else sol.std[:, 0],
+        v_std=None if sol.std is None else sol.std[:, 1],
         elements=None if sol.mesh is None else sol.mesh.elements,
         hanging=None if sol.mesh is None else sol.mesh.hanging,
         roi=roi,

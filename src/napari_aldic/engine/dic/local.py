@@ -385,8 +385,9 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
 
 def _repair(st: _State, report: ProgressFn) -> None:
     """Repair failed, poorly matching or inconsistent nodes: grow trusted
-    regions into them, then try rotated searches at a few (when many fail)
-    and each node's own search (FFT mode), growing again after each."""
+    regions into them, then (FFT mode) try rotated searches at a few when no
+    node matches at all, and each node's own search, growing again after
+    each."""
     grid, roi, usable = st.grid, st.roi, st.usable
     nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
     zmin = st.floor()

@@ -20,7 +20,11 @@ thresholds and measured effect are in ``docs/method.md``, section 6):
 * **standard uncertainty** of ``u, v`` from the Gauss-Newton matrix of the
   subset and its own residual (noise in both images, the noise carried by
   the reference gradients removed), ``Var u ≈ 2 σ_e² [S⁻¹ H S⁻¹]_uu``;
-  a node whose uncertainty exceeds ``max_uncertainty`` is flagged.
+  a node whose uncertainty exceeds ``max_uncertainty`` is flagged;
+* **AL-DIC global mismatch** -- the subset must match the global field's warp
+  nearly as well as its own local match: the drop of ZNCC is converted to
+  the misfit it implies (:meth:`Validity.misfit`) and compared with
+  ``GLOBAL_TOLERANCE`` plus ``GLOBAL_SIGMAS`` standard uncertainties.
 
 References: J. Immerkær, "Fast noise variance estimation", Computer Vision and
 Image Understanding 64(2), 1996; B. Pan, "Reliability-guided digital image

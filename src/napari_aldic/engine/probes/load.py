@@ -134,7 +134,8 @@ def _find_column(names: list[str], kind: str, given: str | None, path: Path) -> 
         raise ValueError(f"{path}: no column {given!r}; columns: {', '.join(names)}")
     for i, n in enumerate(names):
         words = re.findall(r"[a-zäöü]+", _header_unit(n)[0].lower())
-        if any(w.startswith(k) for w in words for k in _KEYWORDS[kind]) or \
+        # endswith: German compounds put the keyword last (Standardkraft, Prüfzeit)
+        if any(w.startswith(k) or w.endswith(k) for w in words for k in _KEYWORDS[kind]) or \
                 (kind == "load" and words in (["f"], ["p"])) or (kind == "time" and words == ["t"]):
             return i
     return None

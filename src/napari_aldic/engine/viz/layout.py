@@ -130,14 +130,34 @@ def map_grid(n: int, shape, *, reserve_in: float = 1.2,
 def compact_ticks(axis, nbins: int = 5) -> None:
     """At most ``nbins`` ticks on ``axis`` labelled without an offset or a
     separate ``1e-5`` multiplier (those float above the axes, over titles)."""
-    from matplotlib.ticker import FuncFormatter, MaxNLocator
+    from matplotlib.ticker import Formatter, MaxNLocator
+
+    class _Compact(Formatter):
+        digits = 3
+
+        def set_locs(self, locs):
+            # a narrow range far from 0 (v from -0.0201 to -0.0199) needs more than
+            # 3 significant digits, or every tick reads "-0.02"
+            self.digits = 3
+
+        def __call__(self, value, pos=None):
+            return _tick_text(value, self.digits)
 
     axis.set_major_locator(MaxNLocator(nbins))
-    axis.set_major_formatter(FuncFormatter(_tick_text))
+    axis.set_major_formatter(_Compact())
 
 
-def _tick_text(value, _pos=None) -> str:
+def _tick_digits(locs: np.ndarray) -> int:
+    """Significant digits that tell the ticks ``locs`` apart (at least 3)."""
+    locs = np.unique(locs[np.isfinite(locs)])
+    if locs.size < 2:
+        return 3
+    step = np.diff(locs).min()
+    return int(np.clip(np.ceil(np.log10(np.abs(locs).max() / step)) + 1, 3, 8))
+
+
+def _tick_text(value, digits: int = 3) -> str:
     if value == 0 or not np.isfinite(value):
         return "0" if value == 0 else ""
-    text = f"{value:.3g}"
+    text = f"{value:.{digits}g}"
     return text.replace("e-0", "e-").replace("e+0", "e")
