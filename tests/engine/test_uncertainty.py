@@ -17,7 +17,8 @@ def test_predicted_uncertainty_matches_the_actual_error_and_survives_a_save(tmp_
         assert res.u_std is not None and np.isfinite(res.u_std[ok]).all()
         errs.append(np.concatenate([res.u[ok] - 2.3, res.v[ok] + 1.4]))
         preds.append(np.concatenate([res.u_std[ok], res.v_std[ok]]))
-    ratio = np.sqrt(np.mean(np.concatenate(errs) ** 2)) / np.sqrt(np.mean(np.concatenate(preds) ** 2))
+    rms = lambda a: np.sqrt(np.mean(np.concatenate(a) ** 2))  # noqa: E731
+    ratio = rms(errs) / rms(preds)
     # a wrong model (e.g. noise of one image only, or no noise at all) is off by >= 1.4x
     assert 0.75 < ratio < 1.35, ratio
     back = load_result(res.save(tmp_path / "r.npz"))

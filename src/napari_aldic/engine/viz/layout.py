@@ -138,7 +138,7 @@ def compact_ticks(axis, nbins: int = 5) -> None:
         def set_locs(self, locs):
             # a narrow range far from 0 (v from -0.0201 to -0.0199) needs more than
             # 3 significant digits, or every tick reads "-0.02"
-            self.digits = 3
+            self.digits = _tick_digits(np.asarray(locs, dtype=float))
 
         def __call__(self, value, pos=None):
             return _tick_text(value, self.digits)
