@@ -290,10 +290,23 @@ def test_displacement_figure_uses_units_and_the_data_range(tall_pair, tall_resul
     # u changes sign: a symmetric diverging scale
     ulo, uhi = axes[0].images[-1].get_clim()
     assert ulo == pytest.approx(-uhi)
-    # the v bar spans about 0.0003 mm near -0.25 mm: its tick labels must differ
-    fig.canvas.draw()
-    labels = [t.get_text() for t in bars[1].get_yticklabels() if t.get_text()]
-    assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
+
+
+def test_colour_bar_ticks_of_a_narrow_range_read_differently():
+    # v of a nearly rigid shift: -0.0201 to -0.0199 mm (3 digits: every tick "-0.02")
+    from matplotlib.figure import Figure
+
+    from napari_aldic.engine.viz.layout import compact_ticks
+
+    for lo, hi in ((-0.0201, -0.0199), (100.0, 100.004), (-1.2, 1.2), (0.0, 6e-5)):
+        fig = Figure()
+        ax = fig.add_subplot()
+        ax.set_ylim(lo, hi)
+        compact_ticks(ax.yaxis)
+        fig.canvas.draw()
+        labels = [t.get_text() for t in ax.get_yticklabels() if t.get_text()]
+        assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
+        assert all(len(t) <= 9 for t in labels), labels
 
 
 def test_field_figures_are_laid_out_cleanly(export_sequence, tall_result):
@@ -301,3 +314,12 @@ def test_field_figures_are_laid_out_cleanly(export_sequence, tall_result):
                        (export_sequence, "zncc")):
         fig = field_figure(data, name, units=MM)
         assert not layout_problems(fig), name
+
+
+def test_report_of_a_run_folder_names_the_folder_and_the_stack(export_run_folder):
+    from napari_aldic.engine.io import collect_frames
+    from napari_aldic.engine.viz.provenance import image_sources
+
+    frames, _units, info = collect_frames(export_run_folder, strain=False)
+    lines = image_sources(list(frames), info)
+    assert any(str(export_run_folder) in ln and "run folder" in ln for ln in lines), lines

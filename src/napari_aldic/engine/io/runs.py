@@ -121,7 +121,8 @@ def _as_results(data) -> tuple[list[tuple[int, DICResult]], dict]:
         if not idx or len(idx) != len(data.frames):
             idx = list(range(len(data.frames)))
         pairs = [(int(k), r) for k, r in zip(idx, data.frames) if r is not None]
-        info = {"source": meta.get("source"), "reference": getattr(data, "reference", None)}
+        info = {"source": meta.get("source"), "folder": meta.get("folder"),
+                "reference": getattr(data, "reference", None)}
         if not pairs:
             raise ValueError("the sequence holds no computed frame")
         return pairs, info

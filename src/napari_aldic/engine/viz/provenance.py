@@ -94,8 +94,10 @@ def image_sources(frames, info: dict) -> list[str]:
                      f"({100.0 * np.mean(roi):.1f} % of the image)")
     else:
         lines.append("region of interest: the whole image")
-    if info.get("source"):
-        lines.append(f"results read from: {info['source']}")
+    if info.get("folder"):
+        lines.append(f"results read from the run folder: {info['folder']}")
+    if info.get("source") and info.get("source") != info.get("folder"):
+        lines.append(f"image stack: {info['source']}")
     return lines
 
 
