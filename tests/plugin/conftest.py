@@ -220,3 +220,16 @@ def field_layer(viewer, key: str):
 def result_layer():
     """``result_layer(viewer, key)``: the result layer of field ``key``."""
     return field_layer
+
+
+@pytest.fixture(scope="session")
+def keep_for_docs(repo_root):
+    """``keep_for_docs(path)``: copy a screenshot to ``docs/images`` when the user
+    guide's pictures are regenerated (``NAPARI_ALDIC_GUIDE_IMAGES=1``)."""
+    import shutil
+
+    def keep(path) -> None:
+        if os.environ.get("NAPARI_ALDIC_GUIDE_IMAGES", "") not in ("", "0"):
+            shutil.copy(path, repo_root / "docs" / "images" / Path(path).name)
+
+    return keep

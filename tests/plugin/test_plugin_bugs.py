@@ -214,8 +214,8 @@ def test_bug08_advice_for_separate_images_names_a_menu_that_exists(make_napari_v
 
 # ------------------------------------------------------------------ 9
 def test_bug09_labels_made_while_shapes_are_active_are_matched_by_world_coordinates(
-        make_napari_viewer_proxy, speckle_stack):
-    viewer = make_napari_viewer_proxy()
+        make_napari_viewer, speckle_stack):
+    viewer = make_napari_viewer()
     viewer.add_image(speckle_stack(), name="speckle")
     w = _dock(viewer)
     shapes = viewer.add_shapes([_rect(60, 50, 120, 100)], shape_type="rectangle", name="Shapes")

@@ -56,7 +56,7 @@ def _lattice_xy(layer, t_index: int | None = None):
 @pytest.mark.slow  # ~9 s
 def test_widget_end_to_end_matches_truth(make_napari_viewer_proxy, qtbot, tmp_path, add_inputs,
                                          plugin_field, roi_rect, hole_circle, save_screenshot,
-                                         speckle_stack, result_layer):
+                                         speckle_stack, result_layer, keep_for_docs):
     viewer = make_napari_viewer_proxy(show=True)
     viewer.window.resize(1500, 1000)
     stack = speckle_stack()
@@ -121,8 +121,8 @@ def test_widget_end_to_end_matches_truth(make_napari_viewer_proxy, qtbot, tmp_pa
     # the frame slider shows that frame's field
     viewer.dims.set_current_step(0, 2)
     viewer.reset_view()
-    # the whole window, dock widget included (docs/make_screenshots.py makes
-    # the guide's copies; the test writes to its own folder, not the repository)
+    # the whole window, dock widget included (in the test's own folder; copied to
+    # docs/images with NAPARI_ALDIC_GUIDE_IMAGES=1)
     shot = tmp_path / "widget_synthetic_run.png"
     assert viewer.layers.selection.active == result_layer(viewer, "|u|")
     save_screenshot(viewer, shot)
@@ -131,6 +131,7 @@ def test_widget_end_to_end_matches_truth(make_napari_viewer_proxy, qtbot, tmp_pa
 
     pix = np.asarray(Image.open(shot).convert("L"), float)
     assert pix.shape[1] > 800 and pix.std() > 10  # a real, non-blank window
+    keep_for_docs(shot)
 
     # re-running replaces the result layers, it never piles them up
     n_layers = len(viewer.layers)

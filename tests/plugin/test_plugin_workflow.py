@@ -126,6 +126,25 @@ def test_project_saves_and_reopens_layers_and_controls(make_napari_viewer_proxy,
     assert len(third.layers) == 0 and w3.subset.value == 31
 
 
+def test_probe_layers_are_not_inputs_and_are_saved_with_the_project(make_napari_viewer_proxy,
+                                                                    tmp_path, speckle_stack):
+    tif = tmp_path / "stack.tif"
+    tifffile.imwrite(tif, speckle_stack(3, SHAPE), photometric="minisblack")
+    viewer = make_napari_viewer_proxy()
+    viewer.open(str(tif), plugin="napari-aldic")
+    w = _dock(viewer)
+    probes = viewer.add_shapes([np.array([[20.0, 30.0], [70.0, 30.0]])], shape_type="line",
+                               name="probes")  # the probe dock's layer
+    points = viewer.add_points([[40.0, 40.0]], name="probe points")
+    assert list(w.roi_add.value) == [] and w.seeds.value is None
+    assert "Ready." in w.status.value  # a gauge line does not cut the ROI
+    doc = json.loads(w.save_project(tmp_path / "p.json").read_text(encoding="utf-8"))
+    stored = {r["name"]: r for r in doc["layers"] if r["role"] == "probe"}
+    assert set(stored) == {"probes", "probe points"}
+    np.testing.assert_allclose(stored["probes"]["data"][0], probes.data[0])
+    np.testing.assert_allclose(stored["probe points"]["data"], points.data)
+
+
 def test_project_of_an_image_without_a_file_is_refused_with_advice(make_napari_viewer_proxy,
                                                                    tmp_path, speckle_stack):
     viewer = make_napari_viewer_proxy()

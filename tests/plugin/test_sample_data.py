@@ -122,7 +122,7 @@ def test_manifest_is_valid_and_lists_the_samples():
     samples = {s.command for s in pm.contributions.sample_data}
     assert samples == {"napari-aldic.make_translation_pair", "napari-aldic.make_crack_pair",
                        "napari-aldic.make_strain_sequence", "napari-aldic.make_plate_with_hole",
-                       "napari-aldic.load_open_hole_pair"}
+                       "napari-aldic.load_open_hole_pair", "napari-aldic.load_crack_sequence"}
     assert samples <= set(commands)
     assert all(commands[c].startswith("napari_aldic._sample_data:") for c in samples)
     # the package carries the same manifest (symlink to the top-level file)
@@ -178,3 +178,42 @@ def test_plate_with_hole_sample_and_kirsch_field():
     v = res.valid
     assert v.mean() > 0.85
     assert np.sqrt(np.mean((res.u[v] - ut[v]) ** 2 + (res.v[v] - vt[v]) ** 2)) < 0.02
+
+
+def test_crack_sequence_sample_is_the_shipped_crop_and_the_crack_opens():
+    [(stack, kwargs, kind)] = sd.load_crack_sequence()
+    assert kind == "image" and stack.shape == (6, 384, 384) and stack.dtype == np.uint8
+    assert "BSD-3-Clause" in kwargs["metadata"]["description"]
+    folder = sd.sample_data_dir("crack_sequence")
+    for name in (sd.CRACK_FILE, "LICENSE-2D_ALDIC-data.txt", "README.md"):
+        assert (folder / name).is_file(), name
+    assert "Jin Yang" in (folder / "LICENSE-2D_ALDIC-data.txt").read_text()
+    total = sum(p.stat().st_size for p in folder.parent.rglob("*") if p.is_file())
+    assert total < 2_000_000  # every shipped sample together
+    # the crack opens near the notch (v jumps across it) and not far from it
+    roi = np.zeros(stack.shape[1:], bool)
+    roi[150:330, 40:140] = True
+    roi[150:330, 300:378] = True
+    res = correlate(stack[0], stack[5], roi=roi, subset=25, step=10)
+    ok = res.valid
+
+    def v_at(x, y):
+        near = ok & (np.abs(res.x - x) <= 5) & (np.abs(res.y - y) <= 5)
+        assert near.any(), (x, y)
+        return float(np.median(res.v[near]))
+
+    opening = v_at(70, 250) - v_at(70, 205)
+    assert opening > 3.0
+    assert abs(v_at(330, 250) - v_at(330, 205)) < 0.4 * opening
+    assert -62 < v_at(330, 205) < -50  # the specimen moved ~57 px up
+
+
+def test_crack_sequence_crop_matches_the_original(shared_data):
+    import tifffile
+
+    [(stack, _, _)] = sd.load_crack_sequence()
+    original = tifffile.imread(shared_data / "crack_sequence" / "crack_sequence.tif")
+    for k, source in enumerate((0, 2, 4, 6, 8, 10)):
+        crop = original[source, 360:744, 200:584].astype(float)
+        expect = np.clip(np.rint((crop - 5000.0) * 255.0 / 60535.0), 0, 255)
+        np.testing.assert_array_equal(stack[k], expect)

@@ -19,7 +19,7 @@ from psygnal import Signal
 from .._layers import is_result_name
 from .._roi import build_roi, labels_fit, labels_mask, points_xy
 from .controls import Panel
-from .project import PROBE_KEY
+from .project import is_probe_layer
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
@@ -232,7 +232,7 @@ class InputsPanel(Panel):
         hole moves to the holes, and no new Shapes layer is added to the ROI."""
         kind = layer.__class__.__name__
         name = layer.name.lower()
-        if PROBE_KEY in (getattr(layer, "metadata", None) or {}):
+        if is_probe_layer(layer):
             return  # a probe (gauge, area, point) measures; it shapes no input
         if kind == "Shapes":
             hole = any(w in name for w in SUBTRACT_WORDS)

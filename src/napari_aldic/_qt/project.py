@@ -2,8 +2,9 @@
 
 A project holds what a user set up: the image (its file or folder, or the
 sample it came from), the Shapes/Labels/Points layers chosen as ROI, holes,
-ROI labels, refine region and seeds, the layers marked as probes (metadata key
-:data:`PROBE_KEY`, any Points/Shapes layer), the settings (a
+ROI labels, refine region and seeds, the probe layers (:func:`is_probe_layer`:
+Points/Shapes layers marked with the metadata key :data:`PROBE_KEY` or named
+like "probes"), the settings (a
 :class:`~napari_aldic.engine.Settings` document: parameters, units, strain,
 tracking) and the display choices. Reopening it opens the image, adds the
 layers, chooses them again and sets every control.
@@ -25,7 +26,8 @@ import numpy as np
 
 from ..engine import Settings
 
-__all__ = ["PROJECT_FORMAT", "PROBE_KEY", "ROLES", "image_record", "layer_record",
+__all__ = ["PROJECT_FORMAT", "PROBE_KEY", "ROLES", "is_probe_layer", "image_record",
+           "layer_record",
            "layer_data", "read_project", "write_project", "encode_array", "decode_array"]
 
 PROJECT_FORMAT = "napari-aldic-project"
@@ -36,6 +38,14 @@ PROBE_KEY = "napari_aldic_probe"
 ROLES = ("roi_add", "roi_subtract", "roi_labels", "brush", "seeds", "probe")
 _KINDS = {"roi_add": "shapes", "roi_subtract": "shapes", "roi_labels": "labels",
           "brush": "labels", "seeds": "points", "probe": ("points", "shapes")}
+
+
+def is_probe_layer(layer) -> bool:
+    """A Points/Shapes layer that measures (a probe): marked with :data:`PROBE_KEY`
+    in its metadata, or named like one (the probe dock's "probes", "probe points")."""
+    return layer.__class__.__name__ in ("Points", "Shapes") and (
+        PROBE_KEY in (getattr(layer, "metadata", None) or {})
+        or "probe" in str(layer.name).lower())
 
 
 def encode_array(a: np.ndarray) -> dict:

@@ -13,7 +13,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..engine import Settings
-from .project import PROBE_KEY, image_record, layer_data, layer_record, read_project, write_project
+from .project import (
+    image_record,
+    is_probe_layer,
+    layer_data,
+    layer_record,
+    read_project,
+    write_project,
+)
 
 __all__ = ["ProjectActions", "PROJECT_FILTER"]
 
@@ -56,9 +63,8 @@ class ProjectActions:
             if lay is not None:
                 records.append(layer_record(lay, role))
                 seen.add(id(lay))
-        for lay in self._viewer.layers:  # probes, picked by another dock
-            if PROBE_KEY in (lay.metadata or {}) and id(lay) not in seen and \
-                    lay.__class__.__name__ in ("Points", "Shapes"):
+        for lay in self._viewer.layers:  # probes, used by the probe dock
+            if is_probe_layer(lay) and id(lay) not in seen:
                 records.append(layer_record(lay, "probe"))
         return {"software": f"napari-aldic {__version__}", "image": image_record(img),
                 **self._panel.storable(), "layers": records}

@@ -25,9 +25,12 @@ from .inputs import is_result_layer
 if TYPE_CHECKING:  # pragma: no cover
     import napari
 
-__all__ = ["ResultLayers", "Prepared", "prepare", "geometry_of", "update_layer",
+__all__ = ["ResultLayers", "Prepared", "prepare", "DRAW", "geometry_of", "update_layer",
            "find_result_layer", "field_of"]
 
+#: what a step yields when it makes a layer visible: napari's first drawing of it
+#: follows (slow), so the caller waits longer before the next step
+DRAW = "draw"
 #: layer attributes that place a layer in the world
 _PLACEMENT = ("scale", "translate", "units", "axis_labels")
 
@@ -188,7 +191,7 @@ class ResultLayers:
             yield
             if show:
                 premade.visible = True
-                yield
+                yield DRAW
 
     def _put(self, data, kw: dict, kind: str, premade=None) -> None:
         """Add a layer, or update the one of that field (replaced at the same place
@@ -222,12 +225,12 @@ class ResultLayers:
             lay = self.layer(k)
             if lay is not None:
                 lay.visible = k == key
-        yield
+        yield DRAW
         for k in DISPLAY_FIELDS:
             lay = self.layer(k)
             if lay is not None and hasattr(lay, "colorbar"):
                 lay.colorbar.visible = k == key
-        yield
+        yield DRAW
         if target is not None:
             self._viewer.layers.selection.active = target
 

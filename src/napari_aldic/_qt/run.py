@@ -14,6 +14,7 @@ The log (:attr:`RunPanel.log`) is made here but placed by the dock widget.
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -29,6 +30,8 @@ __all__ = ["RunPanel", "format_seconds", "PREPARING"]
 
 #: pause between two steps of showing the results (one layer each), in ms
 STEP_PAUSE_MS = 15
+#: pause after a step that made a layer visible (it is drawn for the first time), ms
+DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = "Preparing the correlation engine (first run only)…"
 
@@ -77,6 +80,9 @@ class RunPanel(Panel):
         self._frac = 0.0
         self._n_deformed = 0
         self._problems: tuple[list, list] = ([], [])
+        #: each step of showing the last run's results: (start, end) in
+        #: ``time.perf_counter`` seconds and the main thread's CPU seconds in it
+        self.display_steps: list[tuple[float, float, float]] = []
         super().__init__(labels=False, margins=None)
 
     def _setup_ui(self) -> None:
@@ -161,6 +167,8 @@ class RunPanel(Panel):
 
         if self._running:
             return
+        if after is not None:
+            after = _frozen_gc(after)
         self._cancel.clear()
         self._n_deformed = job.n_deformed
         self.write_log(f"Run {time.strftime('%H:%M:%S')}: {job.summary}")
@@ -233,7 +241,14 @@ class RunPanel(Panel):
             return
         if analysis.cancelled:
             show_info(f"napari-aldic: cancelled; {done} finished frame(s) kept")
+        if getattr(analysis, "error", ""):  # a bad frame stopped the run
+            from napari.utils.notifications import show_warning
+
+            self.write_log(f"stopped early: {analysis.error}")
+            show_warning(f"napari-aldic: stopped early, {done} finished frame(s) kept: "
+                         f"{analysis.error}")
         self._steps = iter(steps) if steps is not None else None
+        self.display_steps = []
         self._drive(final)
 
     def _drive(self, final: str) -> None:
@@ -243,9 +258,16 @@ class RunPanel(Panel):
 
         try:
             if self._steps is not None:
-                next(self._steps)
-                # a short pause: the event loop (paint, input) runs between two steps
-                QTimer.singleShot(STEP_PAUSE_MS, lambda: self._drive(final))
+                t0, c0 = time.perf_counter(), time.thread_time()
+                try:
+                    hint = next(self._steps)
+                finally:
+                    self.display_steps.append((t0, time.perf_counter(),
+                                               time.thread_time() - c0))
+                # a pause: the event loop (paint, input) runs between two steps, and a
+                # layer just made visible is drawn before the next one is added
+                pause = DRAW_PAUSE_MS if hint == "draw" else STEP_PAUSE_MS
+                QTimer.singleShot(pause, lambda: self._drive(final))
                 return
         except StopIteration:
             pass
@@ -280,4 +302,20 @@ class RunPanel(Panel):
     def _maybe_done(self) -> None:
         """The run ends when the worker is done and its results are shown."""
         if self._running and self._worker_done and self._steps is None:
+            gc.unfreeze()  # see _frozen_gc
             self._set_running(False)
+
+
+def _frozen_gc(after: Callable[[Analysis], Any]) -> Callable[[Analysis], Any]:
+    """``after`` that first freezes Python's garbage collector until the run ends.
+
+    Making and adding the result layers allocates many objects; a full collection
+    then would scan the whole napari process (~0.3 s with every thread stopped) in
+    the middle of showing the results. Objects that exist already are left out of
+    collections until the run ends (:func:`gc.unfreeze`), when they are collected
+    as usual again.
+    """
+    def frozen(analysis: Analysis):
+        gc.freeze()
+        return after(analysis)
+    return frozen

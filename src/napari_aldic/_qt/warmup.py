@@ -12,6 +12,7 @@ threading layer.
 
 from __future__ import annotations
 
+import gc
 import os
 import threading
 from collections.abc import Callable
@@ -33,21 +34,33 @@ def warm_up() -> None:
     with _lock:
         if _warm.is_set():
             return
-        from ..engine import compute_strain, correlate, synthetic
-
-        size = 96
-        field = synthetic.Affine.strain_rotation(exx=0.002, eyy=-0.001,
-                                                 center=(size / 2, size / 2), t=(0.4, -0.3))
-        ref, dfm = synthetic.speckle_pair((size, size), field, seed=5)
-        roi = np.ones((size, size), bool)
-        roi[40:56, 40:56] = False  # a hole: subset splitting and quadtree refinement
-        runs = ({"method": "local"}, {"method": "aldic", "refine": "light"},
-                {"method": "local", "init": "seeds", "seeds": [(20.0, 20.0)]})
-        for options in runs:
-            res = correlate(ref, dfm, roi=roi, subset=17, step=8, **options)
-            for method in ("plane_fit", "fem"):
-                compute_strain(res, window=3, method=method)
+        # compiling allocates heavily: every full garbage collection would scan the
+        # whole napari process (~0.3 s, all threads stopped) again and again; objects
+        # of before are left out of collections meanwhile (collected again after)
+        gc.freeze()
+        try:
+            _run_tiny_analyses()
+        finally:
+            gc.unfreeze()
         _warm.set()
+
+
+def _run_tiny_analyses() -> None:
+    """Every kernel of a typical analysis, once, on a tiny synthetic pair."""
+    from ..engine import compute_strain, correlate, synthetic
+
+    size = 96
+    field = synthetic.Affine.strain_rotation(exx=0.002, eyy=-0.001,
+                                             center=(size / 2, size / 2), t=(0.4, -0.3))
+    ref, dfm = synthetic.speckle_pair((size, size), field, seed=5)
+    roi = np.ones((size, size), bool)
+    roi[40:56, 40:56] = False  # a hole: subset splitting and quadtree refinement
+    runs = ({"method": "local"}, {"method": "aldic", "refine": "light"},
+            {"method": "local", "init": "seeds", "seeds": [(20.0, 20.0)]})
+    for options in runs:
+        res = correlate(ref, dfm, roi=roi, subset=17, step=8, **options)
+        for method in ("plane_fit", "fem"):
+            compute_strain(res, window=3, method=method)
 
 
 def is_warm() -> bool:
