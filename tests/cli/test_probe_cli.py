@@ -132,3 +132,18 @@ def test_probe_bad_inputs_name_the_file(export_run_folder, tmp_path):
     rc, _, err = _run(["probe", export_run_folder, "--line", 0, 0, 9, 9, "--load", bad,
                        "--area-mm2", 2, "--fps", 1, "-o", tmp_path / "x.csv"])
     assert rc == 2 and "bad.csv" in err and "furlongs" in err
+
+
+def test_probes_from_a_parameter_file(export_run_folder, tmp_path):
+    from napari_aldic.engine import DICParams, Settings
+    from napari_aldic.engine.io import write_settings
+    from napari_aldic.engine.probes import LineProbe, ProbeSet
+
+    probes = ProbeSet()
+    probes.lines.append(LineProbe(20, 64, 108, 64))
+    settings = write_settings(tmp_path / "analysis.json",
+                              Settings(DICParams(), probes=probes.to_dict()))
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    assert _run(["probe", export_run_folder, "--probes", settings, "-o", a])[0] == 0
+    assert _run(["probe", export_run_folder, "--line", 20, 64, 108, 64, "-o", b])[0] == 0
+    assert _rows(a)[1] == _rows(b)[1]  # the same gauge, the same numbers

@@ -325,3 +325,26 @@ def test_smoothing_controls_map_to_the_parameter(make_napari_viewer_proxy, qtbot
     assert widget._current_params().smooth == 0.0 and not widget.smooth_px.enabled
     widget.method.value = "local"  # no AL-DIC, nothing to smooth
     assert not widget.smooth.enabled and not widget.smooth_px.enabled
+
+
+def test_parameter_file_keeps_the_probes_in_image_pixels(make_napari_viewer_proxy, qtbot,
+                                                         tmp_path, speckle_stack):
+    import numpy as np
+
+    from napari_aldic._qt.project import PROBE_KEY
+    from napari_aldic.engine.io import read_settings
+    from napari_aldic.engine.probes import ProbeSet
+
+    viewer = make_napari_viewer_proxy()
+    widget, _ = _stack_widget(viewer, speckle_stack)
+    # napari (row, col): a gauge from (x=10, y=20) to (x=80, y=20), a point at (x=50, y=60)
+    viewer.add_shapes([np.array([[20.0, 10.0], [20.0, 80.0]])], shape_type="line",
+                      name="gauges", metadata={PROBE_KEY: True})
+    viewer.add_points([[60.0, 50.0]], name="probe points", metadata={PROBE_KEY: True})
+    path = widget.save_settings(tmp_path / "with_probes.json")
+    s = read_settings(path)
+    probes = ProbeSet.from_dict(s.probes)
+    assert len(probes.lines) == 1 and len(probes.points) == 1
+    line = probes.lines[0]
+    assert (line.x0, line.y0, line.x1, line.y1) == (10.0, 20.0, 80.0, 20.0)
+    assert (probes.points[0].x, probes.points[0].y) == (50.0, 60.0)

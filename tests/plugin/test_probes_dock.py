@@ -156,3 +156,17 @@ def test_probes_from_layers_use_reference_pixels(make_napari_viewer, speckle_sta
     assert ell.kind == "ellipse"
     assert ell.params == pytest.approx((80.0, 90.0, 20.0, 30.0, 0.0), abs=1e-9)
     assert (probes.points[0].x, probes.points[0].y) == pytest.approx((70.0, 120.0))
+
+
+def test_added_probe_layers_are_marked_as_probes_not_roi(make_napari_viewer):
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+    from napari_aldic._qt.project import is_probe_layer
+
+    viewer = make_napari_viewer()
+    dock = ProbePlotDock(viewer)
+    dock.add_probe_layers()
+    assert dock.shapes_layer is not None and dock.points_layer is not None
+    assert is_probe_layer(dock.shapes_layer) and is_probe_layer(dock.points_layer)
+    other = viewer.add_shapes(name="gauges", edge_color="red")
+    dock.set_probe_layers(other, None)
+    assert is_probe_layer(other)

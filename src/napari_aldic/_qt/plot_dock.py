@@ -46,6 +46,7 @@ from .probes import (
     measure_analysis,
     probes_from_layers,
 )
+from .project import PROBE_KEY
 
 __all__ = ["ProbePlotDock"]
 
@@ -172,6 +173,11 @@ class ProbePlotDock(QWidget):
         self.schedule()
 
     def _on_probe_layers_chosen(self, *_) -> None:
+        # a layer chosen here measures: mark it so the main widget never takes it as ROI
+        # or seeds and project files keep it as a probe
+        for lay in (self.shapes_layer, self.points_layer):
+            if lay is not None and PROBE_KEY not in lay.metadata:
+                lay.metadata = {**lay.metadata, PROBE_KEY: True}
         self._rehook()
         self.schedule()
 
@@ -184,10 +190,12 @@ class ProbePlotDock(QWidget):
         """Add empty probe layers (a Shapes layer in line mode, a Points layer)."""
         v = self._viewer
         if PROBE_POINTS not in v.layers:
-            v.add_points(np.zeros((0, 2)), name=PROBE_POINTS, size=8, face_color="cyan")
+            v.add_points(np.zeros((0, 2)), name=PROBE_POINTS, size=8, face_color="cyan",
+                         metadata={PROBE_KEY: True})
         if PROBE_SHAPES not in v.layers:
+            # marked as probes: never offered as ROI/seeds, saved with the project
             shapes = v.add_shapes(name=PROBE_SHAPES, edge_color="yellow", edge_width=2,
-                                  face_color="transparent")
+                                  face_color="transparent", metadata={PROBE_KEY: True})
             shapes.mode = "add_line"
         self.set_probe_layers(v.layers[PROBE_SHAPES], v.layers[PROBE_POINTS])
 

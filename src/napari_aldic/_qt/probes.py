@@ -20,7 +20,7 @@ from ..engine import Units
 from ..engine.io import Frame, FrameSet
 from ..engine.probes import AreaProbe, LineProbe, PointProbe, ProbeSet, measure_probes
 
-__all__ = ["ResultView", "find_analysis", "probes_from_layers", "measure_analysis",
+__all__ = ["image_view", "ResultView", "find_analysis", "probes_from_layers", "measure_analysis",
            "is_probe_candidate", "PROBE_SHAPES", "PROBE_POINTS"]
 
 ANALYSIS_KEY = "napari_aldic_analysis"
@@ -68,6 +68,13 @@ def _units_of(meta: dict) -> Units:
                      meta.get("time_unit") or "s")
     except ValueError:
         return Units()
+
+
+def image_view(image_layer) -> ResultView:
+    """A view of an image layer's pixels (no analysis): where its pixels are in the world."""
+    return ResultView(analysis=None, scale=np.asarray(image_layer.scale, float)[-2:],
+                      translate=np.asarray(image_layer.translate, float)[-2:], t_scale=None,
+                      t_translate=0.0, units=Units(), layer=image_layer)
 
 
 def find_analysis(layers) -> ResultView | None:

@@ -26,6 +26,8 @@ from .controls import Panel, Plan, apply_plan
 from .correlation import CorrelationPanel
 from .display import DisplayPanel
 from .inputs import InputsPanel
+from .probes import image_view, probes_from_layers
+from .project import is_probe_layer
 from .project_actions import ProjectActions
 from .strain import StrainPanel
 from .units import UnitsPanel
@@ -66,6 +68,7 @@ class SettingsPanel(Panel):
         self._inputs, self._correlation = inputs, correlation
         self._strain, self._units, self._display = strain, units, display
         self._log, self._apply_units = log, apply_units
+        self._viewer = viewer
         self._folder: Path | None = None  # folder of the last file
         self.projects = ProjectActions(self, inputs, correlation, display, viewer, log)
         c = correlation  # the controls' first values are the defaults
@@ -121,7 +124,22 @@ class SettingsPanel(Panel):
         do not make valid settings: 'Seed points' without points, a pixel size in
         'px' ...)."""
         return Settings(self.current_params(), self._units.units, self._strain.as_dict(),
-                        self._correlation.tracking)
+                        self._correlation.tracking, probes=self.current_probes())
+
+    def current_probes(self) -> dict | None:
+        """The probe layers (Points/Shapes marked as probes) as a probe set in the
+        image's pixels, for parameter files (``napari-aldic probe --probes FILE``)."""
+        img = self._inputs.image_layer
+        if self._viewer is None or img is None:
+            return None
+        layers = [lay for lay in self._viewer.layers if is_probe_layer(lay)]
+        shapes = next((lay for lay in layers if lay.__class__.__name__ == "Shapes"), None)
+        points = next((lay for lay in layers if lay.__class__.__name__ == "Points"), None)
+        if shapes is None and points is None:
+            return None
+        view = image_view(img)
+        probes, _notes = probes_from_layers(shapes, points, view)
+        return probes.to_dict() if len(probes) else None
 
     def storable(self, frame_range: bool = True) -> dict:
         """The settings without seed points (they live in a layer): ``{"settings":

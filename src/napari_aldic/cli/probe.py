@@ -73,6 +73,10 @@ def probe_set(args) -> ProbeSet:
             data = json.loads(Path(args.probes).expanduser().read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError) as exc:
             raise CLIError(f"cannot read the probe file {args.probes}: {exc}") from None
+        if isinstance(data, dict) and data.get("format") == "napari-aldic-settings":
+            if not isinstance(data.get("probes"), dict):  # a parameter file without probes
+                raise CLIError(f"{args.probes} is a parameter file without a 'probes' section")
+            data = data["probes"]
         try:
             probes = ProbeSet.from_dict(data.get("probes", data) if isinstance(data, dict)
                                         and "format" not in data else data)

@@ -34,7 +34,10 @@ __all__ = ["Settings", "SETTINGS_FORMAT", "STRAIN_DEFAULTS", "STRAIN_METHODS",
 SETTINGS_FORMAT = "napari-aldic-settings"
 SETTINGS_FORMAT_VERSION = 1
 #: top-level keys of a settings document
-SECTIONS = ("format", "format_version", "software", "params", "units", "strain", "tracking")
+SECTIONS = ("format", "format_version", "software", "params", "units", "strain", "tracking",
+            "probes")
+#: the probe-set document format (written by ``engine.probes.ProbeSet.to_dict``)
+PROBES_FORMAT = "napari-aldic-probes"
 STRAIN_METHODS = ("plane_fit", "fem")
 STRAIN_MEASURES = ("green_lagrange", "infinitesimal", "euler_almansi")
 #: strain settings used where a file or a caller gives none
@@ -63,6 +66,10 @@ class Settings:
         (:data:`REFERENCE_MODES`), ``start`` (first frame, >= 0), ``stop``
         (last frame, >= 1, after ``start``; None: the last frame of the stack)
         and ``stride`` (>= 1); None: not given.
+    probes : dict or None
+        A probe set (``ProbeSet.to_dict()`` of :mod:`napari_aldic.engine.probes`:
+        ``{"format": "napari-aldic-probes", "probes": [...]}``), kept as given;
+        its geometry is checked when it is read by ``ProbeSet.from_dict``.
 
     Raises
     ------
@@ -74,6 +81,7 @@ class Settings:
     units: Units | None = None
     strain: dict | None = None
     tracking: dict | None = None
+    probes: dict | None = None
 
     def __post_init__(self) -> None:
         params = self.params
@@ -92,6 +100,7 @@ class Settings:
         object.__setattr__(self, "units", units)
         object.__setattr__(self, "strain", _strain_section(self.strain))
         object.__setattr__(self, "tracking", _tracking_section(self.tracking))
+        object.__setattr__(self, "probes", _probes_section(self.probes))
 
     # ------------------------------------------------------------ views
     def strain_options(self) -> dict[str, Any]:
@@ -122,6 +131,8 @@ class Settings:
             doc["strain"] = self.strain_options()
         if self.tracking is not None:
             doc["tracking"] = dict(self.tracking)
+        if self.probes is not None:
+            doc["probes"] = dict(self.probes)
         return doc
 
     @classmethod
@@ -143,7 +154,7 @@ class Settings:
         params = doc.get("params")
         return cls(params=_params_from_dict({} if params is None else params),
                    units=doc.get("units"), strain=doc.get("strain"),
-                   tracking=doc.get("tracking"))
+                   tracking=doc.get("tracking"), probes=doc.get("probes"))
 
 
 # ------------------------------------------------------------------ checks
@@ -216,3 +227,14 @@ def _tracking_section(value) -> dict | None:
     if start is not None and stop is not None and not start < stop:
         raise ValueError(f"the first frame ({start}) must come before the last frame ({stop})")
     return tracking
+
+
+def _probes_section(value) -> dict | None:
+    # the probes layer (engine.probes) sits above core: only the envelope is checked here
+    if value is None:
+        return None
+    if not isinstance(value, dict) or value.get("format") != PROBES_FORMAT \
+            or not isinstance(value.get("probes"), list):
+        raise ValueError(f"the 'probes' section must be a JSON object with format "
+                         f"{PROBES_FORMAT!r} and a 'probes' list (a probe set)")
+    return value
