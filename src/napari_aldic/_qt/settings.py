@@ -90,8 +90,8 @@ class SettingsPanel(Panel):
             "are added and every control is set.")
         self.save_params_button = button(
             text="Save parameters…", tooltip="Write the analysis settings (correlation, "
-            "tracking and frame range, strain, units) to a readable JSON file; it also works "
-            "with 'napari-aldic run STACK --params FILE.json'.")
+            "tracking and frame range, strain, units, probe layers) to a readable JSON file; "
+            "it also works with 'napari-aldic run STACK --params FILE.json'.")
         self.load_params_button = button(
             text="Load parameters…", tooltip="Set every parameter from a JSON file saved "
             "here or written by 'napari-aldic params' / 'run --params-out'.")
