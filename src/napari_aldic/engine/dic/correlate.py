@@ -116,20 +116,44 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     if guess is not None and not isinstance(guess, DICResult):
         raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
                         f"{type(guess).__name__}")
+    report = _reporter(progress, cancel)
+    timing: dict[str, float] = {}
+    f, g, mask, params = _validated(reference, deformed, roi, params)
+    ref_spec = resolve_refinement(refine if refine is not None else params.refine)
+    im, base, grid, qmesh = _prepare(f, g, mask, ref_spec, params, timing, report)
+    meta = {"versions": _versions(),
+            "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
+    with _numba_threads(params.n_threads):
+        sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
+        if ref_spec is not None and ref_spec.error:
+            grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
+                                                params, timing, report, solver_cache, meta)
+    _record(meta, sol, ref_spec, grid, timing, t_start)
+    report(1.0, "done")
+    return _assemble(sol, grid, f.shape, params, meta, mask)
+
+
+def _reporter(progress, cancel):
+    """``report(fraction, message)``: the caller's progress, and a cancellation point."""
     user_report = progress or (lambda frac, msg: None)
 
     def report(frac: float, msg: str) -> None:
         check_cancel(cancel)  # every progress point is a cancellation point
         user_report(frac, msg)
 
-    timing: dict[str, float] = {}
+    return report
 
-    t = time.perf_counter()
+
+def _validated(reference, deformed, roi, params: DICParams):
+    """The two images as float arrays, the ROI mask and the parameters fitted to them."""
     f, g = validate_pair(reference, deformed)
-    params = params.fitted_to(f.shape)  # no search wider than the image
-    mask = validate_roi(roi, f.shape)
+    return f, g, validate_roi(roi, f.shape), params.fitted_to(f.shape)
+
+
+def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
+    """Node grid (with the quadtree when refining) and the interpolating splines."""
+    t = time.perf_counter()
     base = make_grid(mask, params.subset, params.step)
-    ref_spec = resolve_refinement(refine if refine is not None else params.refine)
     grid, qmesh = _nodes(base, mask, ref_spec, params)
     timing["setup"] = time.perf_counter() - t
     report(0.05, f"{grid.n} nodes")
@@ -137,40 +161,39 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     im = prepare_images(f, g, params.interpolation)
     timing["prefilter"] = time.perf_counter() - t
     report(0.15, "interpolation ready")
+    return im, base, grid, qmesh
 
-    meta = {"versions": _versions(),
-            "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
-    with _numba_threads(params.n_threads):
-        sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
-        if ref_spec is not None and ref_spec.error:
-            # a-posteriori criterion: refine around poorly correlated nodes, resolve
-            bad = _poorly_correlated(sol.zncc, sol.reason, sol.sub.reason == Reason.OK)
-            meta["error_refined_nodes"] = int(bad.sum())
-            if bad.any():
-                t = time.perf_counter()
-                only_error = replace(ref_spec, error=True, mask_boundary=False,
-                                     roi_boundary=False, brush=None, elements=(), points=(),
-                                     levels=1)
-                grid, qmesh = _nodes(base, mask, only_error, params,
-                                     cells=qmesh.cells if qmesh else None,
-                                     bad_xy=np.column_stack([grid.x[bad], grid.y[bad]]))
-                timing["setup"] += time.perf_counter() - t
-                sol = _analyse(im, mask, grid, qmesh, params, timing, report, None,
-                               solver_cache)
+
+def _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec, params, timing, report,
+                     solver_cache, meta):
+    """A-posteriori criterion: refine around poorly correlated nodes and solve again."""
+    bad = _poorly_correlated(sol.zncc, sol.reason, sol.sub.reason == Reason.OK)
+    meta["error_refined_nodes"] = int(bad.sum())
+    if not bad.any():
+        return grid, qmesh, sol
+    t = time.perf_counter()
+    only_error = replace(ref_spec, error=True, mask_boundary=False, roi_boundary=False,
+                         brush=None, elements=(), points=(), levels=1)
+    grid, qmesh = _nodes(base, mask, only_error, params,
+                         cells=qmesh.cells if qmesh else None,
+                         bad_xy=np.column_stack([grid.x[bad], grid.y[bad]]))
+    timing["setup"] += time.perf_counter() - t
+    sol = _analyse(im, mask, grid, qmesh, params, timing, report, None, solver_cache)
+    return grid, qmesh, sol
+
+
+def _record(meta: dict, sol, ref_spec, grid, timing: dict, t_start: float) -> None:
+    """What the result's ``meta`` tells about the run (refinement, ADMM, timing)."""
     if ref_spec is not None:
         meta["refine"] = _describe(ref_spec)
-    if sol.history is not None:
-        meta["admm_history"] = sol.history
-    if sol.regularisation is not None:
-        meta["regularisation"] = sol.regularisation
-    if sol.validity is not None:
-        meta["validity"] = sol.validity
+    for key, value in (("admm_history", sol.history), ("regularisation", sol.regularisation),
+                       ("validity", sol.validity)):
+        if value is not None:
+            meta[key] = value
     timing["total"] = time.perf_counter() - t_start
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
     meta["n_valid"] = int(np.count_nonzero(sol.reason == Reason.OK))
-    report(1.0, "done")
-    return _assemble(sol, grid, f.shape, params, meta, mask)
 
 
 @dataclass

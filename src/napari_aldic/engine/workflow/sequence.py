@@ -167,26 +167,16 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     frames : sequence of int, optional
         Frames to analyse (must start with 0 and increase); default all.
     out_dir : path, optional
-        A run folder: each frame's result is written as it finishes (its
-        ``frame_#####.npz`` and a slice of the field store ``fields.zarr``,
-        :mod:`~napari_aldic.engine.io.zarrstore`), and rerunning resumes.
-        Only the frames that later frames are composed with stay in memory;
-        the returned frames are read from the folder when used. The folder
-        is locked while the run writes it
-        (a second process gets :class:`RunFolderError`), and a folder that
-        holds another analysis, or whose inputs changed (parameters, ROI,
-        refinement, reference mode, frames, stack contents), is refused
-        with :class:`RunFolderError` naming what changed (see
-        :mod:`~napari_aldic.engine.workflow.runfolder`).
+        A run folder: each frame is written as it finishes (``frame_#####.npz``
+        and the field store ``fields.zarr``) and a rerun resumes. The folder is
+        locked while written; a folder of another analysis, or whose inputs
+        changed, is refused (:mod:`~napari_aldic.engine.workflow.runfolder`).
+        Only frames later frames are composed with stay in memory.
     scheduler : None, "threads", "processes", a ``dask.distributed.Client`` or its address
-        ``None`` runs frames one after the other, each starting from the
-        previous frame's field. Otherwise the frame pairs, which do not
-        depend on each other, run concurrently: on local threads (the Numba
-        kernels release the GIL; each frame then uses one thread), on a
-        local dask cluster of ``workers`` one-thread processes
-        (``"processes"``) or on a dask cluster; each frame then starts from
-        its own FFT/seed guess. On a cluster, workers read their frames
-        themselves (see :mod:`~napari_aldic.engine.workflow.cluster`).
+        ``None``: frames one after the other, each started from the previous
+        field. Otherwise frames run concurrently (threads, a local cluster of
+        ``workers`` one-thread processes, or a dask cluster whose workers read
+        their own frames: :mod:`~napari_aldic.engine.workflow.cluster`).
     workers : int, optional
         Concurrent frames for ``scheduler="threads"`` and worker processes
         for ``"processes"`` (default: CPU count).
