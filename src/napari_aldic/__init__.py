@@ -11,4 +11,7 @@ try:
 except Exception:  # pragma: no cover - running from a source tree
     __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+# the sample files the package ships (the crack sequence, the open-hole pair), for scripts
+from ._sample_data import CRACK_FILE, sample_data_dir  # noqa: E402  (NumPy only, no napari)
+
+__all__ = ["__version__", "CRACK_FILE", "sample_data_dir"]

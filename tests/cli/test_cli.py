@@ -1,7 +1,5 @@
 """The ``napari-aldic`` command line: demo, run (pair, stack, folder), errors."""
 
-import contextlib
-import io
 import json
 import re
 import shutil
@@ -14,26 +12,19 @@ import pytest
 import tifffile
 
 from napari_aldic import __version__
-from napari_aldic.cli import main
 from napari_aldic.engine import load_result, synthetic as S
 from napari_aldic.engine.synthetic import make_field
 
 DEMO_SIZE = 128
 
 
-def _run(argv):
-    """``main(argv)`` in-process: (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
+def demo(run_cli, tmp_path_factory):
     """One small demo run shared by the tests: (folder, stdout)."""
     folder = tmp_path_factory.mktemp("demo") / "out"
-    rc, out, err = _run(["demo", "--out", folder, "--size", DEMO_SIZE])
+    rc, out, err = run_cli(["demo", "--out", folder, "--size", DEMO_SIZE])
     assert rc == 0, err
     return folder, out
 
@@ -90,8 +81,8 @@ def test_demo_reports_small_error_and_writes_files(demo):
     assert png.ndim == 3 and png.shape[1] > 2 * png.shape[0]
 
 
-def test_demo_crack_writes_roi(tmp_path):
-    rc, out, err = _run(["demo", "--out", tmp_path, "--size", 96, "--field", "crack",
+def test_demo_crack_writes_roi(run_cli, tmp_path):
+    rc, out, err = run_cli(["demo", "--out", tmp_path, "--size", 96, "--field", "crack",
                          "--step", 12])
     assert rc == 0, err
     roi = tifffile.imread(tmp_path / "roi.tif") > 0
@@ -102,10 +93,10 @@ def test_demo_crack_writes_roi(tmp_path):
 
 
 # ----------------------------------------------------------------- run
-def test_run_pair_reproduces_demo(demo, tmp_path):
+def test_run_pair_reproduces_demo(run_cli, demo, tmp_path):
     folder, _ = demo
     out = tmp_path / "sub" / "pair.npz"
-    rc, text, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, text, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                           "--params", folder / "params.json", "-o", out])
     assert rc == 0, err
     assert "frame 1/1" in text and "POI/s" in text
@@ -117,10 +108,10 @@ def test_run_pair_reproduces_demo(demo, tmp_path):
     assert res.meta["inputs"]["deformed"].endswith("deformed.tif")
 
 
-def test_run_stack_writes_one_result_per_frame(stack_case, tmp_path):
+def test_run_stack_writes_one_result_per_frame(run_cli, stack_case, tmp_path):
     path, frames, fields = stack_case
     out = tmp_path / "res.npz"  # a stack: the run folder res/
-    rc, text, err = _run(["run", path, "-o", out, "--step", 12])
+    rc, text, err = run_cli(["run", path, "-o", out, "--step", 12])
     assert rc == 0, err
     assert "frame 1/2" in text and "frame 2/2" in text
     for k, field in enumerate(fields, start=1):
@@ -135,9 +126,9 @@ def test_run_stack_writes_one_result_per_frame(stack_case, tmp_path):
     assert not (tmp_path / "res.npz").exists()
 
 
-def test_run_stack_into_folder_with_plot(stack_case, tmp_path):
+def test_run_stack_into_folder_with_plot(run_cli, stack_case, tmp_path):
     path, _, _ = stack_case
-    rc, _, err = _run(["run", path, "-o", tmp_path / "results", "--step", 16, "--plot"])
+    rc, _, err = run_cli(["run", path, "-o", tmp_path / "results", "--step", 16, "--plot"])
     assert rc == 0, err
     names = sorted(p.name for p in (tmp_path / "results").iterdir())
     assert names[:-2] == ["fields.zarr", "frame_00000.npz", "frame_00001.npz",
@@ -145,7 +136,7 @@ def test_run_stack_into_folder_with_plot(stack_case, tmp_path):
     assert names[-2].startswith("roi_") and names[-1] == "sequence.json"
 
 
-def test_run_folder_in_natural_order(stack_case, tmp_path):
+def test_run_folder_in_natural_order(run_cli, stack_case, tmp_path):
     from skimage import io as skio
 
     _, frames, fields = stack_case
@@ -154,7 +145,7 @@ def test_run_folder_in_natural_order(stack_case, tmp_path):
     # frame 0 is img_2, then img_10, then img_100 (not the text order)
     for name, img in zip(("img_2.png", "img_10.png", "img_100.png"), frames):
         skio.imsave(folder / name, img, check_contrast=False)
-    rc, _, err = _run(["run", folder, "-o", tmp_path / "out", "--step", 16])
+    rc, _, err = run_cli(["run", folder, "-o", tmp_path / "out", "--step", 16])
     assert rc == 0, err
     res = load_result(tmp_path / "out" / "frame_00002.npz")
     assert res.meta["inputs"]["reference"].endswith("img_2.png")
@@ -162,22 +153,22 @@ def test_run_folder_in_natural_order(stack_case, tmp_path):
     assert np.median(res.u[res.valid]) == pytest.approx(fields[1].u, abs=0.02)
 
 
-def test_params_file_and_overrides(demo, tmp_path):
+def test_params_file_and_overrides(run_cli, demo, tmp_path):
     folder, _ = demo
     params = tmp_path / "p.json"
     params.write_text(json.dumps({"subset": 21, "step": 12, "search": 10}))
     out = tmp_path / "r.npz"
-    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, _, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                        "--params", params, "--step", 16, "-o", out])
     assert rc == 0, err
     p = load_result(out).params
     assert (p.subset, p.step, p.search) == (21, 16, 10)
 
 
-def test_method_option_reaches_the_engine(demo, tmp_path):
+def test_method_option_reaches_the_engine(run_cli, demo, tmp_path):
     folder, _ = demo
     out = tmp_path / "r.npz"
-    rc, text, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, text, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                           "--method", "aldic", "-o", out])
     assert rc == 0, err
     assert "method aldic" in text
@@ -189,22 +180,22 @@ def test_method_option_reaches_the_engine(demo, tmp_path):
     assert "AL-DIC: smoothing length" in text  # the choice is reported
 
 
-def test_smoothing_options_reach_the_engine(demo, tmp_path):
+def test_smoothing_options_reach_the_engine(run_cli, demo, tmp_path):
     folder, _ = demo
     out = tmp_path / "r.npz"
-    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, _, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                        "--method", "aldic", "--smooth", "6.5", "--affine-warp", "-o", out])
     assert rc == 0, err
     res = load_result(out)
     assert res.params.smooth == 6.5 and res.params.second_order_warp is False
     assert res.meta["regularisation"]["smooth_px"] == 6.5
-    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, _, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                        "--smooth", "lots", "-o", out])
     assert rc != 0 and "--smooth 'lots'" in err
 
 
 @pytest.mark.parametrize("kind", ["npy", "tif"])
-def test_roi_mask_limits_nodes(demo, tmp_path, kind):
+def test_roi_mask_limits_nodes(run_cli, demo, tmp_path, kind):
     folder, _ = demo
     roi = np.zeros((DEMO_SIZE, DEMO_SIZE), bool)
     roi[20:90, 30:110] = True
@@ -215,7 +206,7 @@ def test_roi_mask_limits_nodes(demo, tmp_path, kind):
         mask = tmp_path / "roi.tif"
         tifffile.imwrite(mask, roi.astype(np.uint8) * 255, photometric="minisblack")
     out = tmp_path / "r.npz"
-    rc, _, err = _run(["run", folder / "reference.tif", folder / "deformed.tif",
+    rc, _, err = run_cli(["run", folder / "reference.tif", folder / "deformed.tif",
                        "--roi", mask, "-o", out, "--step", 8])
     assert rc == 0, err
     res = load_result(out)
@@ -253,7 +244,7 @@ def bad_inputs(demo, stack_case, tmp_path):
     ("params_list", "JSON object"),
     ("empty_roi", "ROI mask is empty"),
 ])
-def test_bad_input_gives_one_line_error(bad_inputs, case, expect):
+def test_bad_input_gives_one_line_error(run_cli, bad_inputs, case, expect):
     b = bad_inputs
     argv = {
         "missing": ["run", b["tmp"] / "nope.tif", b["dfm"]],
@@ -269,7 +260,7 @@ def test_bad_input_gives_one_line_error(bad_inputs, case, expect):
         "params_list": ["run", b["ref"], b["dfm"], "--params", b["tmp"] / "list.json"],
         "empty_roi": ["run", b["ref"], b["dfm"], "--roi", b["tmp"] / "roi_empty.npy"],
     }[case]
-    rc, _, err = _run(argv + ["-o", b["tmp"] / "out.npz"])
+    rc, _, err = run_cli(argv + ["-o", b["tmp"] / "out.npz"])
     assert rc == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -279,14 +270,14 @@ def test_bad_input_gives_one_line_error(bad_inputs, case, expect):
     assert not (b["tmp"] / "out.npz").exists()
 
 
-def test_usage_errors_and_version():
-    rc, out, _ = _run(["--version"])
+def test_usage_errors_and_version(run_cli):
+    rc, out, _ = run_cli(["--version"])
     assert rc == 0 and out.strip() == f"napari-aldic {__version__}"
-    rc, _, err = _run(["run"])
+    rc, _, err = run_cli(["run"])
     assert rc == 2 and "required" in err
-    rc, _, err = _run(["demo", "--field", "nonsense"])
+    rc, _, err = run_cli(["demo", "--field", "nonsense"])
     assert rc == 2 and "invalid choice" in err
-    rc, _, err = _run(["demo", "--size", "20"])
+    rc, _, err = run_cli(["demo", "--size", "20"])
     assert rc == 2 and err.startswith("napari-aldic: error:")
 
 
@@ -343,10 +334,10 @@ def test_console_script_runs_in_a_subprocess(demo, tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_run_stack_incremental_matches_truth(stack_case, tmp_path):
+def test_run_stack_incremental_matches_truth(run_cli, stack_case, tmp_path):
     path, frames, fields = stack_case
     out = tmp_path / "inc"
-    rc, text, err = _run(["run", path, "-o", out, "--step", 12, "--reference", "incremental"])
+    rc, text, err = run_cli(["run", path, "-o", out, "--step", 12, "--reference", "incremental"])
     assert rc == 0, err
     assert "reference incremental" in text
     res = load_result(out / "frame_00002.npz")
@@ -355,11 +346,11 @@ def test_run_stack_incremental_matches_truth(stack_case, tmp_path):
     assert np.abs(res.v[res.valid] - fields[1].v).max() < 0.02
 
 
-def test_run_several_files_track_against_the_first(demo, tmp_path):
+def test_run_several_files_track_against_the_first(run_cli, demo, tmp_path):
     """REF DEF DEF: one image per file, a sequence read by the engine's one reader."""
     folder, _ = demo
     ref, dfm = folder / "reference.tif", folder / "deformed.tif"
-    rc, text, err = _run(["run", ref, dfm, dfm, "-o", tmp_path / "seq", "--step", 16])
+    rc, text, err = run_cli(["run", ref, dfm, dfm, "-o", tmp_path / "seq", "--step", 16])
     assert rc == 0, err
     assert "frame 2/2" in text and "2 frames in" in text
     a, b = (load_result(tmp_path / "seq" / f"frame_0000{k}.npz") for k in (1, 2))

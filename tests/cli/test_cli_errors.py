@@ -3,8 +3,6 @@ traceback (issue 11, section 3); ``NAPARI_ALDIC_DEBUG=1`` adds the traceback."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import re
 import zipfile
 
@@ -12,19 +10,13 @@ import numpy as np
 import pytest
 import tifffile
 
-from napari_aldic.cli import app, main
+from napari_aldic.cli import app
 from napari_aldic.engine import correlate, synthetic as S
 from napari_aldic.engine.io import read_csv
 
 SHAPE = (96, 96)
 
 
-def _run(argv):
-    """``main(argv)`` in-process: (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 def _one_error_line(rc, err, pattern, name=None):
@@ -80,8 +72,8 @@ PARAM_CASES = {
 
 
 @pytest.mark.parametrize("name", sorted(PARAM_CASES))
-def test_run_with_a_bad_params_file(files, name):
-    rc, _, err = _run(["run", files / "ref.tif", files / "def.tif", "--params", files / name,
+def test_run_with_a_bad_params_file(run_cli, files, name):
+    rc, _, err = run_cli(["run", files / "ref.tif", files / "def.tif", "--params", files / name,
                        "-o", files / "out.npz"])
     _one_error_line(rc, err, PARAM_CASES[name], name)
 
@@ -95,62 +87,62 @@ EXPORT_CASES = {
 
 
 @pytest.mark.parametrize("name", sorted(EXPORT_CASES))
-def test_export_of_a_bad_result_file(files, tmp_path, name):
-    rc, _, err = _run(["export", files / name, "--to", "csv", "-o", tmp_path / "out.csv"])
+def test_export_of_a_bad_result_file(run_cli, files, tmp_path, name):
+    rc, _, err = run_cli(["export", files / name, "--to", "csv", "-o", tmp_path / "out.csv"])
     _one_error_line(rc, err, EXPORT_CASES[name], name)
     assert not (tmp_path / "out.csv").exists()
 
 
-def test_run_on_a_truncated_tiff(files, tmp_path):
-    rc, _, err = _run(["run", files / "cut.tif", "-o", tmp_path / "run"])
+def test_run_on_a_truncated_tiff(run_cli, files, tmp_path):
+    rc, _, err = run_cli(["run", files / "cut.tif", "-o", tmp_path / "run"])
     _one_error_line(rc, err, r"truncated: page 2 of 3", "cut.tif")
 
 
-def test_run_on_a_folder_of_mixed_sizes(files, tmp_path):
-    rc, _, err = _run(["run", files / "mixed", "-o", tmp_path / "run", "--step", "24"])
+def test_run_on_a_folder_of_mixed_sizes(run_cli, files, tmp_path):
+    rc, _, err = run_cli(["run", files / "mixed", "-o", tmp_path / "run", "--step", "24"])
     _one_error_line(rc, err, r"is 80 x 96 pixels, but img_0\.tif", "img_2.tif")
 
 
-def test_huge_search_is_clipped_not_hung(files, tmp_path):
-    rc, out, err = _run(["run", files / "ref.tif", files / "def.tif", "--search", "100000",
+def test_huge_search_is_clipped_not_hung(run_cli, files, tmp_path):
+    rc, out, err = run_cli(["run", files / "ref.tif", files / "def.tif", "--search", "100000",
                          "-o", tmp_path / "r.npz", "--subset", "21", "--step", "12"])
     assert rc == 0, err
     assert "Traceback" not in err
 
 
 @pytest.mark.parametrize("error", [KeyError("x"), RuntimeError("boom"), MemoryError()])
-def test_an_unexpected_error_is_one_line(files, monkeypatch, error):
+def test_an_unexpected_error_is_one_line(run_cli, files, monkeypatch, error):
     def broken(args):
         raise error
 
     monkeypatch.setitem(app.COMMANDS, "run", broken)
     monkeypatch.delenv("NAPARI_ALDIC_DEBUG", raising=False)
-    rc, _, err = _run(["run", files / "ref.tif", files / "def.tif"])
+    rc, _, err = run_cli(["run", files / "ref.tif", files / "def.tif"])
     pattern = "out of memory" if isinstance(error, MemoryError) else \
         rf"unexpected {type(error).__name__}: .*NAPARI_ALDIC_DEBUG=1"
     _one_error_line(rc, err, pattern)
 
 
-def test_debug_variable_shows_the_traceback(files, monkeypatch):
+def test_debug_variable_shows_the_traceback(run_cli, files, monkeypatch):
     def broken(args):
         raise RuntimeError("boom")
 
     monkeypatch.setitem(app.COMMANDS, "run", broken)
     monkeypatch.setenv("NAPARI_ALDIC_DEBUG", "1")
-    rc, _, err = _run(["run", files / "ref.tif", files / "def.tif"])
+    rc, _, err = run_cli(["run", files / "ref.tif", files / "def.tif"])
     assert rc == 2
     assert "Traceback" in err and "RuntimeError: boom" in err
     assert err.strip().splitlines()[-1].startswith("napari-aldic: error: unexpected RuntimeError")
 
 
-def test_params_command_refuses_a_bad_value(tmp_path):
-    rc, _, err = _run(["params", tmp_path / "p.json", "--search", "0"])
+def test_params_command_refuses_a_bad_value(run_cli, tmp_path):
+    rc, _, err = run_cli(["params", tmp_path / "p.json", "--search", "0"])
     _one_error_line(rc, err, r"search=0 must be >= 1 pixel")
     assert not (tmp_path / "p.json").exists()
 
 
-def test_good_inputs_still_work(files, tmp_path):
-    rc, _, err = _run(["export", files / "good.npz", "--to", "csv", "-o", tmp_path / "o.csv"])
+def test_good_inputs_still_work(run_cli, files, tmp_path):
+    rc, _, err = run_cli(["export", files / "good.npz", "--to", "csv", "-o", tmp_path / "o.csv"])
     assert rc == 0, err
     cols = read_csv(tmp_path / "o.csv")["columns"]
     ok = cols["valid"]

@@ -4,22 +4,12 @@ its unit options replace the units stored in a result."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import re
 
 import pytest
 import tifffile
 
-from napari_aldic.cli import main
 from napari_aldic.engine import load_result, synthetic as S
-
-
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +23,8 @@ def pair(tmp_path_factory):
     return folder
 
 
-def test_demo_reports_the_warm_up_apart_from_the_analysis(tmp_path):
-    rc, out, err = _run(["demo", "--out", tmp_path, "--size", 96, "--step", 12])
+def test_demo_reports_the_warm_up_apart_from_the_analysis(run_cli, tmp_path):
+    rc, out, err = run_cli(["demo", "--out", tmp_path, "--size", 96, "--step", 12])
     assert rc == 0, err
     lines = out.splitlines()
     warm = next(i for i, t in enumerate(lines) if "warm-up:" in t)
@@ -47,7 +37,7 @@ def test_demo_reports_the_warm_up_apart_from_the_analysis(tmp_path):
     assert shown == pytest.approx(res.meta["timing"]["total"], abs=1e-3)
 
 
-def test_run_plot_draws_in_the_units_given(tmp_path, pair, monkeypatch):
+def test_run_plot_draws_in_the_units_given(run_cli, tmp_path, pair, monkeypatch):
     import napari_aldic.cli.run as run_module
     from napari_aldic.engine.viz import displacement_figure
 
@@ -59,7 +49,7 @@ def test_run_plot_draws_in_the_units_given(tmp_path, pair, monkeypatch):
         return real(res, path, **kw)
 
     monkeypatch.setattr(run_module, "plot_displacement", plot)
-    rc, out, err = _run(["run", pair / "ref.tif", pair / "def.tif", "-o", tmp_path / "r.npz",
+    rc, out, err = run_cli(["run", pair / "ref.tif", pair / "def.tif", "-o", tmp_path / "r.npz",
                          "--subset", 21, "--step", 8, "--plot", "--pixel-size", 0.05,
                          "--unit", "mm"])
     assert rc == 0, err
@@ -75,11 +65,11 @@ def test_run_plot_draws_in_the_units_given(tmp_path, pair, monkeypatch):
     assert v.min() - 1e-9 <= lo < hi <= v.max() + 1e-9  # the data's range, not +-max|v|
 
 
-def test_export_says_when_unit_options_replace_the_stored_units(tmp_path, pair):
-    rc, _, err = _run(["run", pair / "ref.tif", pair / "def.tif", "-o", tmp_path / "r.npz",
+def test_export_says_when_unit_options_replace_the_stored_units(run_cli, tmp_path, pair):
+    rc, _, err = run_cli(["run", pair / "ref.tif", pair / "def.tif", "-o", tmp_path / "r.npz",
                        "--subset", 21, "--step", 16, "--pixel-size", 0.05, "--unit", "mm"])
     assert rc == 0, err
-    rc, out, err = _run(["export", tmp_path / "r.npz", "--to", "csv", "-o", tmp_path / "a",
+    rc, out, err = run_cli(["export", tmp_path / "r.npz", "--to", "csv", "-o", tmp_path / "a",
                          "--pixel-size", 0.5, "--unit", "um", "--no-strain"])
     assert rc == 0
     warning = [t for t in err.splitlines() if "warning" in t]
@@ -89,16 +79,16 @@ def test_export_says_when_unit_options_replace_the_stored_units(tmp_path, pair):
     assert "1 px = 0.5 um" in out
     # the same units, or a frame interval the result did not have: nothing replaced
     for extra in (["--pixel-size", 0.05, "--unit", "mm"], ["--frame-interval", 2]):
-        rc, out, err = _run(["export", tmp_path / "r.npz", "--to", "csv", "-o",
+        rc, out, err = run_cli(["export", tmp_path / "r.npz", "--to", "csv", "-o",
                              tmp_path / "b", "--no-strain", *extra])
         assert rc == 0 and "warning" not in err, err
     assert "1 px = 0.05 mm; frame interval 2 s" in out  # stored units kept, interval added
 
 
-def test_option_help_states_the_engine_defaults():
+def test_option_help_states_the_engine_defaults(run_cli):
     from napari_aldic.engine import DICParams
 
-    rc, out, _ = _run(["run", "--help"])
+    rc, out, _ = run_cli(["run", "--help"])
     assert rc == 0
     text = " ".join(out.split("options:", 1)[1].split())
     defaults = DICParams()

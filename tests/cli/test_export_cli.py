@@ -1,7 +1,5 @@
 """``napari-aldic export`` and ``params``, ``run --params-out`` and units in results."""
 
-import contextlib
-import io
 import json
 import shutil
 import sys
@@ -12,16 +10,8 @@ import scipy.io as sio
 import tifffile
 from PIL import Image
 
-from napari_aldic.cli import main
 from napari_aldic.engine import load_result
 from napari_aldic.engine.io import read_csv, read_vtu
-
-
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture
@@ -33,8 +23,8 @@ def folder(tmp_path, export_run_folder):
 
 
 @pytest.mark.slow  # ~5 s
-def test_export_run_folder_to_many_formats(folder, tmp_path, export_stack):
-    rc, out, err = _run(["export", folder, "--to", "mat,csv", "vtu", "gif", "pdf",
+def test_export_run_folder_to_many_formats(run_cli, folder, tmp_path, export_stack):
+    rc, out, err = run_cli(["export", folder, "--to", "mat,csv", "vtu", "gif", "pdf",
                          "--pixel-size", 0.5, "--unit", "um", "--frame-interval", 0.1,
                          "--line", 10, 64, 118, 64, "--fps", 2])
     assert rc == 0, err
@@ -53,36 +43,37 @@ def test_export_run_folder_to_many_formats(folder, tmp_path, export_stack):
     assert (folder / "export.pdf").stat().st_size > 10_000
 
 
-def test_export_single_file_name_and_fields(folder, tmp_path):
+def test_export_single_file_name_and_fields(run_cli, folder, tmp_path):
     out_png = tmp_path / "fig.png"
-    rc, out, err = _run(["export", folder / "frame_00002.npz", "--to", "png", "-o", out_png,
+    rc, out, err = run_cli(["export", folder / "frame_00002.npz", "--to", "png", "-o", out_png,
                          "--dpi", 60])
     assert rc == 0, err
     assert out_png.exists()
-    rc, out, err = _run(["export", folder / "frame_00002.npz", "--to", "png", "--field", "u",
+    rc, out, err = run_cli(["export", folder / "frame_00002.npz", "--to", "png", "--field", "u",
                          "exx", "-o", tmp_path / "maps", "--no-strain"])
     assert rc == 2  # exx needs strain: reported, u still written
     assert "needs strain" in err and (tmp_path / "maps_u.png").exists()
 
 
-def test_export_errors_are_one_line(folder, tmp_path):
-    rc, _, err = _run(["export", folder, "--to", "csv", "-o", tmp_path / "missing" / "x"])
+def test_export_errors_are_one_line(run_cli, folder, tmp_path):
+    rc, _, err = run_cli(["export", folder, "--to", "csv", "-o", tmp_path / "missing" / "x"])
     assert rc == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("napari-aldic: error: csv: cannot write")
     assert "does not exist" in lines[0]
     assert not (tmp_path / "missing").exists()
-    rc, _, err = _run(["export", tmp_path / "nothing.npz", "--to", "csv"])
+    rc, _, err = run_cli(["export", tmp_path / "nothing.npz", "--to", "csv"])
     assert rc == 2 and "no such file" in err
-    rc, _, err = _run(["export", folder, "--to", "xls"])
+    rc, _, err = run_cli(["export", folder, "--to", "xls"])
     assert rc == 2 and "unknown export format" in err
-    rc, _, err = _run(["export", folder, "--to", "csv", "--pixel-size", 2])
+    rc, _, err = run_cli(["export", folder, "--to", "csv", "--pixel-size", 2])
     assert rc == 2 and "physical length unit" in err
 
 
-def test_export_mp4_without_encoder_still_writes_gif(folder, tmp_path, monkeypatch, export_stack):
+def test_export_mp4_without_encoder_still_writes_gif(run_cli, folder, tmp_path, monkeypatch,
+                                                     export_stack):
     monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)
-    rc, out, err = _run(["export", folder, "--to", "mp4", "gif", "-o", tmp_path / "anim",
+    rc, out, err = run_cli(["export", folder, "--to", "mp4", "gif", "-o", tmp_path / "anim",
                          "--no-strain"])
     assert rc == 2
     assert "imageio-ffmpeg" in err and "GIF" in err
@@ -91,9 +82,9 @@ def test_export_mp4_without_encoder_still_writes_gif(folder, tmp_path, monkeypat
         assert im.n_frames == len(export_stack)
 
 
-def test_params_command_run_params_out_and_units_in_results(tmp_path, export_stack):
+def test_params_command_run_params_out_and_units_in_results(run_cli, tmp_path, export_stack):
     settings = tmp_path / "settings.json"
-    rc, out, err = _run(["params", settings, "--subset", 21, "--step", 12,
+    rc, out, err = run_cli(["params", settings, "--subset", 21, "--step", 12,
                          "--pixel-size", 0.25, "--unit", "mm"])
     assert rc == 0, err
     doc = json.loads(settings.read_text())
@@ -102,7 +93,7 @@ def test_params_command_run_params_out_and_units_in_results(tmp_path, export_sta
     tif = tmp_path / "stack.tif"
     tifffile.imwrite(tif, st[:3], photometric="minisblack")
     used = tmp_path / "used.json"
-    rc, out, err = _run(["run", tif, "--params", settings, "--step", 16, "-o",
+    rc, out, err = run_cli(["run", tif, "--params", settings, "--step", 16, "-o",
                          tmp_path / "res", "--params-out", used])
     assert rc == 0, err
     doc = json.loads(used.read_text())
@@ -111,7 +102,7 @@ def test_params_command_run_params_out_and_units_in_results(tmp_path, export_sta
                             "time_unit": "s"}
     res = load_result(tmp_path / "res" / "frame_00002.npz")
     assert res.meta["units"]["unit"] == "mm"
-    rc, out, err = _run(["export", tmp_path / "res", "--to", "csv", "--no-strain"])
+    rc, out, err = run_cli(["export", tmp_path / "res", "--to", "csv", "--no-strain"])
     assert rc == 0, err
     csv = read_csv(tmp_path / "res" / "export.csv")
     assert csv["units"]["u"] == "mm"
@@ -119,9 +110,9 @@ def test_params_command_run_params_out_and_units_in_results(tmp_path, export_sta
     np.testing.assert_allclose(csv["columns"]["u"][rows], 0.25 * res.u, rtol=1e-9)
 
 
-def test_params_writes_strain_and_tracking_and_checks_them(tmp_path):
+def test_params_writes_strain_and_tracking_and_checks_them(run_cli, tmp_path):
     first = tmp_path / "first.json"
-    rc, _, err = _run(["params", first, "--step", 10, "--strain-window", 7,
+    rc, _, err = run_cli(["params", first, "--step", 10, "--strain-window", 7,
                        "--strain-measure", "infinitesimal", "--reference", "incremental"])
     assert rc == 0, err
     doc = json.loads(first.read_text())
@@ -130,7 +121,7 @@ def test_params_writes_strain_and_tracking_and_checks_them(tmp_path):
     assert doc["tracking"] == {"reference": "incremental"}
     # a file and options: every section of the file is kept, the options win
     second = tmp_path / "second.json"
-    rc, _, err = _run(["params", second, "--params", first, "--strain-method", "fem"])
+    rc, _, err = run_cli(["params", second, "--params", first, "--strain-method", "fem"])
     assert rc == 0, err
     doc = json.loads(second.read_text())
     assert doc["params"]["step"] == 10 and doc["tracking"] == {"reference": "incremental"}
@@ -138,10 +129,10 @@ def test_params_writes_strain_and_tracking_and_checks_them(tmp_path):
     # invalid settings: one line naming the problem, nothing written
     for argv, expect in ((["--strain-window", 4], "strain window 4"),
                          (["--subset", 30], "subset=30")):
-        rc, _, err = _run(["params", tmp_path / "bad.json", *argv])
+        rc, _, err = run_cli(["params", tmp_path / "bad.json", *argv])
         assert rc == 2 and expect in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "bad.json").exists()
     bad = tmp_path / "bad_section.json"
     bad.write_text(json.dumps({"params": {}, "tracking": {"reference": "sideways"}}))
-    rc, _, err = _run(["params", tmp_path / "x.json", "--params", bad])
+    rc, _, err = run_cli(["params", tmp_path / "x.json", "--params", bad])
     assert rc == 2 and "sideways" in err and str(bad) in err

@@ -2,25 +2,16 @@
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 
 import numpy as np
 import pytest
 
-from napari_aldic.cli import main
-
 LINE_COLUMNS = ("strain", "true_strain", "elongation", "cod_opening", "cod_sliding",
                 "cod_magnitude")
 
 
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 def _rows(path):
@@ -37,13 +28,13 @@ def _truth(field, x0, y0, x1, y1):
     return (ell - L) / L, ell - L, (u[1] - u[0]) * e[0] + (v[1] - v[0]) * e[1]
 
 
-def test_probe_contract_columns_and_values(export_run_folder, export_field, tmp_path):
+def test_probe_contract_columns_and_values(run_cli, export_run_folder, export_field, tmp_path):
     lines = [(20, 64, 108, 64), (64, 20, 64, 108)]
     out = tmp_path / "probes.csv"
     argv = ["probe", export_run_folder]
     for ln in lines:
         argv += ["--line", *ln]
-    rc, stdout, err = _run([*argv, "--point", 50, 70, "--area", 30, 30, 90, 90, "-o", out])
+    rc, stdout, err = run_cli([*argv, "--point", 50, 70, "--area", 30, 30, 90, 90, "-o", out])
     assert rc == 0, err
     names, rows = _rows(out)
     assert names[0] == "frame"
@@ -68,12 +59,12 @@ def test_probe_contract_columns_and_values(export_run_folder, export_field, tmp_
     assert "load_N" not in names
 
 
-def test_probe_load_by_time_and_stress(export_run_folder, tmp_path):
+def test_probe_load_by_time_and_stress(run_cli, export_run_folder, tmp_path):
     load = tmp_path / "machine.csv"
     load.write_text("Tensile test, specimen 7\nTime;Standard force\n(s);(kN)\n"
                     "0,0;0,0\n0,5;1,0\n1,0;2,0\n1,5;3,0\n", encoding="utf-8")
     out = tmp_path / "p.csv"
-    rc, stdout, err = _run(["probe", export_run_folder, "--line", 20, 64, 108, 64,
+    rc, stdout, err = run_cli(["probe", export_run_folder, "--line", 20, 64, 108, 64,
                             "--load", load, "--area-mm2", 4, "--sync", "time", "--fps", 4,
                             "--offset", 0.5, "-o", out])
     assert rc == 0, err
@@ -83,7 +74,7 @@ def test_probe_load_by_time_and_stress(export_run_folder, tmp_path):
     np.testing.assert_allclose([float(r["load_N"]) for r in rows], [1000, 1500, 2000, 2500])
     np.testing.assert_allclose([float(r["stress_MPa"]) for r in rows], [250, 375, 500, 625])
     # an offset past the record leaves those frames empty (never extrapolated)
-    rc, stdout, err = _run(["probe", export_run_folder, "--line", 20, 64, 108, 64,
+    rc, stdout, err = run_cli(["probe", export_run_folder, "--line", 20, 64, 108, 64,
                             "--load", load, "--area-mm2", 4, "--sync", "time", "--fps", 2,
                             "--offset", 0.75, "-o", out])
     assert rc == 0, err
@@ -94,9 +85,9 @@ def test_probe_load_by_time_and_stress(export_run_folder, tmp_path):
     assert "load: missing at frame(s) 2, 3" in stdout
 
 
-def test_probe_units_result_file_and_extras(export_run_folder, tmp_path):
+def test_probe_units_result_file_and_extras(run_cli, export_run_folder, tmp_path):
     out = tmp_path / "one.csv"
-    rc, stdout, err = _run(["probe", export_run_folder / "frame_00002.npz", "--line", 20, 64,
+    rc, stdout, err = run_cli(["probe", export_run_folder / "frame_00002.npz", "--line", 20, 64,
                             108, 64, "--pixel-size", 0.5, "--unit", "um", "-o", out,
                             "--plot", "png", "--kymograph", "u"])
     assert rc == 0, err
@@ -116,25 +107,25 @@ def test_probe_units_result_file_and_extras(export_run_folder, tmp_path):
     (["--line", 0, 0, 9, 9, "--load", "LOAD"], "--load needs --area-mm2"),
     (["--line", 0, 0, 9, 9, "--area-mm2", 3], "go with --load"),
 ])
-def test_probe_errors_are_one_clear_line(export_run_folder, tmp_path, extra, message):
+def test_probe_errors_are_one_clear_line(run_cli, export_run_folder, tmp_path, extra, message):
     extra = [tmp_path / "l.csv" if a == "LOAD" else a for a in extra]
-    rc, out, err = _run(["probe", export_run_folder, *extra, "-o", tmp_path / "x.csv"])
+    rc, out, err = run_cli(["probe", export_run_folder, *extra, "-o", tmp_path / "x.csv"])
     assert rc == 2 and message in err and "Traceback" not in err
     assert err.count("\n") == 1
 
 
-def test_probe_bad_inputs_name_the_file(export_run_folder, tmp_path):
-    rc, _, err = _run(["probe", tmp_path / "nothing", "--line", 0, 0, 9, 9, "-o",
+def test_probe_bad_inputs_name_the_file(run_cli, export_run_folder, tmp_path):
+    rc, _, err = run_cli(["probe", tmp_path / "nothing", "--line", 0, 0, 9, 9, "-o",
                        tmp_path / "x.csv"])
     assert rc == 2 and "nothing" in err
     bad = tmp_path / "bad.csv"
     bad.write_text("Time,Force\n(s),(furlongs)\n0,1\n1,2\n")
-    rc, _, err = _run(["probe", export_run_folder, "--line", 0, 0, 9, 9, "--load", bad,
+    rc, _, err = run_cli(["probe", export_run_folder, "--line", 0, 0, 9, 9, "--load", bad,
                        "--area-mm2", 2, "--fps", 1, "-o", tmp_path / "x.csv"])
     assert rc == 2 and "bad.csv" in err and "furlongs" in err
 
 
-def test_probes_from_a_parameter_file(export_run_folder, tmp_path):
+def test_probes_from_a_parameter_file(run_cli, export_run_folder, tmp_path):
     from napari_aldic.engine import DICParams, Settings
     from napari_aldic.engine.io import write_settings
     from napari_aldic.engine.probes import LineProbe, ProbeSet
@@ -144,6 +135,6 @@ def test_probes_from_a_parameter_file(export_run_folder, tmp_path):
     settings = write_settings(tmp_path / "analysis.json",
                               Settings(DICParams(), probes=probes.to_dict()))
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
-    assert _run(["probe", export_run_folder, "--probes", settings, "-o", a])[0] == 0
-    assert _run(["probe", export_run_folder, "--line", 20, 64, 108, 64, "-o", b])[0] == 0
+    assert run_cli(["probe", export_run_folder, "--probes", settings, "-o", a])[0] == 0
+    assert run_cli(["probe", export_run_folder, "--line", 20, 64, 108, 64, "-o", b])[0] == 0
     assert _rows(a)[1] == _rows(b)[1]  # the same gauge, the same numbers

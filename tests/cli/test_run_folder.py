@@ -3,8 +3,6 @@ never mixed with another analysis (issue 11, section 2)."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import subprocess
 import sys
@@ -13,17 +11,11 @@ import numpy as np
 import pytest
 import tifffile
 
-from napari_aldic.cli import main
 from napari_aldic.engine import load_run, track
 
 STEP = ["--subset", 21, "--step", 24]
 
 
-def _run(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in argv])
-    return rc, out.getvalue(), err.getvalue()
 
 
 def _files(folder):
@@ -39,9 +31,9 @@ def tif(export_stack, tmp_path):
     return path
 
 
-def test_run_writes_the_track_folder_and_resumes_it(tif, tmp_path, export_stack):
+def test_run_writes_the_track_folder_and_resumes_it(run_cli, tif, tmp_path, export_stack):
     out = tmp_path / "run"
-    rc, text, err = _run(["run", tif, "-o", out, *STEP])
+    rc, text, err = run_cli(["run", tif, "-o", out, *STEP])
     assert rc == 0, err
     doc = json.loads((out / "sequence.json").read_text())
     assert doc["format"] == "napari-aldic-run" and doc["format_version"] == 2
@@ -51,7 +43,7 @@ def test_run_writes_the_track_folder_and_resumes_it(tif, tmp_path, export_stack)
     np.testing.assert_allclose(first[2].u, ref[2].u, atol=1e-9)
     (out / "frame_00002.npz").unlink()  # as if the run had been killed before frame 2
     kept = _files(out)
-    rc, text, err = _run(["run", tif, "-o", out, *STEP])
+    rc, text, err = run_cli(["run", tif, "-o", out, *STEP])
     assert rc == 0, err
     assert "1 frames in" in text and "1 finished frame(s) resumed" in text
     now = _files(out)
@@ -60,11 +52,11 @@ def test_run_writes_the_track_folder_and_resumes_it(tif, tmp_path, export_stack)
     np.testing.assert_allclose(load_run(out)[2].u, first[2].u, atol=1e-3)
 
 
-def test_run_refuses_a_folder_of_another_analysis(tif, tmp_path, export_stack):
+def test_run_refuses_a_folder_of_another_analysis(run_cli, tif, tmp_path, export_stack):
     other = tmp_path / "other"  # an unrelated 4-frame analysis
     track(export_stack, subset=21, step=12, out_dir=other)
     before = _files(other)
-    rc, text, err = _run(["run", tif, "-o", other, *STEP])
+    rc, text, err = run_cli(["run", tif, "-o", other, *STEP])
     assert rc == 2 and "Traceback" not in err
     assert err.startswith(f"napari-aldic: error: {other} holds results of a different analysis")
     assert "the parameters changed (step 12 -> 24)" in err and err.count("\n") == 1
@@ -72,17 +64,17 @@ def test_run_refuses_a_folder_of_another_analysis(tif, tmp_path, export_stack):
     old = tmp_path / "old_cli"  # the previous CLI's output: frame###.npz, no manifest
     old.mkdir()
     (old / "frame001.npz").write_bytes(b"previous result")
-    rc, _, err = _run(["run", tif, "-o", old, *STEP])
+    rc, _, err = run_cli(["run", tif, "-o", old, *STEP])
     assert rc == 2 and "frame001.npz) but no sequence.json" in err
 
 
-def test_run_refuses_a_changed_roi_and_a_busy_folder(tif, tmp_path):
+def test_run_refuses_a_changed_roi_and_a_busy_folder(run_cli, tif, tmp_path):
     out = tmp_path / "run"
     roi = np.ones((128, 128), bool)
     roi[:, :40] = False
     np.save(tmp_path / "roi.npy", roi)
-    assert _run(["run", tif, "-o", out, *STEP])[0] == 0
-    rc, _, err = _run(["run", tif, "-o", out, "--roi", tmp_path / "roi.npy", *STEP])
+    assert run_cli(["run", tif, "-o", out, *STEP])[0] == 0
+    rc, _, err = run_cli(["run", tif, "-o", out, "--roi", tmp_path / "roi.npy", *STEP])
     assert rc == 2 and "the ROI changed (16,384 px" in err
     holder = ("import sys, time\nfrom napari_aldic.engine.core.files import folder_lock\n"
               "with folder_lock(sys.argv[1]):\n    print('locked', flush=True)\n"
@@ -91,7 +83,7 @@ def test_run_refuses_a_changed_roi_and_a_busy_folder(tif, tmp_path):
                             text=True)
     try:
         assert proc.stdout.readline().strip() == "locked"
-        rc, _, err = _run(["run", tif, "-o", out, *STEP])
+        rc, _, err = run_cli(["run", tif, "-o", out, *STEP])
         assert rc == 2 and f"{out} is in use by another napari-aldic run (process " \
             f"{proc.pid}" in err
     finally:
