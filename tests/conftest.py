@@ -13,6 +13,9 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+# the tests read the English text of widgets and messages: English whatever the developer's
+# locale (a test that needs another language sets NAPARI_ALDIC_LANGUAGE or calls set_language)
+os.environ["NAPARI_ALDIC_LANGUAGE"] = "en"
 #: optional real speckle images, kept next to the repository (``../shared/data``);
 #: ``NAPARI_ALDIC_SHARED_DATA`` points elsewhere. Tests that need them skip without them.
 SHARED_DATA = Path(os.environ.get("NAPARI_ALDIC_SHARED_DATA", REPO.parent / "shared" / "data"))

@@ -29,6 +29,7 @@ from .engine import (
     resolve_refinement,
     track,
 )
+from .i18n import tr
 
 __all__ = ["Analysis", "StrainSettings", "Job", "run_analysis", "run_in_thread", "zero_field",
            "brush_refinement", "describe_fields"]
@@ -137,13 +138,16 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     n = int(stack.shape[0])
     stop = n - 1 if stop is None else int(stop)
     if not (0 <= start < stop < n):
-        raise ValueError(f"frame range {start}..{stop} is not valid for a stack of {n} frames "
-                         "(the first frame must come before the last)")
+        raise ValueError(tr("frame range {start}..{stop} is not valid for a stack of {n} "
+                            "frames (the first frame must come before the last)").format(
+                                start=start, stop=stop, n=n))
     if stride < 1:
-        raise ValueError(f"frame stride {stride} must be >= 1")
+        raise ValueError(tr("frame stride {stride} must be >= 1").format(stride=stride))
     rel = list(range(0, stop - start + 1, stride))
     if len(rel) < 2:
-        raise ValueError(f"frames {start}..{stop} with stride {stride} hold a single frame")
+        raise ValueError(tr("frames {start}..{stop} with stride {stride} hold a single "
+                            "frame").format(
+                                start=start, stop=stop, stride=stride))
     frames = [start + k for k in rel]
     sub = stack[start:stop + 1]
     report = progress or (lambda k, frac, msg: None)
@@ -156,7 +160,7 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     refine = None
     if brush is not None and np.any(brush):
         if reference != "accumulative":
-            raise ValueError("a brush refinement region needs accumulative tracking")
+            raise ValueError(tr("a brush refinement region needs accumulative tracking"))
         refine = brush_refinement(params.refine, brush)  # replaces the preset
     error = ""
     try:
@@ -225,19 +229,32 @@ class Job:
         n_roi = rows * cols if self.roi is None else int(self.roi.sum())
         stop = n - 1 if self.stop is None else int(self.stop)
         s = self.strain
-        return (f"image '{self.source}' ({n} frames, {cols} x {rows} px, {self.stack.dtype}); "
-                f"frames {self.start}..{stop} every {self.stride}, {self.reference}; "
-                f"ROI {n_roi} px"
-                + (f" [{'; '.join(roi_notes)}]" if roi_notes else " (whole image)")
-                + f"; method {p.method}, subset {p.subset} px, step {p.step} px, search "
-                f"{p.search} px, init {p.init}"
-                + (f" ({len(p.seeds)} seeds)" if p.seeds else "")
-                + f", refinement {p.refine or 'none'}"
-                + (f" + brush region ({int(self.brush.sum())} px)"
-                   if self.brush is not None else "")
-                + (f", smoothing {p.smooth}" if p.method == "aldic" else "")
-                + f"; strain {s.method}, window {s.window}, {s.measure}"
-                + (f"; from the parameter file: {describe_fields(extra)}" if extra else ""))
+        roi = (tr("ROI {n} px [{notes}]").format(n=n_roi, notes="; ".join(roi_notes)) if roi_notes
+               else tr("ROI {n} px (whole image)").format(n=n_roi))
+        init = (tr("init {init} ({n} seeds)").format(init=p.init, n=len(p.seeds)) if p.seeds
+                else tr("init {init}").format(init=p.init))
+        refine = p.refine or "none"
+        refine = (tr("refinement {refine} + brush region ({n} px)").format(
+            refine=refine, n=int(self.brush.sum())) if self.brush is not None
+            else tr("refinement {refine}").format(refine=refine))
+        method = [tr("method {method}").format(method=p.method),
+                  tr("subset {subset} px").format(subset=p.subset),
+                  tr("step {step} px").format(step=p.step),
+                  tr("search {search} px").format(search=p.search), init, refine]
+        if p.method == "aldic":
+            method.append(tr("smoothing {smooth}").format(smooth=p.smooth))
+        clauses = [tr("image '{source}' ({n} frames, {cols} x {rows} px, {dtype})").format(
+                       source=self.source, n=n, cols=cols, rows=rows, dtype=self.stack.dtype),
+                   tr("frames {start}..{stop} every {stride}, {reference}").format(
+                       start=self.start, stop=stop, stride=self.stride,
+                       reference=self.reference),
+                   roi, ", ".join(method),
+                   tr("strain {method}, window {window}, {measure}").format(
+                       method=s.method, window=s.window, measure=s.measure)]
+        if extra:
+            clauses.append(tr("from the parameter file: {fields}").format(
+                fields=describe_fields(extra)))
+        return "; ".join(clauses)
 
     def run(self, progress: ProgressFn | None = None,
             cancel: Callable[[], bool] | None = None) -> Analysis:

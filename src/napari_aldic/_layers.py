@@ -33,6 +33,7 @@ import numpy as np
 from .engine import DICResult, Reason
 from .engine.io import result_cells
 from .engine.viz import colour_limits, fine_grid, on_fine_grid, rigid_motion, to_deformed
+from .i18n import tr
 
 __all__ = ["Geometry", "Display", "DISPLAY_FIELDS", "RESULT_KEYS", "REASON_COLORS",
            "layer_name", "is_result_name", "analysis_layers", "field_on_lattice"]
@@ -228,7 +229,8 @@ def analysis_layers(analysis, geometry: Geometry, display: Display = Display()) 
     with_time = analysis.n_frames is not None
     geo = geometry if with_time else geometry.last(2)
     if with_time and geo.ndim != 3:
-        raise ValueError(f"the image has {geo.ndim} axes; a stack has (time, rows, cols)")
+        raise ValueError(tr("the image has {ndim} axes; a stack has (time, rows, cols)").format(
+                                ndim=geo.ndim))
     meta = _common_meta(analysis, base, display)
     layers = _image_layers(analysis, geo, display, meta)
     tables = _node_tables(analysis, display, with_time)

@@ -22,6 +22,7 @@ import numpy as np
 
 from .engine import open_stack
 from .engine.io import IMAGE_SUFFIXES, TIFF_SUFFIXES, grey_frame, image_files, natural_key
+from .i18n import tr
 
 __all__ = ["get_reader", "read_stack", "read_results", "is_result_file"]
 
@@ -58,11 +59,13 @@ def _builtin_npz(path: Path) -> bool:
 
 def _explain_builtin_npz(path):
     raise ValueError(
-        f"{Path(path).name} holds only the pixels of one layer, written by napari's own "
-        "image writer (the default file type of File > Save Selected Layers...), not the "
-        "napari-aldic results. Save results with the DIC widget's Export section (format "
-        "'Results (.npz)'), or choose the file type 'napari-aldic results (*.npz)' in "
-        "File > Save Selected Layers...; those reopen as result layers.")
+        tr("{name} holds only the pixels of one layer, written by "
+           "napari's own image writer (the default file type of File > "
+           "Save Selected Layers...), not the napari-aldic results. Save "
+           "results with the DIC widget's Export section (format 'Results "
+           "(.npz)'), or choose the file type 'napari-aldic results "
+           "(*.npz)' in File > Save Selected Layers...; those reopen as "
+           "result layers.").format(name=Path(path).name))
 
 
 def _result_frames(folder: Path) -> list[tuple[int, Path]]:
@@ -123,8 +126,9 @@ def _lazy_stack(read_frame, n: int, first: np.ndarray, label: str):
     def load(k: int) -> np.ndarray:
         img = grey_frame(read_frame(k))
         if img.shape != shape:
-            raise ValueError(f"{label}: frame {k} has shape {img.shape}, frame 0 has {shape}; "
-                             "all frames of a stack must have the same size")
+            raise ValueError(tr("{label}: frame {k} has shape {shape}, frame 0 has {shape2}; "
+                                "all frames of a stack must have the same size").format(
+                                    label=label, k=k, shape=img.shape, shape2=shape))
         return img.astype(dtype, copy=False)
 
     frames = [da.from_delayed(dask.delayed(load)(k), shape=shape, dtype=dtype) for k in range(n)]
@@ -221,7 +225,7 @@ def read_results(path):
         folder = p.is_dir()
         paths = [q for _, q in _result_frames(p)] if folder else [p]
     if not paths:
-        raise ValueError(f"no napari-aldic result files in {path}")
+        raise ValueError(tr("no napari-aldic result files in {path}").format(path=path))
     from .engine import Units
 
     analysis = _load_analysis(paths, folder)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .i18n import tr
+
 __all__ = ["shape_mask", "shapes_masks", "labels_mask", "labels_fit", "points_xy",
            "to_image_pixels", "build_roi", "CUT_TYPES"]
 
@@ -76,7 +78,8 @@ def shape_mask(shape_type: str, rc: np.ndarray, image_shape, width: float = 1.0)
 
             out = ndimage.binary_dilation(out, iterations=half)
         return out
-    raise ValueError(f"shape type {shape_type!r} cannot be turned into a region")
+    raise ValueError(tr("shape type {shape_type!r} cannot be turned into a region").format(
+                            shape_type=shape_type))
 
 
 def shapes_masks(layer, image, image_shape) -> tuple[np.ndarray, np.ndarray]:
@@ -104,7 +107,8 @@ def _plane(layer, frame: int) -> np.ndarray:
     if data.ndim == 3:
         return np.asarray(data[min(frame, data.shape[0] - 1)])
     if data.ndim != 2:
-        raise ValueError(f"labels layer '{layer.name}' has {data.ndim} axes; use a 2-D one")
+        raise ValueError(tr("labels layer '{layer_name}' has {ndim} axes; use a 2-D one").format(
+                                layer_name=layer.name, ndim=data.ndim))
     return np.asarray(data)
 
 
@@ -154,8 +158,10 @@ def labels_mask(layer, image_shape, frame: int = 0, image=None) -> np.ndarray:
     if image is not None and not _same_grid(layer, image, plane.shape, image_shape):
         return _through_world(layer, image, plane, image_shape, frame)
     if tuple(plane.shape) != tuple(image_shape):
-        raise ValueError(f"labels layer '{layer.name}' is {plane.shape[0]} x {plane.shape[1]} "
-                         f"px but the image is {image_shape[0]} x {image_shape[1]} px")
+        raise ValueError(tr("labels layer '{layer_name}' is {rows} x {cols} px but the image "
+                            "is {image_rows} x {image_cols} px").format(
+                                layer_name=layer.name, rows=plane.shape[0], cols=plane.shape[1],
+                                image_rows=image_shape[0], image_cols=image_shape[1]))
     return plane != 0
 
 
@@ -190,22 +196,24 @@ def build_roi(image, image_shape, add_shapes=(), subtract_shapes=(), labels=None
         # drawn areas restrict the ROI even where they miss the image (then it is empty)
         any_add = any_add or any(k not in CUT_TYPES for k in layer.shape_type)
         added |= a
-        notes.append(f"+ shapes '{layer.name}' ({len(layer.data)} shapes)")
+        notes.append(tr("+ shapes '{layer_name}' ({n_data} shapes)").format(
+                            layer_name=layer.name, n_data=len(layer.data)))
     if any_add:
         roi &= added
         restricted = True
     if labels is not None:
         roi &= labels_mask(labels, (h, w), frame, image)
         restricted = True
-        notes.append(f"& labels '{labels.name}' (nonzero)")
+        notes.append(tr("& labels '{labels_name}' (nonzero)").format(labels_name=labels.name))
     for layer in subtract_shapes:
         a, c = shapes_masks(layer, image, (h, w))
         roi &= ~a
         cut |= c
         restricted = restricted or bool(a.any())
-        notes.append(f"- shapes '{layer.name}' ({len(layer.data)} shapes)")
+        notes.append(tr("- shapes '{layer_name}' ({n_data} shapes)").format(
+                            layer_name=layer.name, n_data=len(layer.data)))
     if cut.any():
         roi &= ~cut
         restricted = True
-        notes.append(f"cracks cut along lines/paths ({int(cut.sum())} px)")
+        notes.append(tr("cracks cut along lines/paths ({sum} px)").format(sum=int(cut.sum())))
     return (roi if restricted else None), notes

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .i18n import tr
+
 __all__ = ["make_translation_pair", "make_crack_pair", "make_strain_sequence",
            "make_plate_with_hole", "load_open_hole_pair", "load_crack_sequence",
            "sample_data_dir", "open_hole_roi", "CRACK_FILE"]
@@ -41,7 +43,7 @@ def make_translation_pair():
     stack = np.stack([ref, dfm])
     meta = {"truth": {"field": "translation", "u": u, "v": v},
             "description": "frame 0: reference; frame 1: rigid sub-pixel translation"}
-    return [(stack, {"name": f"speckle translation u={u:+.2f} v={v:+.2f} px",
+    return [(stack, {"name": tr("speckle translation u={u:+.2f} v={v:+.2f} px").format(u=u, v=v),
                      "metadata": meta, "contrast_limits": (0, 255)}, "image")]
 
 
@@ -58,9 +60,9 @@ def make_crack_pair():
             "description": case.description}
     labels = case.roi.astype(np.uint8)
     return [
-        (stack, {"name": "speckle Mode-I crack", "metadata": meta,
+        (stack, {"name": tr("speckle Mode-I crack"), "metadata": meta,
                  "contrast_limits": (0, 255)}, "image"),
-        (labels, {"name": "ROI (crack excluded)", "opacity": 0.3}, "labels"),
+        (labels, {"name": tr("ROI (crack excluded)"), "opacity": 0.3}, "labels"),
     ]
 
 
@@ -82,7 +84,7 @@ def make_strain_sequence(n_frames: int = 5, size: int = 256):
         truth.append({"exx": e, "eyy": -0.3 * e, "center": [c, c], "t": list(t)})
     meta = {"truth": {"field": "uniform_strain", "frames": truth},
             "description": "uniform strain growing 0 -> 2 % over the frames"}
-    return [(np.stack(frames), {"name": "speckle uniform strain sequence", "metadata": meta,
+    return [(np.stack(frames), {"name": tr("speckle uniform strain sequence"), "metadata": meta,
                                 "contrast_limits": (0, 255)}, "image")]
 
 
@@ -100,10 +102,10 @@ def make_plate_with_hole(size: int = 320):
                       "amplitude": field.amplitude, "nu": field.nu, "t": list(field.t)},
             "description": "Kirsch field: plate with a hole under uniaxial tension (x)"}
     return [
-        (np.stack([ref, dfm]), {"name": "speckle plate with hole", "metadata": meta,
+        (np.stack([ref, dfm]), {"name": tr("speckle plate with hole"), "metadata": meta,
                                 "contrast_limits": (0, 255)}, "image"),
         (field.roi((size, size)).astype(np.uint8),
-         {"name": "ROI (hole excluded)", "opacity": 0.3}, "labels"),
+         {"name": tr("ROI (hole excluded)"), "opacity": 0.3}, "labels"),
     ]
 
 
@@ -120,8 +122,9 @@ def sample_data_dir(name: str = "open_hole_tension", package_dir=None) -> Path:
         if folder.is_dir():
             return folder
     raise FileNotFoundError(
-        f"sample data folder {name!r} not found (looked in "
-        f"{', '.join(str(c) for c in candidates)}); reinstall napari-aldic")
+        tr("sample data folder {name!r} not found (looked in {join}); "
+           "reinstall napari-aldic").format(
+               name=name, join=', '.join(str(c) for c in candidates)))
 
 
 def open_hole_roi(image: np.ndarray, threshold: float = 40.0) -> np.ndarray:
@@ -160,9 +163,9 @@ def load_open_hole_pair():
             "files": [str(folder / name) for name in OPEN_HOLE_FILES]}
     roi = open_hole_roi(stack[0]).astype(np.uint8)
     return [
-        (stack, {"name": "open-hole tension (CFRP)", "metadata": meta,
+        (stack, {"name": tr("open-hole tension (CFRP)"), "metadata": meta,
                  "contrast_limits": (0, 255)}, "image"),
-        (roi, {"name": "ROI (estimated, hole excluded)", "opacity": 0.3}, "labels"),
+        (roi, {"name": tr("ROI (estimated, hole excluded)"), "opacity": 0.3}, "labels"),
     ]
 
 
@@ -182,5 +185,5 @@ def load_crack_sequence():
     meta = {"source": str(path),
             "description": "crack growing from a notch; 2D_ALDIC (Jin Yang), BSD-3-Clause, "
                            "cropped and converted to 8 bits (see README.md beside the file)"}
-    return [(stack, {"name": "crack from a notch (real)", "metadata": meta,
+    return [(stack, {"name": tr("crack from a notch (real)"), "metadata": meta,
                      "contrast_limits": (0, 255), "axis_labels": ("t", "y", "x")}, "image")]

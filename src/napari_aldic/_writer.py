@@ -15,14 +15,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .i18n import tr
+
 __all__ = ["write_results", "write_export", "units_of", "save_analysis"]
 
 
 def _analysis_of(meta: dict):
     analysis = (meta.get("metadata") or {}).get("napari_aldic_analysis")
     if analysis is None:
-        raise ValueError("this layer holds no napari-aldic results; choose a 'DIC ...' "
-                         "result layer")
+        raise ValueError(tr("this layer holds no napari-aldic results; choose a 'DIC ...' "
+                            "result layer"))
     return analysis
 
 

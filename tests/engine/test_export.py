@@ -51,7 +51,7 @@ MAT_FRAME = {"frame", "time", "x_px", "y_px", "u_px", "v_px", "x", "y", "u", "v"
              "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys", "exx", "eyy", "exy",
              "e1", "e2", "max_shear", "von_mises", "rotation", "exx_rate", "eyy_rate",
              "exy_rate", "strain_valid", "u_local", "v_local", "elements", "faces", "hanging",
-             "meta_json", "u_attempt", "v_attempt"}
+             "meta_json", "u_attempt", "v_attempt", "u_std", "v_std", "sssig", "mig"}
 RESULT_FIELDS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc", "reason",
                  "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys", "u_local",
                  "v_local", "elements", "hanging", "roi")

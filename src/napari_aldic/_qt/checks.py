@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .._roi import labels_mask, points_xy
+from ..i18n import tr
 
 __all__ = ["Choices", "problems"]
 
@@ -42,7 +43,8 @@ def problems(c: Choices) -> tuple[list[str], list[str]]:
     """(errors, warnings) of the choices ``c``, in words."""
     img = c.image
     if img is None:
-        return ["Choose an image stack (open a TIFF stack or a folder of images)."], []
+        return [tr("Choose an image stack (open a TIFF stack or a folder of "
+                   "images).")], []
     stack_error = _stack_problem(img, c.shape)
     if stack_error:
         return [stack_error], []
@@ -51,38 +53,42 @@ def problems(c: Choices) -> tuple[list[str], list[str]]:
     try:
         roi = c.roi((rows, cols))[0] if c.roi is not None else None
     except Exception as exc:  # a layer that cannot be read as a region
-        errors.append(f"ROI: {exc}")
+        errors.append(tr("ROI: {exc}").format(exc=exc))
         roi = None
     else:
         errors += _roi_problems(roi, c.subset)
     if c.subset + 2 > min(rows, cols):
-        errors.append(f"Subset {c.subset} px does not fit in the image ({cols} x {rows} px).")
+        errors.append(tr("Subset {subset} px does not fit in the image ({cols} x {rows} "
+                         "px).").format(
+                             subset=c.subset, cols=cols, rows=rows))
     if c.init == "seeds":
         errors += _seed_problems(c.seeds, img, roi, rows, cols)
     if c.brush is not None:
         try:
             labels_mask(c.brush, (rows, cols), c.start, img)
         except ValueError as exc:
-            errors.append(f"Refine region: {exc}")
+            errors.append(tr("Refine region: {exc}").format(exc=exc))
         if c.reference != "accumulative":
-            errors.append("A painted refine region needs 'accumulative' tracking.")
+            errors.append(tr("A painted refine region needs 'accumulative' tracking."))
     warnings = []
     if c.step > c.subset:
-        warnings.append(f"Step {c.step} px is larger than the subset: pixels between subsets "
-                        "are not used.")
+        warnings.append(tr("Step {step} px is larger than the subset: pixels between "
+                           "subsets are not used.").format(step=c.step))
     return errors, warnings
 
 
 def _stack_problem(img, shape) -> str | None:
     """Why the image is not a grey stack of at least two frames (None: it is)."""
     if img.rgb:
-        return (f"'{img.name}' is RGB; DIC needs grey images (open the stack with this "
-                "plugin's reader, which converts RGB to grey).")
+        return (tr("'{name}' is RGB; DIC needs grey images (open the stack with "
+                   "this plugin's reader, which converts RGB to grey).").format(
+                       name=img.name))
     if len(shape) != 3 or shape[0] < 2:
-        return (f"'{img.name}' has shape {shape}; DIC needs a stack (frames, rows, cols) with "
-                "at least two frames. Open the reference and deformed images as one stack: "
-                "File > Open Files as Stack... (choose the napari-aldic reader), or "
-                "File > Open Folder... for a folder of images.")
+        return (tr("'{name}' has shape {shape}; DIC needs a stack (frames, rows, "
+                   "cols) with at least two frames. Open the reference and "
+                   "deformed images as one stack: File > Open Files as Stack... "
+                   "(choose the napari-aldic reader), or File > Open Folder... "
+                   "for a folder of images.").format(name=img.name, shape=shape))
     return None
 
 
@@ -90,14 +96,17 @@ def _number_problems(c: Choices) -> list[str]:
     """Subset and strain window parity, frame range."""
     errors = []
     if c.subset % 2 == 0:
-        errors.append(f"Subset {c.subset} px must be odd (e.g. {c.subset + 1}).")
+        errors.append(tr("Subset {subset} px must be odd (e.g. {odd}).").format(
+                             subset=c.subset, odd=c.subset + 1))
     if c.window % 2 == 0:
-        errors.append(f"Strain window {c.window} must be odd.")
+        errors.append(tr("Strain window {window} must be odd.").format(window=c.window))
     if not c.start < c.stop:
-        errors.append(f"First frame ({c.start}) must come before the last frame ({c.stop}).")
+        errors.append(tr("First frame ({start}) must come before the last frame "
+                         "({stop}).").format(start=c.start, stop=c.stop))
     elif (c.stop - c.start) < c.stride:
-        errors.append(f"Frames {c.start}..{c.stop} every {c.stride} hold only the reference "
-                      "frame.")
+        errors.append(tr("Frames {start}..{stop} every {stride} hold only the reference "
+                         "frame.").format(
+                             start=c.start, stop=c.stop, stride=c.stride))
     return errors
 
 
@@ -106,20 +115,22 @@ def _roi_problems(roi: np.ndarray | None, subset: int) -> list[str]:
     if roi is None:
         return []
     if not roi.any():
-        return ["The ROI is empty: draw shapes on the material or choose other ROI layers."]
+        return [tr("The ROI is empty: draw shapes on the material or choose other "
+                   "ROI layers.")]
     ys, xs = np.nonzero(roi)
     bh, bw = ys.max() - ys.min() + 1, xs.max() - xs.min() + 1
     if subset > min(bh, bw):
-        return [f"Subset {subset} px is larger than the ROI bounding box ({bw} x {bh} px); "
-                "reduce the subset or enlarge the ROI."]
+        return [tr("Subset {subset} px is larger than the ROI bounding box ({bw} "
+                   "x {bh} px); reduce the subset or enlarge the ROI.").format(
+                       subset=subset, bw=bw, bh=bh)]
     return []
 
 
 def _seed_problems(seeds, img, roi, rows: int, cols: int) -> list[str]:
     """No seed points, or seed points outside the ROI."""
     if seeds is None or len(seeds.data) == 0:
-        return ["Initial guess 'seed points' needs a Points layer with at least one point "
-                "(choose it under 'Seeds')."]
+        return [tr("Initial guess 'seed points' needs a Points layer with at "
+                   "least one point (choose it under 'Seeds').")]
     xy = points_xy(seeds, img)
     inside = [(0 <= x < cols and 0 <= y < rows
                and (roi is None or roi[int(round(y)), int(round(x))]))
@@ -127,5 +138,5 @@ def _seed_problems(seeds, img, roi, rows: int, cols: int) -> list[str]:
     if all(inside):
         return []
     bad = [f"({x:.0f}, {y:.0f})" for (x, y), ok in zip(xy, inside) if not ok]
-    return [f"Seed point(s) {', '.join(bad)} (x, y) lie outside the ROI; move them onto "
-            "analysed material."]
+    return [tr("Seed point(s) {join} (x, y) lie outside the ROI; move them "
+               "onto analysed material.").format(join=', '.join(bad))]

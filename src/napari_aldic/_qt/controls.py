@@ -12,6 +12,8 @@ from typing import Any
 
 from magicgui.widgets import ComboBox, Container, FloatSpinBox, Label, SpinBox
 
+from ..i18n import tr
+
 __all__ = ["Panel", "Plan", "section", "align_labels", "check_value", "put", "apply_plan",
            "fit_decimals"]
 
@@ -71,7 +73,8 @@ def _whole(value, what: str) -> int:
     """``value`` as an int; ``ValueError`` naming ``what`` unless it is a whole number."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             (isinstance(value, float) and not value.is_integer()):
-        raise ValueError(f"{what} {value!r} must be a whole number")
+        raise ValueError(tr("{what} {value!r} must be a whole number").format(
+                                what=what, value=value))
     return int(value)
 
 
@@ -79,17 +82,20 @@ def check_value(widget, value, what: str) -> None:
     """Raise ``ValueError`` unless ``widget`` can take ``value`` as it is."""
     if isinstance(widget, ComboBox):
         if value not in widget.choices:
-            raise ValueError(f"{what} {value!r} is not one of {list(widget.choices)}")
+            raise ValueError(tr("{what} {value!r} is not one of {list}").format(
+                                    what=what, value=value, list=list(widget.choices)))
         return
     if isinstance(widget, FloatSpinBox):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                 not math.isfinite(value):
-            raise ValueError(f"{what} {value!r} must be a number")
+            raise ValueError(tr("{what} {value!r} must be a number").format(
+                                    what=what, value=value))
     elif isinstance(widget, SpinBox):
         value = _whole(value, what)
     if not widget.min <= value <= widget.max:
-        raise ValueError(f"{what} {value:g} is outside the range {widget.min:g}..{widget.max:g} "
-                         "of the widget")
+        raise ValueError(tr("{what} {value:g} is outside the range {min:g}..{max:g} of the "
+                            "widget").format(
+                                what=what, value=value, min=widget.min, max=widget.max))
 
 
 def put(plan: Plan, widget, value, what: str) -> None:

@@ -9,16 +9,18 @@ from __future__ import annotations
 
 from typing import Any
 
-from magicgui.widgets import ComboBox, FloatSpinBox, SpinBox
+from magicgui.widgets import ComboBox, FloatSpinBox, PushButton, SpinBox
 from psygnal import Signal
 
 from ..engine import DICParams
+from ..i18n import tr
 from .controls import Panel, Plan, put
 
 __all__ = ["CorrelationPanel", "PARAM_CONTROLS"]
 
 #: DICParams fields that the panel shows (the others are kept from a loaded file)
-PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth")
+PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth",
+                  "shape_function")
 
 
 class CorrelationPanel(Panel):
@@ -32,74 +34,97 @@ class CorrelationPanel(Panel):
     """
 
     settings_changed = Signal()
+    #: the "Advise subset" button was clicked (the widget runs the advice)
+    advise_requested = Signal()
 
     def __init__(self):
         self._extra_params: dict[str, Any] = {}
         super().__init__()
 
     def _setup_ui(self) -> None:
-        self.method = ComboBox(label="Method", value="aldic",
-                               choices=[("AL-DIC", "aldic"), ("Local (IC-GN)", "local")],
-                               tooltip="AL-DIC couples the subsets to a compatible finite-"
+        self.method = ComboBox(label=tr("Method"), value="aldic",
+                               choices=[(tr("AL-DIC"), "aldic"), (tr("Local (IC-GN)"), "local")],
+                               tooltip=tr("AL-DIC couples the subsets to a compatible finite-"
                                        "element field (smoother, robust); Local solves every "
-                                       "subset on its own (faster).")
-        self.subset = SpinBox(label="Subset (px)", value=31, min=7, max=2001, step=2,
-                              tooltip="Odd full width of the square correlation subset in "
+                                       "subset on its own (faster)."))
+        self.subset = SpinBox(label=tr("Subset (px)"), value=31, min=7, max=2001, step=2,
+                              tooltip=tr("Odd full width of the square correlation subset in "
                                       "pixels (31 = 31 x 31). Larger: less noise, less "
-                                      "spatial resolution. It should hold ~3 speckles across.")
-        self.step = SpinBox(label="Step (px)", value=8, min=1, max=1000,
-                            tooltip="Node spacing in pixels.")
-        self.search = SpinBox(label="Search (px)", value=20, min=1, max=100000,
-                              tooltip="Initial half-range of the FFT cross-correlation "
+                                      "spatial resolution. It should hold ~3 speckles across."))
+        self.step = SpinBox(label=tr("Step (px)"), value=8, min=1, max=1000,
+                            tooltip=tr("Node spacing in pixels."))
+        self.target_noise = FloatSpinBox(
+            label=tr("Target noise (px)"), value=0.01, min=0.0005, max=1.0, step=0.001,
+            tooltip=tr("Displacement noise (standard deviation, px) the subset advice aims "
+                       "for."))
+        self.advise = PushButton(
+            text=tr("Advise subset"),
+            tooltip=tr("Predict the displacement noise of each subset size from the "
+                       "reference frame's speckle and noise, and log the smallest subset "
+                       "that meets the target noise."))
+        self.search = SpinBox(label=tr("Search (px)"), value=20, min=1, max=100000,
+                              tooltip=tr("Initial half-range of the FFT cross-correlation "
                                       "search; it widens by itself when the peak lies on "
-                                      "its border.")
-        self.refine = ComboBox(label="Refinement", value="none",
-                               choices=["none", "light", "medium", "strong"],
-                               tooltip="Adaptive quadtree preset: light = near holes/cracks; "
+                                      "its border."))
+        self.refine = ComboBox(label=tr("Refinement"), value="none",
+                               choices=[(tr("none"), "none"), (tr("light"), "light"),
+                                        (tr("medium"), "medium"), (tr("strong"), "strong")],
+                               tooltip=tr("Adaptive quadtree preset: light = near holes/cracks; "
                                        "medium = also the ROI outline; strong = also where "
-                                       "the correlation is poor (slower).")
-        self.smooth = ComboBox(label="AL-DIC smoothing", value="auto",
-                               choices=[("auto (from the noise)", "auto"),
-                                        ("off (plain Algorithm 1)", "off"),
-                                        ("fixed length", "fixed")],
-                               tooltip="Curvature regulariser of the AL-DIC global step "
+                                       "the correlation is poor (slower)."))
+        self.smooth = ComboBox(label=tr("AL-DIC smoothing"), value="auto",
+                               choices=[(tr("auto (from the noise)"), "auto"),
+                                        (tr("off (plain Algorithm 1)"), "off"),
+                                        (tr("fixed length"), "fixed")],
+                               tooltip=tr("Curvature regulariser of the AL-DIC global step "
                                        "(never biases uniform strain). auto: the length "
                                        "that minimises the estimated error for these "
                                        "images (~0 for clean images); off: none; fixed: "
-                                       "the length below.")
-        self.smooth_px = FloatSpinBox(label="Smoothing length (px)", value=10.0, min=0.5,
+                                       "the length below."))
+        self.smooth_px = FloatSpinBox(label=tr("Smoothing length (px)"), value=10.0, min=0.5,
                                       max=10000.0, step=0.5, enabled=False,
-                                      tooltip="Displacement waves shorter than ~2 pi x this "
-                                              "length are damped (fixed smoothing only).")
-        self.init = ComboBox(label="Initial guess", value="fft",
-                             choices=[("FFT cross-correlation", "fft"),
-                                      ("Seed points", "seeds")],
-                             tooltip="FFT: automatic search. Seed points: propagate from the "
-                                     "points of the seeds layer (large or uneven motion).")
+                                      tooltip=tr("Displacement waves shorter than ~2 pi x this "
+                                              "length are damped (fixed smoothing only)."))
+        self.shape = ComboBox(label=tr("Subset shape"), value="affine",
+                              choices=[(tr("affine"), "affine"), (tr("quadratic"), "quadratic")],
+                              tooltip=tr("affine: subsets stretch, shear and rotate. quadratic: "
+                                         "they may also bend, which keeps displacement "
+                                         "detail finer than a subset (a little more noise, "
+                                         "slower). With AL-DIC it shapes the first local "
+                                         "step."))
+        self.init = ComboBox(label=tr("Initial guess"), value="fft",
+                             choices=[(tr("FFT cross-correlation"), "fft"),
+                                      (tr("Seed points"), "seeds")],
+                             tooltip=tr("FFT: automatic search. Seed points: propagate from the "
+                                     "points of the seeds layer (large or uneven motion)."))
         self._setup_tracking_ui()
-        self.extend([self.method, self.subset, self.step, self.search,
-                     self.refine, self.smooth, self.smooth_px, self.init, self.reference,
+        self.extend([self.method, self.subset, self.step, self.target_noise, self.advise,
+                     self.search,
+                     self.refine, self.shape, self.smooth, self.smooth_px, self.init, self.reference,
                      self.start, self.stop, self.stride])
 
     def _setup_tracking_ui(self) -> None:
-        self.reference = ComboBox(label="Tracking", value="accumulative",
-                                  choices=["accumulative", "incremental"],
-                                  tooltip="accumulative: every frame against the first; "
+        self.reference = ComboBox(label=tr("Tracking"), value="accumulative",
+                                  choices=[(tr("accumulative"), "accumulative"),
+                                           (tr("incremental"), "incremental")],
+                                  tooltip=tr("accumulative: every frame against the first; "
                                           "incremental: each frame against the previous one, "
-                                          "composed back to the first (large deformation).")
-        self.start = SpinBox(label="First frame", value=0, min=0, max=0,
-                             tooltip="Reference frame: the first frame analysed.")
-        self.stop = SpinBox(label="Last frame", value=0, min=0, max=0,
-                            tooltip="Last frame analysed (inclusive).")
-        self.stride = SpinBox(label="Every n-th frame", value=1, min=1, max=100000,
-                              tooltip="Analyse every n-th frame of the range.")
+                                          "composed back to the first (large deformation)."))
+        self.start = SpinBox(label=tr("First frame"), value=0, min=0, max=0,
+                             tooltip=tr("Reference frame: the first frame analysed."))
+        self.stop = SpinBox(label=tr("Last frame"), value=0, min=0, max=0,
+                            tooltip=tr("Last frame analysed (inclusive)."))
+        self.stride = SpinBox(label=tr("Every n-th frame"), value=1, min=1, max=100000,
+                              tooltip=tr("Analyse every n-th frame of the range."))
 
     def _setup_callbacks(self) -> None:
-        for w in (self.method, self.subset, self.step, self.search, self.refine, self.init,
+        for w in (self.method, self.subset, self.step, self.search, self.refine, self.shape,
+                  self.init,
                   self.smooth, self.smooth_px, self.reference, self.start, self.stop,
                   self.stride):
             w.changed.connect(self.settings_changed.emit)
         self.smooth.changed.connect(self._on_smooth_mode)
+        self.advise.changed.connect(lambda *_: self.advise_requested.emit())
         self.method.changed.connect(self._on_smooth_mode)
 
     def _on_smooth_mode(self, *_) -> None:
@@ -147,15 +172,20 @@ class CorrelationPanel(Panel):
             **extra, "method": self.method.value, "subset": int(self.subset.value),
             "step": int(self.step.value), "search": int(self.search.value),
             "refine": None if self.refine.value == "none" else self.refine.value,
-            "smooth": self.smooth_value, "init": init or self.init.value, "seeds": seeds})
+            "smooth": self.smooth_value, "init": init or self.init.value, "seeds": seeds,
+            "shape_function": self.shape.value})
 
     def summary(self) -> str:
         """The settings in words (for the log)."""
-        return (f"method {self.method.value}, subset {self.subset.value} px, step "
-                f"{self.step.value} px, search {self.search.value} px, refinement "
-                f"{self.refine.value}, smoothing {self.smooth_value}, "
-                f"init {self.init.value}; {self.reference.value}, frames "
-                f"{self.start.value}..{self.stop.value} every {self.stride.value}")
+        return (tr("method {method}, subset {subset} px, step {step} px, search "
+                   "{search} px, refinement {refine}, smoothing {smooth}, "
+                   "init {init}; {reference}, frames {start}..{stop} every "
+                   "{stride}").format(
+                       method=self.method.value, subset=self.subset.value, step=self.step.value,
+                       search=self.search.value, refine=self.refine.value,
+                       smooth=self.smooth_value, init=self.init.value,
+                       reference=self.reference.value, start=self.start.value,
+                       stop=self.stop.value, stride=self.stride.value))
 
     # ------------------------------------------------------------ settings files
     def params_plan(self, params: DICParams, plan: Plan) -> dict[str, Any]:
@@ -166,14 +196,15 @@ class CorrelationPanel(Panel):
         put(plan, self.step, params.step, "step")
         put(plan, self.search, params.search, "search")
         put(plan, self.refine, params.refine or "none", "refinement")
-        put(plan, self.init, params.init, "initial guess")
+        put(plan, self.init, params.init, tr("initial guess"))
+        put(plan, self.shape, params.shape_function, tr("subset shape"))
         if params.smooth == "auto":
-            put(plan, self.smooth, "auto", "AL-DIC smoothing")
+            put(plan, self.smooth, "auto", tr("AL-DIC smoothing"))
         elif params.smooth == 0:
-            put(plan, self.smooth, "off", "AL-DIC smoothing")
+            put(plan, self.smooth, "off", tr("AL-DIC smoothing"))
         else:
-            put(plan, self.smooth, "fixed", "AL-DIC smoothing")
-            put(plan, self.smooth_px, float(params.smooth), "smoothing length")
+            put(plan, self.smooth, "fixed", tr("AL-DIC smoothing"))
+            put(plan, self.smooth_px, float(params.smooth), tr("smoothing length"))
         defaults = DICParams().to_dict()
         return {k: v for k, v in params.to_dict().items()
                 if k not in PARAM_CONTROLS and k != "seeds" and v != defaults[k]}
@@ -186,16 +217,22 @@ class CorrelationPanel(Panel):
         if "reference" in tracking:
             put(plan, self.reference, tracking["reference"], "tracking")
         if "stride" in tracking:
-            put(plan, self.stride, tracking["stride"], "frame stride")
+            put(plan, self.stride, tracking["stride"], tr("frame stride"))
         start, stop = tracking.get("start"), tracking.get("stop")
         if stop is None and "stop" in tracking:  # null: the last frame of the stack
             stop = int(self.stop.max)
-        stack = f"the stack has {n_frames} frames" if n_frames else "no image stack is chosen"
-        for value, spin, what in ((start, self.start, "first"), (stop, self.stop, "last")):
+        stack = (tr("the stack has {n_frames} frames").format(n_frames=n_frames) if n_frames
+                 else tr("no image stack is chosen"))
+        first = tr("the first frame {value} of the file is beyond the stack ({stack}); "
+                   "using {max}")
+        last = tr("the last frame {value} of the file is beyond the stack ({stack}); "
+                  "using {max}")
+        for value, spin, what in ((start, self.start, first), (stop, self.stop, last)):
             if value is None:
                 continue
             if value > spin.max:
-                notes.append(f"frame range: {what} frame {value} of the file is beyond the "
-                             f"stack ({stack}); using {spin.max}")
+                # the "frame range:" label lets the settings panel find these notes
+                notes.append(tr("frame range") + ": " + what.format(value=value, stack=stack,
+                                                                      max=spin.max))
                 value = int(spin.max)
             plan.append((spin, value))

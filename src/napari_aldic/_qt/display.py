@@ -6,30 +6,32 @@ from magicgui.widgets import CheckBox, ComboBox, Container, FloatSpinBox, Label
 from psygnal import Signal
 
 from .._layers import DISPLAY_FIELDS, REASON_COLORS, Display
-from ..engine import Reason
+from ..i18n import tr, tr_noop
 from .controls import Panel
+from .explain import reason_text
 
 __all__ = ["DisplayPanel", "legend_html"]
 
 #: what the note says about where the fields are drawn
-_NOTE_REFERENCE = ("Fields are drawn in the reference configuration (where the material is "
-                   "in the first analysed frame), also over later frames; tick 'deformed "
-                   "configuration' to draw them where the material is in each frame.")
-_NOTE_DEFORMED = ("Fields are drawn in the deformed configuration: where the material is "
-                  "in the frame shown.")
+_NOTE_REFERENCE = tr_noop("Fields are drawn in the reference configuration (where the "
+                          "material is in the first analysed frame), also over later frames; "
+                          "tick 'deformed configuration' to draw them where the material is "
+                          "in each frame.")
+_NOTE_DEFORMED = tr_noop("Fields are drawn in the deformed configuration: where the material "
+                         "is in the frame shown.")
 
 
 def legend_html(counts: dict[int, int]) -> str:
     """The legend of the unreliable-node markers: colour, reason and count."""
     if not counts:
-        return "Unreliable nodes: none."
+        return tr("Unreliable nodes: none.")
     rows = []
     for code, n in sorted(counts.items()):
         r, g, b, _ = REASON_COLORS.get(int(code), (1.0, 0.0, 0.0, 1.0))
         colour = f"#{int(255 * r):02x}{int(255 * g):02x}{int(255 * b):02x}"
         rows.append(f"<span style='color:{colour}'>&#10006;</span> "
-                    f"{Reason.describe(code)}: {n}")
-    return "Unreliable nodes (last frame):<br>" + "<br>".join(rows)
+                    f"{reason_text(code)}: {n}")
+    return tr("Unreliable nodes (last frame):<br>") + tr("<br>").join(rows)
 
 
 class DisplayPanel(Panel):
@@ -52,33 +54,33 @@ class DisplayPanel(Panel):
     vector_length_changed = Signal(float)
 
     def _setup_ui(self) -> None:
-        self.show_field = ComboBox(label="Show", value="|u|", choices=list(DISPLAY_FIELDS),
-                                   tooltip="The result image shown (and made the active "
+        self.show_field = ComboBox(label=tr("Show"), value="|u|", choices=list(DISPLAY_FIELDS),
+                                   tooltip=tr("The result image shown (and made the active "
                                            "layer); the others stay in the layer list, "
-                                           "hidden.")
-        self.vectors = CheckBox(text="displacement vectors", value=True,
-                                tooltip="Vectors layer of (u, v) at the trusted nodes; every "
-                                        "node value is in its features.")
-        self.vector_length = FloatSpinBox(label="Vector scale", value=0.0, min=0.0, max=1e6,
+                                           "hidden."))
+        self.vectors = CheckBox(text=tr("displacement vectors"), value=True,
+                                tooltip=tr("Vectors layer of (u, v) at the trusted nodes; every "
+                                        "node value is in its features."))
+        self.vector_length = FloatSpinBox(label=tr("Vector scale"), value=0.0, min=0.0, max=1e6,
                                           step=0.5,
-                                          tooltip="Arrow length per unit displacement; 0 = "
+                                          tooltip=tr("Arrow length per unit displacement; 0 = "
                                                   "automatic (the longest arrows span about "
-                                                  "one node step).")
-        self.mesh = CheckBox(text="mesh", value=False,
-                             tooltip="Shapes layer of the element outlines.")
-        self.deformed = CheckBox(text="deformed configuration", value=False,
-                                 tooltip="Show fields, vectors, nodes and mesh where the "
+                                                  "one node step)."))
+        self.mesh = CheckBox(text=tr("mesh"), value=False,
+                             tooltip=tr("Shapes layer of the element outlines."))
+        self.deformed = CheckBox(text=tr("deformed configuration"), value=False,
+                                 tooltip=tr("Show fields, vectors, nodes and mesh where the "
                                          "material is in each frame instead of in the "
-                                         "reference frame.")
-        self.rigid = CheckBox(text="subtract rigid-body motion", value=False,
-                              tooltip="Show u, v, |u| and the arrows without each frame's "
+                                         "reference frame."))
+        self.rigid = CheckBox(text=tr("subtract rigid-body motion"), value=False,
+                              tooltip=tr("Show u, v, |u| and the arrows without each frame's "
                                       "best-fit rotation and translation (strains do not "
                                       "change), so that deformation stands out of a large "
-                                      "rigid motion.")
+                                      "rigid motion."))
         toggles = Container(widgets=[self.vectors, self.mesh, self.deformed, self.rigid],
                             layout="vertical", labels=False)
-        self.note = Label(value=_NOTE_REFERENCE)
-        self.legend = Label(value="Unreliable nodes: run an analysis first.")
+        self.note = Label(value=tr(_NOTE_REFERENCE))
+        self.legend = Label(value=tr("Unreliable nodes: run an analysis first."))
         self.extend([self.show_field, toggles, self.vector_length, self.note, self.legend])
         from qtpy.QtWidgets import QSizePolicy
 
@@ -99,7 +101,7 @@ class DisplayPanel(Panel):
             lambda value: self.vector_length_changed.emit(float(value)))
 
     def _on_deformed(self, *_) -> None:
-        self.note.value = _NOTE_DEFORMED if self.deformed.value else _NOTE_REFERENCE
+        self.note.value = tr(_NOTE_DEFORMED if self.deformed.value else _NOTE_REFERENCE)
 
     def set_legend(self, counts: dict[int, int]) -> None:
         """Show the legend for these reason counts ``{code: nodes}``."""

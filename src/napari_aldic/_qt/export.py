@@ -19,26 +19,30 @@ from psygnal import Signal
 
 from .._writer import save_analysis
 from ..engine import export_result
+from ..i18n import tr, tr_noop
 from .controls import Panel
 
 __all__ = ["ExportPanel", "FORMATS", "FIELDS"]
 
 #: format -> (choice text, file suffix, file-dialog filter)
 FORMATS = {
-    "npz": ("Results (.npz; reopen in napari)", ".npz", "napari-aldic results (*.npz)"),
-    "csv": ("CSV table, one row per node (.csv)", ".csv", "CSV (*.csv)"),
-    "mat": ("MATLAB (.mat)", ".mat", "MATLAB (*.mat)"),
-    "vtu": ("ParaView / VTK mesh (.vtu)", ".vtu", "VTK unstructured grid (*.vtu)"),
-    "davis": ("DaVis vectors for DefDAP, pixels (.txt)", ".txt", "DaVis text (*.txt)"),
-    "png": ("PNG picture of a field (.png)", ".png", "PNG (*.png)"),
-    "gif": ("Animated GIF of a field (.gif)", ".gif", "GIF (*.gif)"),
-    "mp4": ("MP4 video of a field (.mp4)", ".mp4", "MP4 video (*.mp4)"),
-    "pdf": ("PDF report (.pdf)", ".pdf", "PDF (*.pdf)"),
+    "npz": (tr_noop("Results (.npz; reopen in napari)"), ".npz",
+            tr_noop("napari-aldic results (*.npz)")),
+    "csv": (tr_noop("CSV table, one row per node (.csv)"), ".csv", tr_noop("CSV (*.csv)")),
+    "mat": (tr_noop("MATLAB (.mat)"), ".mat", tr_noop("MATLAB (*.mat)")),
+    "vtu": (tr_noop("ParaView / VTK mesh (.vtu)"), ".vtu",
+            tr_noop("VTK unstructured grid (*.vtu)")),
+    "davis": (tr_noop("DaVis vectors for DefDAP, pixels (.txt)"), ".txt",
+              tr_noop("DaVis text (*.txt)")),
+    "png": (tr_noop("PNG picture of a field (.png)"), ".png", tr_noop("PNG (*.png)")),
+    "gif": (tr_noop("Animated GIF of a field (.gif)"), ".gif", tr_noop("GIF (*.gif)")),
+    "mp4": (tr_noop("MP4 video of a field (.mp4)"), ".mp4", tr_noop("MP4 video (*.mp4)")),
+    "pdf": (tr_noop("PDF report (.pdf)"), ".pdf", tr_noop("PDF (*.pdf)")),
 }
 #: fields of the pictures (the engine's names) and their choice texts
 FIELDS = {"u": "u", "v": "v", "magnitude": "|u|", "exx": "exx", "eyy": "eyy", "exy": "exy",
-          "von_mises": "von Mises", "e1": "e1", "e2": "e2", "max_shear": "max shear",
-          "rotation": "rotation", "zncc": "ZNCC"}
+          "von_mises": tr_noop("von Mises"), "e1": "e1", "e2": "e2",
+          "max_shear": tr_noop("max shear"), "rotation": tr_noop("rotation"), "zncc": "ZNCC"}
 _PICTURES = ("png", "gif", "mp4")
 
 
@@ -72,25 +76,25 @@ class ExportPanel(Panel):
         super().__init__()
 
     def _setup_ui(self) -> None:
-        self.format = ComboBox(label="Format", value="npz",
-                               choices=[(text, key) for key, (text, _, _) in FORMATS.items()],
-                               tooltip="Results reopen in napari (File > Open); the others "
+        self.format = ComboBox(label=tr("Format"), value="npz",
+                               choices=[(tr(text), key) for key, (text, _, _) in FORMATS.items()],
+                               tooltip=tr("Results reopen in napari (File > Open); the others "
                                        "are the engine's exports, described in "
-                                       "docs/exports.md.")
-        self.field = ComboBox(label="Field", value="u",
-                              choices=[(text, key) for key, text in FIELDS.items()],
-                              tooltip="The field drawn in PNG, GIF and MP4 exports.")
-        self.frames = ComboBox(label="Frames", value="all",
-                               choices=[("all computed frames", "all"),
-                                        ("the frame shown", "shown")],
-                               tooltip="Every computed frame, or the one the frame slider "
-                                       "shows.")
-        self.fps = FloatSpinBox(label="Frames per second", value=4.0, min=0.1, max=60.0,
-                                step=0.5, tooltip="GIF and MP4 speed.")
+                                       "docs/exports.md."))
+        self.field = ComboBox(label=tr("Field"), value="u",
+                              choices=[(tr(text), key) for key, text in FIELDS.items()],
+                              tooltip=tr("The field drawn in PNG, GIF and MP4 exports."))
+        self.frames = ComboBox(label=tr("Frames"), value="all",
+                               choices=[(tr("all computed frames"), "all"),
+                                        (tr("the frame shown"), "shown")],
+                               tooltip=tr("Every computed frame, or the one the frame slider "
+                                       "shows."))
+        self.fps = FloatSpinBox(label=tr("Frames per second"), value=4.0, min=0.1, max=60.0,
+                                step=0.5, tooltip=tr("GIF and MP4 speed."))
         self.units_note = Label(value="")
-        self.export_button = PushButton(text="Export…", enabled=False,
-                                        tooltip="Choose a file and write the results in the "
-                                                "chosen format.")
+        self.export_button = PushButton(text=tr("Export…"), enabled=False,
+                                        tooltip=tr("Choose a file and write the results in the "
+                                                "chosen format."))
         self.extend([self.format, self.field, self.frames, self.fps, self.units_note,
                      self.export_button])
         from qtpy.QtWidgets import QSizePolicy
@@ -119,15 +123,19 @@ class ExportPanel(Panel):
         try:
             u = self._units()
         except ValueError as exc:
-            self.units_note.value = f"Units: {exc}"
+            self.units_note.value = tr("Units: {exc}").format(exc=exc)
             return
         fmt = self.format.value
         if fmt == "davis":
-            text = "Values in pixels (DefDAP applies its own scale)."
+            text = tr("Values in pixels (DefDAP applies its own scale).")
         else:
-            text = f"Lengths in {u.unit}" + (f" (pixel size {u.pixel_size:g} {u.unit})"
-                                              if u.unit != "px" else "")
-            text += f", time in {u.time_unit}." if u.has_time else "; frame numbers."
+            if u.unit != "px":
+                text = tr("Lengths in {unit} (pixel size {pixel_size:g} {unit})").format(
+                    pixel_size=u.pixel_size, unit=u.unit)
+            else:
+                text = tr("Lengths in {unit}").format(unit=u.unit)
+            text += (tr(", time in {time_unit}.").format(time_unit=u.time_unit) if u.has_time
+                     else tr("; frame numbers."))
         self.units_note.value = text
 
     # ------------------------------------------------------------ exporting
@@ -138,10 +146,11 @@ class ExportPanel(Panel):
         results or with invalid units, and the engine's errors."""
         analysis = self._analysis()
         if analysis is None:
-            raise ValueError("there are no results to export: run an analysis first")
+            raise ValueError(tr("there are no results to export: run an analysis first"))
         fmt = fmt or self.format.value
         if fmt not in FORMATS:
-            raise ValueError(f"unknown export format {fmt!r}; choose one of {list(FORMATS)}")
+            raise ValueError(tr("unknown export format {fmt!r}; choose one of {list}").format(
+                                    fmt=fmt, list=list(FORMATS)))
         units = self._units()
         if fmt == "npz":
             return [Path(p) for p in save_analysis(analysis, path, units)]
@@ -168,7 +177,8 @@ class ExportPanel(Panel):
         analysis = self._analysis()
         done = [f for f, r in zip(analysis.frames, analysis.results) if r is not None]
         if k not in done:
-            raise ValueError(f"frame {k} has no result; computed frames: {done}")
+            raise ValueError(tr("frame {k} has no result; computed frames: {done}").format(
+                                    k=k, done=done))
         return [int(k)]
 
     def _on_export_clicked(self, *_) -> None:
@@ -179,9 +189,9 @@ class ExportPanel(Panel):
         analysis = self._analysis()
         stem = Path(str(getattr(analysis, "source", "") or "dic")).stem or "dic"
         folder = self._folder or Path.cwd()
-        path, _ = QFileDialog.getSaveFileName(self.native, "Export DIC results",
+        path, _ = QFileDialog.getSaveFileName(self.native, tr("Export DIC results"),
                                               str(folder / f"{stem}_dic{suffix}"),
-                                              f"{filt};;All files (*)")
+                                              tr(filt) + ";;" + tr("All files (*)"))
         if path:
             self.export_in_background(path, fmt)
 
@@ -193,7 +203,8 @@ class ExportPanel(Panel):
         fmt = fmt or self.format.value
         field, frames = self.field.value, self.frames.value
         self._folder = Path(path).parent
-        self._log(f"exporting {FORMATS[fmt][0]} to {path} ...")
+        self._log(tr("exporting {what} to {path} ...").format(what=tr(FORMATS[fmt][0]),
+                                                                    path=path))
         worker = create_worker(self.export, path, fmt, field, frames,
                                _worker_class=FunctionWorker, _ignore_errors=True)
         worker.returned.connect(self._on_exported)
@@ -205,15 +216,16 @@ class ExportPanel(Panel):
 
     def _on_exported(self, paths: list) -> None:
         shown = ", ".join(str(p) for p in paths[:3]) + (" ..." if len(paths) > 3 else "")
-        self._log(f"exported {len(paths)} file(s): {shown}")
+        self._log(tr("exported {n_paths} file(s): {shown}").format(
+                         n_paths=len(paths), shown=shown))
         self.exported.emit(list(paths))
 
     def _on_failed(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
 
         msg = str(exc) or exc.__class__.__name__
-        self._log(f"ERROR exporting: {msg}")
-        show_error(f"napari-aldic: could not export: {msg}")
+        self._log(tr("ERROR exporting: {msg}").format(msg=msg))
+        show_error(tr("napari-aldic: could not export: {msg}").format(msg=msg))
 
     def _on_finished(self) -> None:
         self._worker = None

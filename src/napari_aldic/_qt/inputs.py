@@ -18,6 +18,7 @@ from psygnal import Signal
 
 from .._layers import is_result_name
 from .._roi import build_roi, labels_fit, labels_mask, points_xy
+from ..i18n import tr
 from .controls import Panel
 from .project import is_probe_layer
 
@@ -44,6 +45,7 @@ class OptionalLayer(ComboBox):
     null_string = "(none)"
 
     def __init__(self, **kwargs):
+        self.null_string = tr("(none)")  # shown; the value stays None
         super().__init__(nullable=True, **kwargs)
 
 
@@ -82,38 +84,38 @@ class InputsPanel(Panel):
 
     def _setup_ui(self) -> None:
         layers_of = self._layers_of
-        self.image = ComboBox(label="Image stack", choices=layers_of("Image"), nullable=True,
-                              tooltip="Image layer with a time axis (frames, rows, cols); the "
-                                      "first frame of the range is the reference.")
-        self.roi_add = Select(label="ROI (shapes)", choices=layers_of("Shapes"),
-                              tooltip="Shapes layers whose rectangles, polygons and ellipses "
+        self.image = ComboBox(label=tr("Image stack"), choices=layers_of("Image"), nullable=True,
+                              tooltip=tr("Image layer with a time axis (frames, rows, cols); the "
+                                      "first frame of the range is the reference."))
+        self.roi_add = Select(label=tr("ROI (shapes)"), choices=layers_of("Shapes"),
+                              tooltip=tr("Shapes layers whose rectangles, polygons and ellipses "
                                       "are analysed (union). None selected: whole image.\n"
                                       "Lines and paths in any chosen layer cut the ROI "
-                                      "(cracks).")
-        self.roi_subtract = Select(label="Holes (shapes)", choices=layers_of("Shapes"),
-                                   tooltip="Shapes layers whose shapes are removed from the "
+                                      "(cracks)."))
+        self.roi_subtract = Select(label=tr("Holes (shapes)"), choices=layers_of("Shapes"),
+                                   tooltip=tr("Shapes layers whose shapes are removed from the "
                                            "ROI (holes, notches, background). Layers named "
                                            "like 'hole', 'crack', 'mask' are chosen here "
-                                           "automatically.")
-        self.roi_labels = OptionalLayer(label="ROI labels", choices=layers_of("Labels"),
-                                        tooltip="Labels layer: nonzero pixels are analysed "
+                                           "automatically."))
+        self.roi_labels = OptionalLayer(label=tr("ROI labels"), choices=layers_of("Labels"),
+                                        tooltip=tr("Labels layer: nonzero pixels are analysed "
                                                 "(intersected with the ROI shapes). It is "
                                                 "matched to the image through world "
-                                                "coordinates.")
-        self.brush = OptionalLayer(label="Refine region", choices=layers_of("Labels"),
-                                   tooltip="Labels layer painted with the brush: the mesh is "
-                                           "refined where it is nonzero (quadtree).")
-        self.seeds = OptionalLayer(label="Seeds (points)", choices=layers_of("Points"),
-                                   tooltip="Points layer of seed points for the 'seed "
+                                                "coordinates."))
+        self.brush = OptionalLayer(label=tr("Refine region"), choices=layers_of("Labels"),
+                                   tooltip=tr("Labels layer painted with the brush: the mesh is "
+                                           "refined where it is nonzero (quadtree)."))
+        self.seeds = OptionalLayer(label=tr("Seeds (points)"), choices=layers_of("Points"),
+                                   tooltip=tr("Points layer of seed points for the 'seed "
                                            "points' initial guess: at least one per "
                                            "connected ROI region, on well-textured "
-                                           "material.")
-        self.new_roi_labels = PushButton(text="New ROI labels",
-                                         tooltip="A Labels layer of the image's size to "
-                                                 "paint the analysed region in.")
-        self.new_refine = PushButton(text="New refine region",
-                                     tooltip="A Labels layer of the image's size to paint "
-                                             "where the mesh is refined.")
+                                           "material."))
+        self.new_roi_labels = PushButton(text=tr("New ROI labels"),
+                                         tooltip=tr("A Labels layer of the image's size to "
+                                                 "paint the analysed region in."))
+        self.new_refine = PushButton(text=tr("New refine region"),
+                                     tooltip=tr("A Labels layer of the image's size to paint "
+                                             "where the mesh is refined."))
         buttons = Container(widgets=[self.new_roi_labels, self.new_refine],
                             layout="horizontal", labels=False)
         buttons.margins = (0, 0, 0, 0)
@@ -272,9 +274,9 @@ class InputsPanel(Panel):
         ROI labels (``role="roi_labels"``) or the refine region (``"brush"``)."""
         img = self.image.value
         if img is None:
-            raise ValueError("choose an image stack first")
+            raise ValueError(tr("choose an image stack first"))
         shape = tuple(self.stack_data.shape[-2:])
-        name = "ROI labels" if role == "roi_labels" else "refine region"
+        name = tr("ROI labels") if role == "roi_labels" else tr("refine region")
         layer = self._viewer.add_labels(np.zeros(shape, np.uint8), name=name,
                                         scale=tuple(img.scale)[-2:],
                                         translate=tuple(img.translate)[-2:], opacity=0.4)
@@ -341,8 +343,8 @@ class InputsPanel(Panel):
         """Seed points ``(x, y)`` in image pixels (``ValueError`` without points)."""
         layer = self.seeds.value
         if layer is None or len(layer.data) == 0:
-            raise ValueError("the initial guess 'Seed points' needs a Points layer with at "
-                             "least one point (choose it under 'Seeds (points)')")
+            raise ValueError(tr("the initial guess 'Seed points' needs a Points layer with at "
+                                "least one point (choose it under 'Seeds (points)')"))
         img = self.image.value
         xy = (points_xy(layer, img) if img is not None
               else np.asarray(layer.data, float)[:, -2:][:, ::-1])
@@ -353,15 +355,16 @@ class InputsPanel(Panel):
         seeds layer with points is chosen already (a note says which)."""
         layer = self.seeds.value
         if layer is not None and len(layer.data):
-            notes.append(f"the file's {len(seeds)} seed point(s) were not added: the seeds "
-                         f"layer '{layer.name}' is used")
+            notes.append(tr("the file's {n_seeds} seed point(s) were not added: the seeds "
+                            "layer '{name}' is used").format(
+                                n_seeds=len(seeds), name=layer.name))
             return
         img = self.image.value
         rc = np.array([(y, x) for x, y in seeds], float)
         kwargs: dict[str, Any] = {}
         if img is not None:  # the image's pixel grid (its current scale and offset)
             kwargs = {"scale": tuple(img.scale)[-2:], "translate": tuple(img.translate)[-2:]}
-        new = self._viewer.add_points(rc, name="seeds (loaded)", size=6, face_color="cyan",
+        new = self._viewer.add_points(rc, name=tr("seeds (loaded)"), size=6, face_color="cyan",
                                       **kwargs)
         if img is not None:
             try:
@@ -369,5 +372,6 @@ class InputsPanel(Panel):
             except Exception:  # units are cosmetic here; the scale is what counts
                 pass
         self.seeds.value = new
-        notes.append(f"{len(seeds)} seed point(s) from the file added as the Points layer "
-                     f"'{new.name}'")
+        notes.append(tr("{n_seeds} seed point(s) from the file added as the Points "
+                        "layer '{name}'").format(
+                            n_seeds=len(seeds), name=new.name))

@@ -12,6 +12,8 @@ from qtpy.QtCore import QEvent, QSize, Qt
 from qtpy.QtWidgets import QComboBox, QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
+from ..i18n import tr
+
 __all__ = ["sections_area", "divider", "Section"]
 
 #: ``(title, widget, expanded)``
@@ -51,7 +53,7 @@ def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QColl
     layout.setSpacing(0)
     found: dict[str, QCollapsible] = {}
     for title, widget, expanded in sections:
-        box = QCollapsible(title)
+        box = QCollapsible(tr(title))  # the English title stays the key
         box.setDuration(0)  # no animation: the scroll area resizes at once
         box.layout().setContentsMargins(0, 0, 0, 4)
         box.addWidget(widget)

@@ -38,6 +38,8 @@ from ..engine.probes import (
     export_probes_csv,
     read_load_csv,
 )
+from ..i18n import tr, tr_noop
+from .language import apply_ui_language, combo_of
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -50,7 +52,7 @@ from .project import PROBE_KEY
 
 __all__ = ["ProbePlotDock"]
 
-NONE = "(none)"
+NONE = tr_noop("(none)")
 FIELDS = ("u", "v", "magnitude", "exx", "eyy", "exy", "von_mises")
 DOCK_STYLE = {"font.size": 7.5, "axes.titlesize": 8, "axes.labelsize": 7.5,
               "legend.fontsize": 6.5, "xtick.labelsize": 7, "ytick.labelsize": 7}
@@ -60,6 +62,7 @@ class ProbePlotDock(QWidget):
     """Probe curves over the frames (napari dock widget)."""
 
     def __init__(self, napari_viewer):
+        apply_ui_language()  # before any text is made
         super().__init__()
         self._viewer = napari_viewer
         self.view = None  # ResultView of the analysis in the viewer
@@ -84,40 +87,39 @@ class ProbePlotDock(QWidget):
     # ------------------------------------------------------------ UI
     def _setup_ui(self) -> None:
         self.shapes_combo, self.points_combo = QComboBox(), QComboBox()
-        self.add_button = QPushButton("Add probe layers")
+        self.add_button = QPushButton(tr("Add probe layers"))
         self.quantity_combo, self.field_combo = QComboBox(), QComboBox()
         self.quantity_combo.addItems(list(LINE_QUANTITIES))
         self.field_combo.addItems(list(FIELDS))
         form = QFormLayout()
-        form.addRow("Gauges, areas (Shapes)", self.shapes_combo)
-        form.addRow("Point probes (Points)", self.points_combo)
+        form.addRow(tr("Gauges, areas (Shapes)"), self.shapes_combo)
+        form.addRow(tr("Point probes (Points)"), self.points_combo)
         form.addRow("", self.add_button)
-        form.addRow("Line gauges show", self.quantity_combo)
-        form.addRow("Points, areas show", self.field_combo)
-        self.load_button = QPushButton("Load CSV...")
-        self.load_label = QLabel("no load data")
+        form.addRow(tr("Line gauges show"), self.quantity_combo)
+        form.addRow(tr("Points, areas show"), self.field_combo)
+        self.load_button = QPushButton(tr("Load CSV..."))
+        self.load_label = QLabel(tr("no load data"))
         self.area_spin = QDoubleSpinBox(decimals=3, minimum=0.001, maximum=1e7, value=10.0,
                                         suffix=" mm²")
-        self.sync_combo = QComboBox()
-        self.sync_combo.addItems(["frame", "time"])
+        self.sync_combo = combo_of([(tr("frame"), "frame"), (tr("time"), "time")])
         self.fps_spin = QDoubleSpinBox(decimals=4, minimum=0.0001, maximum=1e6, value=1.0)
         self.offset_spin = QDoubleSpinBox(decimals=4, minimum=-1e6, maximum=1e6, value=0.0,
                                           suffix=" s")
         load_form = QFormLayout()
         load_form.addRow(self.load_button, self.load_label)
-        load_form.addRow("Cross-section", self.area_spin)
-        load_form.addRow("Synchronise by", self.sync_combo)
-        load_form.addRow("Camera fps", self.fps_spin)
-        load_form.addRow("Time of frame 0", self.offset_spin)
-        load_box = QGroupBox("Testing machine (stress-strain)")
+        load_form.addRow(tr("Cross-section"), self.area_spin)
+        load_form.addRow(tr("Synchronise by"), self.sync_combo)
+        load_form.addRow(tr("Camera fps"), self.fps_spin)
+        load_form.addRow(tr("Time of frame 0"), self.offset_spin)
+        load_box = QGroupBox(tr("Testing machine (stress-strain)"))
         load_box.setLayout(load_form)
         self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
         self.canvas = FigureCanvasQTAgg(self.figure)
         self.canvas.setMinimumHeight(320)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
-        self.save_csv_button, self.save_plot_button = QPushButton("Save CSV..."), \
-            QPushButton("Save plot...")
+        self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
+            QPushButton(tr("Save plot..."))
         buttons = QHBoxLayout()
         buttons.addWidget(self.save_csv_button)
         buttons.addWidget(self.save_plot_button)
@@ -144,7 +146,7 @@ class ProbePlotDock(QWidget):
     def _layer(self, combo: QComboBox):
         name = combo.currentText()
         layers = self._viewer.layers
-        return layers[name] if name != NONE and name in layers else None
+        return layers[name] if name != tr(NONE) and name in layers else None
 
     @property
     def shapes_layer(self):
@@ -160,9 +162,9 @@ class ProbePlotDock(QWidget):
         keep = combo.currentText()
         combo.blockSignals(True)
         combo.clear()
-        combo.addItems([NONE, *names])
+        combo.addItems([tr(NONE), *names])
         preferred = PROBE_SHAPES if kind == "Shapes" else PROBE_POINTS
-        pick = keep if keep in names else (preferred if preferred in names else NONE)
+        pick = keep if keep in names else (preferred if preferred in names else tr(NONE))
         combo.setCurrentText(pick)
         combo.blockSignals(False)
 
@@ -183,8 +185,8 @@ class ProbePlotDock(QWidget):
 
     def set_probe_layers(self, shapes=None, points=None) -> None:
         """Use these layers (or None) as the probes."""
-        self.shapes_combo.setCurrentText(shapes.name if shapes is not None else NONE)
-        self.points_combo.setCurrentText(points.name if points is not None else NONE)
+        self.shapes_combo.setCurrentText(shapes.name if shapes is not None else tr(NONE))
+        self.points_combo.setCurrentText(points.name if points is not None else tr(NONE))
 
     def add_probe_layers(self) -> None:
         """Add empty probe layers (a Shapes layer in line mode, a Points layer)."""
@@ -230,7 +232,7 @@ class ProbePlotDock(QWidget):
         self.view = find_analysis(self._viewer.layers)
         self.table, notes = None, []
         if self.view is None:
-            self.message = "No result layers: run an analysis or open a result."
+            self.message = tr("No result layers: run an analysis or open a result.")
         else:
             try:
                 probes, notes = probes_from_layers(self.shapes_layer, self.points_layer,
@@ -238,26 +240,26 @@ class ProbePlotDock(QWidget):
                 if len(probes):
                     self.table = measure_analysis(self.view, probes)
                     self._attach_load()
-                    self.message = "\n".join(self.table.status_summary(5)) or (
-                        f"{len(self.table)} frames, every probe value trusted.")
+                    self.message = "\n".join(self.table.status_summary(5)) or tr(
+                        "{n} frames, every probe value trusted.").format(n=len(self.table))
                 else:
-                    self.message = ("Draw probes: a line (gauge) or a rectangle/ellipse/"
-                                    "polygon (area) in a Shapes layer, points in a Points "
-                                    "layer ('Add probe layers').")
+                    self.message = tr("Draw probes: a line (gauge) or a rectangle/ellipse/"
+                                      "polygon (area) in a Shapes layer, points in a Points "
+                                      "layer ('Add probe layers').")
             except (ValueError, TypeError) as exc:
-                self.message = f"Cannot measure the probes: {exc}"
+                self.message = tr("Cannot measure the probes: {exc}").format(exc=exc)
         self.status_label.setText("\n".join([self.message, *notes]))
         self.redraw()
 
     def _attach_load(self) -> None:
         if self.load_record is None or self.table is None:
             return
-        sync = self.sync_combo.currentText()
+        sync = self.sync_combo.currentData()
         try:
             attach_load(self.table, self.load_record, area_mm2=self.area_spin.value(),
                         sync=sync, fps=self.fps_spin.value(), offset=self.offset_spin.value())
         except ValueError as exc:
-            self.load_label.setText(f"load not used: {exc}")
+            self.load_label.setText(tr("load not used: {exc}").format(exc=exc))
 
     def load_csv(self, path, *, area_mm2: float | None = None, sync: str | None = None,
                  fps: float | None = None, offset: float | None = None) -> bool:
@@ -270,10 +272,10 @@ class ProbePlotDock(QWidget):
             self.load_record = read_load_csv(path)
         except (ValueError, OSError) as exc:
             self.load_record = None
-            self.load_label.setText(f"error: {exc}")
+            self.load_label.setText(tr("error: {exc}").format(exc=exc))
             return False
-        self.sync_combo.setCurrentText(sync or ("frame" if self.load_record.frame is not None
-                                                else "time"))
+        sync = sync or ("frame" if self.load_record.frame is not None else "time")
+        self.sync_combo.setCurrentIndex(max(0, self.sync_combo.findData(sync)))
         self.load_label.setText(self.load_record.describe())
         self.load_label.setToolTip(f"{self.load_record.source}\n{self.load_record.describe()}")
         self.recompute()
@@ -319,7 +321,7 @@ class ProbePlotDock(QWidget):
         n = len(panels) + bool(stress)
         if n == 0:
             ax = fig.add_subplot()
-            ax.text(0.5, 0.5, "no probe values", ha="center", va="center", color="0.4")
+            ax.text(0.5, 0.5, tr("no probe values"), ha="center", va="center", color="0.4")
             ax.set_axis_off()
         else:
             axes = fig.subplots(n, 1, squeeze=False)[:, 0]
@@ -368,18 +370,18 @@ class ProbePlotDock(QWidget):
         return fn(self, title, "", filt)[0]
 
     def _ask_load(self) -> None:
-        path = self._ask("Testing-machine CSV", "CSV or text (*.csv *.txt *.tsv *.dat)",
+        path = self._ask(tr("Testing-machine CSV"), tr("CSV or text (*.csv *.txt *.tsv *.dat)"),
                          save=False)
         if path:
             self.load_csv(path)
 
     def _ask_save_csv(self) -> None:
-        path = self._ask("Save probe values", "CSV (*.csv)")
+        path = self._ask(tr("Save probe values"), tr("CSV (*.csv)"))
         if path:
             self._report(self.save_csv, path)
 
     def _ask_save_plot(self) -> None:
-        path = self._ask("Save probe plot", "PNG (*.png);;PDF (*.pdf)")
+        path = self._ask(tr("Save probe plot"), "PNG (*.png);;PDF (*.pdf)")
         if path:
             self._report(self.save_plot, path)
 
@@ -392,6 +394,6 @@ class ProbePlotDock(QWidget):
             show_error(f"napari-aldic: {exc}")
             return
         if out is None:
-            show_error("napari-aldic: no probe values to save yet")
+            show_error(tr("napari-aldic: no probe values to save yet"))
         else:
-            show_info(f"napari-aldic: saved {out}")
+            show_info(tr("napari-aldic: saved {out}").format(out=out))

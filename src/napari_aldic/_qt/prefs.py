@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 __all__ = ["config_dir", "last_used_path", "read_last_used", "write_last_used",
-           "LAST_USED_FORMAT"]
+           "LAST_USED_FORMAT", "language_path", "read_language", "write_language"]
 
 LAST_USED_FORMAT = "napari-aldic-last-used"
 _VERSION = 1
@@ -60,3 +60,34 @@ def read_last_used() -> dict | None:
             doc.get("format_version") != _VERSION:
         return None
     return doc
+
+
+def language_path() -> Path:
+    """The file of the language chosen in the widget (kept apart from the
+    parameters, which every run rewrites)."""
+    return config_dir() / "language.json"
+
+
+def read_language() -> str | None:
+    """The language code chosen in the widget, or ``None`` (not chosen, unreadable)."""
+    try:
+        doc = json.loads(language_path().read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    code = doc.get("language") if isinstance(doc, dict) else None
+    return code if isinstance(code, str) and code else None
+
+
+def write_language(code: str | None) -> Path | None:
+    """Remember ``code`` (``None``: follow the system again); ``None`` when the
+    folder cannot be written."""
+    path = language_path()
+    try:
+        if code is None:
+            path.unlink(missing_ok=True)
+            return path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"language": code}), encoding="utf-8")
+    except OSError:
+        return None
+    return path

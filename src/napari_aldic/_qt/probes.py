@@ -19,6 +19,7 @@ import numpy as np
 from ..engine import Units
 from ..engine.io import Frame, FrameSet
 from ..engine.probes import AreaProbe, LineProbe, PointProbe, ProbeSet, measure_probes
+from ..i18n import tr
 
 __all__ = ["image_view", "ResultView", "find_analysis", "probes_from_layers", "measure_analysis",
            "is_probe_candidate", "PROBE_SHAPES", "PROBE_POINTS"]
@@ -146,11 +147,13 @@ def probes_from_layers(shapes, points, view: ResultView) -> tuple[ProbeSet, list
             try:
                 p = _shape_probe(kind, _pixels(shapes, data, view), f"{shapes.name} #{i + 1}")
             except ValueError as exc:
-                notes.append(f"shape {i + 1} of '{shapes.name}' skipped: {exc}")
+                notes.append(tr("shape {number} of '{layer}' skipped: {exc}").format(
+                                    number=i + 1, layer=shapes.name, exc=exc))
                 continue
             if p is None:
-                notes.append(f"shape {i + 1} of '{shapes.name}' ({kind}) is not a probe: draw "
-                             "a line (gauge) or a rectangle, ellipse or polygon (area)")
+                notes.append(tr("shape {number} of '{layer}' ({kind}) is not a probe: draw a "
+                                "line (gauge) or a rectangle, ellipse or polygon (area)").format(
+                                    number=i + 1, layer=shapes.name, kind=kind))
             elif isinstance(p, LineProbe):
                 probes.lines.append(p)
             else:
@@ -172,7 +175,7 @@ def measure_analysis(view: ResultView, probes: ProbeSet, fields=("u", "v", "exx"
         strain = a.strains[i] if i < len(a.strains) else None
         frames.append(Frame(int(k), res, strain))
     if not frames:
-        raise ValueError("the analysis has no computed frame yet")
+        raise ValueError(tr("the analysis has no computed frame yet"))
     has_strain = all(f.strain is not None for f in frames)
     if not has_strain:
         fields = tuple(f for f in fields if f in ("u", "v", "magnitude", "zncc"))

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..engine import Settings
+from ..i18n import tr
 
 __all__ = ["PROJECT_FORMAT", "PROBE_KEY", "ROLES", "is_probe_layer", "image_record",
            "layer_record",
@@ -61,7 +62,8 @@ def decode_array(d: dict) -> np.ndarray:
         raw = zlib.decompress(base64.b64decode(d["zlib_base64"]))
         return np.frombuffer(raw, np.dtype(d["dtype"])).reshape(d["shape"]).copy()
     except (KeyError, TypeError, ValueError, zlib.error) as exc:
-        raise ValueError(f"a labels layer of the project cannot be read ({exc})") from None
+        raise ValueError(tr("a labels layer of the project cannot be read ({exc})").format(
+                                exc=exc)) from None
 
 
 def _json_safe(value) -> Any:
@@ -83,10 +85,11 @@ def image_record(layer) -> dict:
     path = getattr(source, "path", None) or meta.get("source")
     sample = getattr(source, "sample", None)
     if not path and not sample:
-        raise ValueError(f"the image layer '{layer.name}' was not opened from a file or a "
-                         "sample, so a project cannot refer to it: save it first (File > "
-                         "Save Selected Layers... as .tif), open that file, then save the "
-                         "project")
+        raise ValueError(tr("the image layer '{layer_name}' was not opened from a file or "
+                            "a sample, so a project cannot refer to it: save it first "
+                            "(File > Save Selected Layers... as .tif), open that file, "
+                            "then save the project").format(
+                                layer_name=layer.name))
     if isinstance(path, (list, tuple)):
         path = [str(p) for p in path]
     elif path:
@@ -116,8 +119,9 @@ def layer_record(layer, role: str) -> dict:
         data = layer.data[0] if getattr(layer, "multiscale", False) else layer.data
         rec["data"] = encode_array(np.asarray(data))
     else:
-        raise ValueError(f"layer '{layer.name}' is a {kind} layer; a project stores Shapes, "
-                         "Labels and Points layers")
+        raise ValueError(tr("layer '{layer_name}' is a {kind} layer; a project stores "
+                            "Shapes, Labels and Points layers").format(
+                                layer_name=layer.name, kind=kind))
     meta = (layer.metadata or {}).get(PROBE_KEY)
     if meta is not None:
         rec["probe"] = _json_safe(meta)
@@ -154,33 +158,38 @@ def layer_data(rec: dict) -> tuple:
     if kind == "labels":
         kw["opacity"] = 0.4
         return decode_array(rec["data"]), kw, "labels"
-    raise ValueError(f"unknown layer type {kind!r} in the project")
+    raise ValueError(tr("unknown layer type {kind!r} in the project").format(kind=kind))
 
 
 def _check(doc) -> dict:
     """The project document, checked (``ValueError`` naming the problem)."""
     if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
-        raise ValueError("not a napari-aldic project file (no \"format\": "
-                         f"\"{PROJECT_FORMAT}\")")
+        raise ValueError(tr("not a napari-aldic project file (no \"format\": "
+                            "\"{project_format}\")").format(
+                                project_format=PROJECT_FORMAT))
     if doc.get("format_version") != PROJECT_VERSION:
-        raise ValueError(f"project format version {doc.get('format_version')!r} is not "
-                         f"{PROJECT_VERSION}; use a newer napari-aldic")
+        raise ValueError(tr("project format version {get!r} is not {project_version}; use "
+                            "a newer napari-aldic").format(
+                                get=doc.get('format_version'), project_version=PROJECT_VERSION))
     image = doc.get("image")
     if not isinstance(image, dict) or not (image.get("path") or image.get("sample")):
-        raise ValueError("the project names no image (an 'image' with a path or a sample)")
+        raise ValueError(tr("the project names no image (an 'image' with a path or a "
+                            "sample)"))
     for rec in doc.get("layers", []):
         if not isinstance(rec, dict) or rec.get("role") not in ROLES:
-            raise ValueError(f"a stored layer has no valid role (one of {', '.join(ROLES)})")
+            raise ValueError(tr("a stored layer has no valid role (one of {join})").format(
+                                    join=', '.join(ROLES)))
         allowed = _KINDS[rec["role"]]
         if rec.get("type") not in (allowed if isinstance(allowed, tuple) else (allowed,)):
-            raise ValueError(f"layer '{rec.get('name')}': a {rec.get('type')} layer cannot be "
-                             f"the {rec['role']}")
+            raise ValueError(tr("layer '{get}': a {get2} layer cannot be the {role}").format(
+                                    get=rec.get('name'), get2=rec.get('type'), role=rec['role']))
         layer_data(rec)  # the data decode
     Settings.from_dict(doc.get("settings") or {})
     if doc.get("init") not in (None, "fft", "seeds"):
-        raise ValueError(f"initial guess {doc.get('init')!r} must be 'fft' or 'seeds'")
+        raise ValueError(tr("initial guess {get!r} must be 'fft' or 'seeds'").format(
+                                get=doc.get('init')))
     if not isinstance(doc.get("display", {}), dict):
-        raise ValueError("the 'display' section must be a JSON object")
+        raise ValueError(tr("the 'display' section must be a JSON object"))
     return doc
 
 
@@ -190,9 +199,10 @@ def read_project(path) -> dict:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
-        raise ValueError(f"{path} is not a text (UTF-8) file") from None
+        raise ValueError(tr("{path} is not a text (UTF-8) file").format(path=path)) from None
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path} is not valid JSON ({exc})") from None
+        raise ValueError(tr("{path} is not valid JSON ({exc})").format(path=path,
+                                                                         exc=exc)) from None
     try:
         return _check(doc)
     except ValueError as exc:

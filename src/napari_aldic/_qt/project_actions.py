@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..engine import Settings
+from ..i18n import tr, tr_noop
 from .project import (
     image_record,
     is_probe_layer,
@@ -24,7 +25,7 @@ from .project import (
 
 __all__ = ["ProjectActions", "PROJECT_FILTER"]
 
-PROJECT_FILTER = "napari-aldic analysis (*.json);;All files (*)"
+PROJECT_FILTER = tr_noop("napari-aldic analysis (*.json);;All files (*)")
 _CHOICES = ("roi_add", "roi_subtract")
 _SINGLE = ("roi_labels", "brush", "seeds")
 
@@ -52,7 +53,7 @@ class ProjectActions:
 
         img = self._inputs.image_layer
         if img is None:
-            raise ValueError("choose an image stack first")
+            raise ValueError(tr("choose an image stack first"))
         records, seen = [], set()
         for role in _CHOICES:
             for lay in getattr(self._inputs, role).value:
@@ -78,10 +79,12 @@ class ProjectActions:
         try:
             written = write_project(path, self.document())
         except Exception as exc:  # nothing to refer to, unwritable file: explain
-            self._log(f"ERROR saving the analysis to {path}: {message(exc)}")
-            show_error(f"napari-aldic: could not save the analysis: {message(exc)}")
+            self._log(tr("ERROR saving the analysis to {path}: {exc}").format(
+                             path=path, exc=message(exc)))
+            show_error(tr("napari-aldic: could not save the analysis: {exc}").format(
+                              exc=message(exc)))
             return None
-        self._log(f"analysis saved to {written}")
+        self._log(tr("analysis saved to {written}").format(written=written))
         return written
 
     # ------------------------------------------------------------ opening
@@ -96,8 +99,10 @@ class ProjectActions:
             settings = Settings.from_dict(doc.get("settings") or {})
             image = self._image(doc["image"])
         except Exception as exc:  # invalid file or missing image: nothing is changed
-            self._log(f"ERROR opening the analysis {path}: {message(exc)}")
-            show_error(f"napari-aldic: could not open the analysis: {message(exc)}")
+            self._log(tr("ERROR opening the analysis {path}: {exc}").format(
+                             path=path, exc=message(exc)))
+            show_error(tr("napari-aldic: could not open the analysis: {exc}").format(
+                              exc=message(exc)))
             return False
         self._inputs.image.value = image
         init = doc.get("init") or "fft"
@@ -106,8 +111,9 @@ class ProjectActions:
         if init == "seeds" and self._inputs.seeds.value is not None:
             self._correlation.init.value = "seeds"
         self._display.set_choices(doc.get("display") or {})
-        self._log(f"analysis opened from {path}: image '{image.name}', "
-                  f"{len(doc.get('layers', []))} layer(s)")
+        self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
+                     "layer(s)").format(
+                         path=path, image_name=image.name, n_get=len(doc.get('layers', []))))
         self._panel.project_opened.emit()
         return True
 
@@ -132,9 +138,9 @@ class ProjectActions:
         paths = path if isinstance(path, list) else [path]
         missing = [p for p in paths if not Path(os.fspath(p)).exists()]
         if missing:
-            raise FileNotFoundError(f"the image {missing[0]} of the project is not there "
-                                    "(moved or renamed?); put it back or edit the 'path' in "
-                                    "the project file")
+            raise FileNotFoundError(tr("the image {path} of the project is not there (moved "
+                                       "or renamed?); put it back or edit the 'path' in the "
+                                       "project file").format(path=missing[0]))
         from .._reader import get_reader
 
         plugin = "napari-aldic" if get_reader(path) is not None else None
@@ -142,7 +148,7 @@ class ProjectActions:
                                   plugin is None)
         images = [lay for lay in added if isinstance(lay, nl.Image)]
         if not images:
-            raise ValueError(f"{path} did not open as an image")
+            raise ValueError(tr("{path} did not open as an image").format(path=path))
         return images[0]
 
     def _add_layers(self, records: list) -> None:
@@ -167,15 +173,15 @@ class ProjectActions:
         from qtpy.QtWidgets import QFileDialog
 
         start = self._panel.start_folder(f"{self._panel.stem()}_analysis.json")
-        path, _ = QFileDialog.getSaveFileName(self._panel.native, "Save the analysis",
-                                              start, PROJECT_FILTER)
+        path, _ = QFileDialog.getSaveFileName(self._panel.native, tr("Save the analysis"),
+                                              start, tr(PROJECT_FILTER))
         if path:
             self.save(path)
 
     def on_open_clicked(self, *_) -> None:
         from qtpy.QtWidgets import QFileDialog
 
-        path, _ = QFileDialog.getOpenFileName(self._panel.native, "Open an analysis",
-                                              self._panel.start_folder(), PROJECT_FILTER)
+        path, _ = QFileDialog.getOpenFileName(self._panel.native, tr("Open an analysis"),
+                                              self._panel.start_folder(), tr(PROJECT_FILTER))
         if path:
             self.open(path)

@@ -24,7 +24,9 @@ from magicgui.widgets import Container, Label, ProgressBar, PushButton, TextEdit
 from psygnal import Signal
 
 from .._analysis import Analysis, Job, run_in_thread
+from ..i18n import ntr, tr, tr_noop
 from .controls import Panel
+from .explain import with_explanation
 
 __all__ = ["RunPanel", "format_seconds", "PREPARING"]
 
@@ -33,7 +35,7 @@ STEP_PAUSE_MS = 15
 #: pause after a step that made a layer visible (it is drawn for the first time), ms
 DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
-PREPARING = "Preparing the correlation engine (first run only)…"
+PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
 
 
 def format_seconds(s: float) -> str:
@@ -89,8 +91,8 @@ class RunPanel(Panel):
         from qtpy.QtCore import QTimer
 
         self.status = Label(value="")
-        self.run_button = PushButton(text="Run")
-        self.cancel_button = PushButton(text="Cancel", enabled=False)
+        self.run_button = PushButton(text=tr("Run"))
+        self.cancel_button = PushButton(text=tr("Cancel"), enabled=False)
         self.progress = ProgressBar(value=0, min=0, max=1000, label="")
         self.eta = Label(value="", label="")
         self.log = TextEdit(value="", label="")
@@ -136,9 +138,9 @@ class RunPanel(Panel):
         lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
         lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warnings]
         if not errors:
-            lines.insert(0, "<span style='color:#6bd66b'>Ready.</span>")
+            lines.insert(0, "<span style='color:#6bd66b'>" + tr("Ready.") + "</span>")
         if self.preparing:
-            lines.insert(0, f"<span style='color:#8ab4f8'>{PREPARING}</span>")
+            lines.insert(0, f"<span style='color:#8ab4f8'>{tr(PREPARING)}</span>")
         self.status.value = "<br>".join(lines)
         self.run_button.enabled = not errors and not self._running
 
@@ -171,7 +173,8 @@ class RunPanel(Panel):
             after = _frozen_gc(after)
         self._cancel.clear()
         self._n_deformed = job.n_deformed
-        self.write_log(f"Run {time.strftime('%H:%M:%S')}: {job.summary}")
+        self.write_log(tr("Run {time}: {summary}").format(time=time.strftime('%H:%M:%S'),
+                                                         summary=job.summary))
         # superqt's plain worker: errors reach _on_errored only (one notification)
         worker = create_worker(run_in_thread, job, self._cancel, after, before,
                                _worker_class=GeneratorWorker, _ignore_errors=True)
@@ -191,8 +194,8 @@ class RunPanel(Panel):
         if self._running and self._worker is not None:
             self._cancel.set()
             self.cancel_button.enabled = False
-            self.eta.value = "cancelling after the current frame ..."
-            self.write_log("Cancel requested: stopping after the current frame.")
+            self.eta.value = tr("cancelling after the current frame ...")
+            self.write_log(tr("Cancel requested: stopping after the current frame."))
 
     def stopper(self) -> Callable[[], None]:
         """A function that asks a run to stop after its frame (the widget is
@@ -206,11 +209,14 @@ class RunPanel(Panel):
         frac = self._frac
         elapsed = time.perf_counter() - self._t0
         done = int(round(frac * self._n_deformed))
-        left = (f" · about {format_seconds(elapsed * (1 - frac) / frac)} left"
-                if 0 < frac < 1 else "")
-        first = f" · {PREPARING}" if self.preparing and frac == 0 else ""
-        self.eta.value = (f"{done}/{self._n_deformed} frames · {format_seconds(elapsed)} "
-                          f"elapsed{left}{first}")
+        parts = [tr("{done}/{total} frames").format(done=done, total=self._n_deformed),
+                 tr("{time} elapsed").format(time=format_seconds(elapsed))]
+        if 0 < frac < 1:
+            parts.append(tr("about {time} left").format(
+                time=format_seconds(elapsed * (1 - frac) / frac)))
+        if self.preparing and frac == 0:
+            parts.append(tr(PREPARING))
+        self.eta.value = " · ".join(parts)
 
     def _on_progress(self, item) -> None:
         frame, frac, msg = item
@@ -225,28 +231,39 @@ class RunPanel(Panel):
 
         analysis, prepared = outcome
         done, total = analysis.n_done - 1, len(analysis.frames) - 1
-        state = "cancelled" if analysis.cancelled else "finished"
         self.progress.value = int(round(1000 * done / max(1, total)))
-        self.write_log(f"{state} in {analysis.seconds:.1f} s: {done}/{total} frames computed")
+        took = format_seconds(analysis.seconds)
+        if analysis.cancelled:
+            self.write_log(tr("cancelled in {seconds:.1f} s: {done}/{total} frames "
+                              "computed").format(
+                seconds=analysis.seconds, done=done, total=total))
+            final = tr("{done}/{total} frames · cancelled in {time}").format(
+                done=done, total=total, time=took)
+        else:
+            self.write_log(tr("finished in {seconds:.1f} s: {done}/{total} frames "
+                              "computed").format(
+                seconds=analysis.seconds, done=done, total=total))
+            final = tr("{done}/{total} frames · finished in {time}").format(
+                done=done, total=total, time=took)
         last = next((r for r in reversed(analysis.results) if r is not None), None)
         if last is not None and done > 0:
             self.write_log(last.summary())
-        self.eta.value = (f"{done}/{total} frames · {state} in "
-                          f"{format_seconds(analysis.seconds)}; showing the results ...")
-        final = f"{done}/{total} frames · {state} in {format_seconds(analysis.seconds)}"
+        self.eta.value = tr("{status}; showing the results ...").format(status=final)
         try:
             steps = self.show_results(analysis, prepared) if self.show_results else None
         except Exception as exc:
             self._display_failed(exc)
             return
         if analysis.cancelled:
-            show_info(f"napari-aldic: cancelled; {done} finished frame(s) kept")
+            show_info(ntr("napari-aldic: cancelled; {done} finished frame kept",
+                          "napari-aldic: cancelled; {done} finished frames kept", done).format(
+                done=done))
         if getattr(analysis, "error", ""):  # a bad frame stopped the run
             from napari.utils.notifications import show_warning
 
-            self.write_log(f"stopped early: {analysis.error}")
-            show_warning(f"napari-aldic: stopped early, {done} finished frame(s) kept: "
-                         f"{analysis.error}")
+            self.write_log(tr("stopped early: {error}").format(error=analysis.error))
+            show_warning(tr("napari-aldic: stopped early, {done} finished frame(s) kept: "
+                            "{error}").format(done=done, error=analysis.error))
         self._steps = iter(steps) if steps is not None else None
         self.display_steps = []
         self._drive(final)
@@ -281,18 +298,18 @@ class RunPanel(Panel):
     def _display_failed(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
 
-        show_error(f"napari-aldic: could not show the results: {exc}")
-        self.write_log(f"ERROR showing results: {exc}")
-        self.eta.value = "finished; the results could not be shown (see log)"
+        show_error(tr("napari-aldic: could not show the results: {exc}").format(exc=exc))
+        self.write_log(tr("ERROR showing results: {exc}").format(exc=exc))
+        self.eta.value = tr("finished; the results could not be shown (see log)")
         self._steps = None
         self._maybe_done()
 
     def _on_errored(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
 
-        msg = str(exc) or exc.__class__.__name__
-        self.write_log(f"ERROR: {msg}")
-        self.eta.value = "failed (see log)"
+        msg = with_explanation(str(exc) or exc.__class__.__name__)
+        self.write_log(tr("ERROR: {msg}").format(msg=msg))
+        self.eta.value = tr("failed (see log)")
         show_error(f"napari-aldic: {msg}")
 
     def _on_finished(self) -> None:

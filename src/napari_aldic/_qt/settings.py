@@ -21,6 +21,7 @@ from psygnal import Signal
 from .._analysis import describe_fields
 from ..engine import DICParams, Settings
 from ..engine.io import read_settings, write_settings
+from ..i18n import tr, tr_noop
 from . import prefs
 from .controls import Panel, Plan, apply_plan
 from .correlation import CorrelationPanel
@@ -34,7 +35,7 @@ from .units import UnitsPanel
 
 __all__ = ["SettingsPanel", "JSON_FILTER", "message"]
 
-JSON_FILTER = "DIC parameters (*.json);;All files (*)"
+JSON_FILTER = tr_noop("DIC parameters (*.json);;All files (*)")
 #: the display choices "Restore defaults" sets
 DISPLAY_DEFAULTS = {"show_field": "|u|", "vectors": True, "vector_length": 0.0, "mesh": False,
                     "deformed": False, "rigid": False}
@@ -44,7 +45,7 @@ def message(exc: BaseException) -> str:
     """One line describing an error."""
     msg = str(exc) or exc.__class__.__name__
     if isinstance(exc, FileNotFoundError) and not str(exc).strip():
-        msg = f"no such file: {exc.filename}"
+        msg = tr("no such file: {filename}").format(filename=exc.filename)
     return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
 
@@ -82,22 +83,22 @@ class SettingsPanel(Panel):
     def _setup_ui(self) -> None:
         button = PushButton
         self.save_project_button = button(
-            text="Save analysis…", tooltip="Save everything set up here (image file, ROI, "
+            text=tr("Save analysis…"), tooltip=tr("Save everything set up here (image file, ROI, "
             "holes, labels, refine region, seeds, probes, parameters, units, display) in one "
-            "project file.")
+            "project file."))
         self.open_project_button = button(
-            text="Open analysis…", tooltip="Open a project file: the image and its layers "
-            "are added and every control is set.")
+            text=tr("Open analysis…"), tooltip=tr("Open a project file: the image and its layers "
+            "are added and every control is set."))
         self.save_params_button = button(
-            text="Save parameters…", tooltip="Write the analysis settings (correlation, "
+            text=tr("Save parameters…"), tooltip=tr("Write the analysis settings (correlation, "
             "tracking and frame range, strain, units, probe layers) to a readable JSON file; "
-            "it also works with 'napari-aldic run STACK --params FILE.json'.")
+            "it also works with 'napari-aldic run STACK --params FILE.json'."))
         self.load_params_button = button(
-            text="Load parameters…", tooltip="Set every parameter from a JSON file saved "
-            "here or written by 'napari-aldic params' / 'run --params-out'.")
+            text=tr("Load parameters…"), tooltip=tr("Set every parameter from a JSON file saved "
+            "here or written by 'napari-aldic params' / 'run --params-out'."))
         self.defaults_button = button(
-            text="Restore defaults", tooltip="Set every parameter, unit and display choice "
-            "to its default (the last used ones are remembered between napari sessions).")
+            text=tr("Restore defaults"), tooltip=tr("Set every parameter, unit and display choice "
+            "to its default (the last used ones are remembered between napari sessions)."))
         rows = [[self.save_project_button, self.open_project_button],
                 [self.save_params_button, self.load_params_button], [self.defaults_button]]
         for row in rows:
@@ -175,9 +176,11 @@ class SettingsPanel(Panel):
             if init is not None:
                 plan.append((self._correlation.init, init))
         except Exception as exc:  # a value a control cannot take: nothing is changed
-            self._log(f"ERROR loading parameters from {source}: {message(exc)}")
+            self._log(tr("ERROR loading parameters from {source}: {exc}").format(
+                             source=source, exc=message(exc)))
             if not quiet:
-                show_error(f"napari-aldic: could not load the parameters: {message(exc)}")
+                show_error(tr("napari-aldic: could not load the parameters: {exc}").format(
+                                  exc=message(exc)))
             return False
         units_before = self._units.values
         self._apply(plan, extra, seeds, notes)
@@ -185,14 +188,18 @@ class SettingsPanel(Panel):
             try:  # rescale the image and its layers once, for all unit controls
                 self._apply_units()
             except Exception as exc:  # pragma: no cover - a layer refusing its scale
-                show_error(f"napari-aldic: could not apply the units: {message(exc)}")
-                self._log(f"ERROR applying the units: {message(exc)}")
-        self._log(f"parameters loaded from {source}: {self.summary()}")
+                show_error(tr("napari-aldic: could not apply the units: {exc}").format(
+                                  exc=message(exc)))
+                self._log(tr("ERROR applying the units: {exc}").format(exc=message(exc)))
+        self._log(tr("parameters loaded from {source}: {summary}").format(
+                         source=source, summary=self.summary()))
         if extra:
-            self._log(f"kept from the file (not shown in the widget): {describe_fields(extra)}")
+            self._log(tr("kept from the file (not shown in the widget): "
+                         "{describe_fields}").format(
+                             describe_fields=describe_fields(extra)))
         for note in notes:
             self._log(note)
-        clamped = [n for n in notes if n.startswith("frame range")]
+        clamped = [n for n in notes if n.startswith(tr("frame range") + ":")]
         if clamped and not quiet:
             show_warning("napari-aldic: " + clamped[0])
         self.settings_loaded.emit()
@@ -237,7 +244,7 @@ class SettingsPanel(Panel):
         try:
             prefs.write_last_used(self.storable(frame_range=False))
         except Exception as exc:  # pragma: no cover - a convenience only
-            self._log(f"could not remember the parameters: {message(exc)}")
+            self._log(tr("could not remember the parameters: {exc}").format(exc=message(exc)))
 
     def restore_last_used(self) -> bool:
         """Set the controls to the last used settings, if any were stored."""
@@ -251,7 +258,7 @@ class SettingsPanel(Panel):
         init = doc.get("init") if doc.get("init") in ("fft", "seeds") else None
         if init == "seeds" and self._inputs.seeds.value is None:
             init = "fft"  # no seeds layer in this session
-        ok = self.apply(s, "the last session (Restore defaults resets them)", init, quiet=True)
+        ok = self.apply(s, tr("the last session (Restore defaults resets them)"), init, quiet=True)
         if ok and isinstance(doc.get("display"), dict):
             self._display.set_choices(doc["display"])
         return ok
@@ -267,7 +274,7 @@ class SettingsPanel(Panel):
         if self._units.values != units_before:
             self._apply_units()
         self._display.set_choices(DISPLAY_DEFAULTS)
-        self._log(f"defaults restored: {self.summary()}")
+        self._log(tr("defaults restored: {summary}").format(summary=self.summary()))
         self.settings_loaded.emit()
 
     # ------------------------------------------------------------ files
@@ -280,11 +287,14 @@ class SettingsPanel(Panel):
         try:
             written = write_settings(path, self.current())
         except Exception as exc:  # invalid settings, unwritable file: explain, never crash
-            self._log(f"ERROR saving the parameters to {path}: {message(exc)}")
-            show_error(f"napari-aldic: could not save the parameters: {message(exc)}")
+            self._log(tr("ERROR saving the parameters to {path}: {exc}").format(
+                             path=path, exc=message(exc)))
+            show_error(tr("napari-aldic: could not save the parameters: {exc}").format(
+                              exc=message(exc)))
             return None
         self._folder = written.parent
-        self._log(f"parameters saved to {written}: {self.summary()}")
+        self._log(tr("parameters saved to {written}: {summary}").format(
+                         written=written, summary=self.summary()))
         return written
 
     def load(self, path) -> bool:
@@ -294,8 +304,10 @@ class SettingsPanel(Panel):
         try:
             s = read_settings(path)
         except Exception as exc:  # unreadable or invalid file: nothing is changed
-            self._log(f"ERROR loading parameters from {path}: {message(exc)}")
-            show_error(f"napari-aldic: could not load the parameters: {message(exc)}")
+            self._log(tr("ERROR loading parameters from {path}: {exc}").format(
+                             path=path, exc=message(exc)))
+            show_error(tr("napari-aldic: could not load the parameters: {exc}").format(
+                              exc=message(exc)))
             return False
         self._folder = Path(os.fspath(path)).expanduser().parent
         return self.apply(s, str(path))
@@ -328,16 +340,16 @@ class SettingsPanel(Panel):
     def _on_save_clicked(self, *_) -> None:
         from qtpy.QtWidgets import QFileDialog
 
-        path, _ = QFileDialog.getSaveFileName(self.native, "Save DIC parameters",
+        path, _ = QFileDialog.getSaveFileName(self.native, tr("Save DIC parameters"),
                                               self.start_folder(f"{self.stem()}_parameters"
-                                                                ".json"), JSON_FILTER)
+                                                                ".json"), tr(JSON_FILTER))
         if path:
             self.save(path)
 
     def _on_load_clicked(self, *_) -> None:
         from qtpy.QtWidgets import QFileDialog
 
-        path, _ = QFileDialog.getOpenFileName(self.native, "Load DIC parameters",
-                                              self.start_folder(), JSON_FILTER)
+        path, _ = QFileDialog.getOpenFileName(self.native, tr("Load DIC parameters"),
+                                              self.start_folder(), tr(JSON_FILTER))
         if path:
             self.load(path)

@@ -6,6 +6,7 @@ from magicgui.widgets import ComboBox, SpinBox
 from psygnal import Signal
 
 from .._analysis import StrainSettings
+from ..i18n import tr
 from .controls import Panel, Plan, put
 
 __all__ = ["StrainPanel"]
@@ -24,20 +25,20 @@ class StrainPanel(Panel):
     settings_changed = Signal()
 
     def _setup_ui(self) -> None:
-        self.strain_window = SpinBox(label="Strain window", value=5, min=3, max=101, step=2,
-                                     tooltip="Odd number of nodes across the plane fit; the "
+        self.strain_window = SpinBox(label=tr("Strain window"), value=5, min=3, max=101, step=2,
+                                     tooltip=tr("Odd number of nodes across the plane fit; the "
                                              "virtual strain gauge is (window - 1) * step + "
-                                             "subset pixels.")
-        self.strain_method = ComboBox(label="Strain method", value="plane_fit",
-                                      choices=[("plane fit", "plane_fit"),
-                                               ("FE gradients", "fem")],
-                                      tooltip="Local least-squares plane fit over the window, "
-                                              "or gradients of the bilinear element field.")
-        self.strain_measure = ComboBox(label="Strain measure", value="green_lagrange",
-                                       choices=[("Green-Lagrange", "green_lagrange"),
-                                                ("infinitesimal", "infinitesimal"),
-                                                ("Euler-Almansi", "euler_almansi")],
-                                       tooltip="Finite-strain measure of exx, eyy, exy.")
+                                             "subset pixels."))
+        self.strain_method = ComboBox(label=tr("Strain method"), value="plane_fit",
+                                      choices=[(tr("plane fit"), "plane_fit"),
+                                               (tr("FE gradients"), "fem")],
+                                      tooltip=tr("Local least-squares plane fit over the window, "
+                                              "or gradients of the bilinear element field."))
+        self.strain_measure = ComboBox(label=tr("Strain measure"), value="green_lagrange",
+                                       choices=[(tr("Green-Lagrange"), "green_lagrange"),
+                                                (tr("infinitesimal"), "infinitesimal"),
+                                                (tr("Euler-Almansi"), "euler_almansi")],
+                                       tooltip=tr("Finite-strain measure of exx, eyy, exy."))
         self.extend([self.strain_window, self.strain_method,
                      self.strain_measure])
 
@@ -65,7 +66,8 @@ class StrainPanel(Panel):
     def summary(self) -> str:
         """The settings in words (for the log)."""
         s = self.settings
-        return f"strain {s.method}, window {s.window}, {s.measure}"
+        return tr("strain {method}, window {window}, {measure}").format(
+                      method=s.method, window=s.window, measure=s.measure)
 
     def strain_plan(self, strain: dict, plan: Plan) -> None:
         """Add the controls for a "strain" section (checked by
@@ -73,4 +75,4 @@ class StrainPanel(Panel):
         for key, control in (("window", self.strain_window), ("method", self.strain_method),
                              ("measure", self.strain_measure)):
             if key in strain:
-                put(plan, control, strain[key], f"strain {key}")
+                put(plan, control, strain[key], tr("strain {key}").format(key=key))

@@ -14,6 +14,7 @@ from magicgui.widgets import ComboBox, FloatSpinBox
 from psygnal import Signal
 
 from ..engine import Units
+from ..i18n import tr
 from .controls import Panel, Plan, put
 
 __all__ = ["UnitsPanel", "LENGTH_UNITS", "TIME_UNITS"]
@@ -46,7 +47,8 @@ def unit_name(name, known: dict, aliases: dict, what: str) -> str:
         alias = aliases.get(name.strip().lower(), aliases.get(name.strip()))
         if alias is not None:
             return alias
-    raise ValueError(f"{what} {name!r} is not one the widget offers ({', '.join(known)})")
+    raise ValueError(tr("{what} {name!r} is not one the widget offers ({join})").format(
+                            what=what, name=name, join=', '.join(known)))
 
 
 def _set_units(layer, units: list[str], length: str, time: str) -> None:
@@ -79,18 +81,20 @@ class UnitsPanel(Panel):
         super().__init__()
 
     def _setup_ui(self) -> None:
-        self.pixel_size = FloatSpinBox(label="Pixel size", value=1.0, min=0.0001, max=1e6,
+        self.pixel_size = FloatSpinBox(label=tr("Pixel size"), value=1.0, min=0.0001, max=1e6,
                                        step=0.0001,
-                                       tooltip="Physical size of one image pixel; sets the "
+                                       tooltip=tr("Physical size of one image pixel; sets the "
                                                "scale of the image, its ROI layers and every "
-                                               "result layer, and the unit of u, v, |u|.")
-        self.unit = ComboBox(label="Length unit", value="px", choices=list(LENGTH_UNITS),
-                             tooltip="Unit of the pixel size.")
-        self.frame_interval = FloatSpinBox(label="Frame interval", value=1.0, min=0.0001,
+                                               "result layer, and the unit of u, v, |u|."))
+        self.unit = ComboBox(label=tr("Length unit"), value="px", choices=list(LENGTH_UNITS),
+                             tooltip=tr("Unit of the pixel size."))
+        self.frame_interval = FloatSpinBox(label=tr("Frame interval"), value=1.0, min=0.0001,
                                            max=1e9, step=0.0001,
-                                           tooltip="Time between frames (time-axis scale).")
-        self.time_unit = ComboBox(label="Time unit", value="frame", choices=list(TIME_UNITS),
-                                  tooltip="Unit of the frame interval.")
+                                           tooltip=tr("Time between frames (time-axis scale)."))
+        self.time_unit = ComboBox(label=tr("Time unit"), value="frame",
+                                  choices=[(tr("frame") if t == "frame" else t, t)
+                                           for t in TIME_UNITS],
+                                  tooltip=tr("Unit of the frame interval."))
         self.extend([self.pixel_size, self.unit, self.frame_interval,
                      self.time_unit])
 
@@ -135,17 +139,21 @@ class UnitsPanel(Panel):
         size other than 1 in 'px')."""
         ps, unit = self.length
         if unit == "px" and ps != 1.0:
-            raise ValueError(f"the pixel size is {ps:g} with the length unit 'px': choose the "
-                             "physical unit of the pixel size (e.g. µm), or set the pixel size "
-                             "to 1")
+            raise ValueError(tr("the pixel size is {ps:g} with the length unit 'px': choose "
+                                "the physical unit of the pixel size (e.g. µm), or set the "
+                                "pixel size to 1").format(ps=ps))
         dt, t_unit = self.time
         return Units(ps, unit) if dt is None else Units(ps, unit, dt, t_unit)
 
     def summary(self) -> str:
         """The units in words (for the log)."""
-        t = ("frame numbers" if self.time_unit.value == "frame"
-             else f"frame interval {self.frame_interval.value:g} {self.time_unit.value}")
-        return f"pixel size {self.pixel_size.value:g} {self.unit.value}, {t}"
+        if self.time_unit.value == "frame":
+            return tr("pixel size {pixel_size:g} {unit}, frame numbers").format(
+                pixel_size=self.pixel_size.value, unit=self.unit.value)
+        return tr("pixel size {pixel_size:g} {unit}, frame interval {interval:g} "
+                  "{time_unit}").format(pixel_size=self.pixel_size.value, unit=self.unit.value,
+                                        interval=self.frame_interval.value,
+                                        time_unit=self.time_unit.value)
 
     # ------------------------------------------------------------ layers
     def read_image(self, img) -> None:
@@ -185,13 +193,13 @@ class UnitsPanel(Panel):
     # ------------------------------------------------------------ settings files
     def units_plan(self, units: Units, plan: Plan) -> None:
         """Add the controls for ``units`` (from a settings file) to ``plan``."""
-        unit = unit_name(units.unit, LENGTH_UNITS, _LENGTH_ALIASES, "length unit")
-        put(plan, self.unit, unit, "length unit")
-        put(plan, self.pixel_size, units.pixel_size, "pixel size")
+        unit = unit_name(units.unit, LENGTH_UNITS, _LENGTH_ALIASES, tr("length unit"))
+        put(plan, self.unit, unit, tr("length unit"))
+        put(plan, self.pixel_size, units.pixel_size, tr("pixel size"))
         if units.frame_interval is None:
-            put(plan, self.time_unit, "frame", "time unit")
-            put(plan, self.frame_interval, 1.0, "frame interval")
+            put(plan, self.time_unit, "frame", tr("time unit"))
+            put(plan, self.frame_interval, 1.0, tr("frame interval"))
         else:
-            t_unit = unit_name(units.time_unit, TIME_UNITS, _TIME_ALIASES, "time unit")
-            put(plan, self.time_unit, t_unit, "time unit")
-            put(plan, self.frame_interval, units.frame_interval, "frame interval")
+            t_unit = unit_name(units.time_unit, TIME_UNITS, _TIME_ALIASES, tr("time unit"))
+            put(plan, self.time_unit, t_unit, tr("time unit"))
+            put(plan, self.frame_interval, units.frame_interval, tr("frame interval"))

@@ -18,13 +18,17 @@ from magicgui.widgets import Container
 
 from .._analysis import Analysis, Job
 from ..engine import DICParams
+from ..i18n import tr, tr_noop
 from . import warmup
+from .advice import start_advice
 from .checks import Choices, problems
 from .controls import align_labels
 from .correlation import CorrelationPanel
 from .display import DisplayPanel
+from .explain import with_explanation
 from .export import ExportPanel
 from .inputs import InputsPanel
+from .language import LanguageSelector, apply_ui_language
 from .layout import divider, sections_area
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
@@ -53,20 +57,22 @@ CONTROLS = {
 #: make the result layer objects in the run's worker thread too (not only their data)
 LAYERS_IN_WORKER = True
 #: the sections, top to bottom: (title, panel attribute, expanded at first)
-SECTIONS = (("1. Images and region", "inputs", True),
-            ("2. Mesh and correlation", "correlation", True),
-            ("3. Strain", "strain_panel", False),
-            ("4. Units", "units", False),
-            ("5. Display", "display", True),
-            ("6. Export", "exports", False),
-            ("Project and parameters", "settings", False),
-            ("Log", "log", True))
+#: (the titles are the keys of ``widget.sections``; they are shown translated)
+SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
+            (tr_noop("2. Mesh and correlation"), "correlation", True),
+            (tr_noop("3. Strain"), "strain_panel", False),
+            (tr_noop("4. Units"), "units", False),
+            (tr_noop("5. Display"), "display", True),
+            (tr_noop("6. Export"), "exports", False),
+            (tr_noop("Project and parameters"), "settings", False),
+            (tr_noop("Log"), "log", True))
 
 
 class DICWidget(Container):
     """Digital image correlation of an image stack (napari-aldic)."""
 
     def __init__(self, napari_viewer: napari.viewer.Viewer):
+        apply_ui_language()  # before any text is made
         super().__init__(labels=False)
         self._viewer = napari_viewer
         self._errors: list[str] = []
@@ -91,6 +97,8 @@ class DICWidget(Container):
         self.settings = SettingsPanel(self.inputs, self.correlation, self.strain_panel,
                                       self.units, self.display, log=self.run_panel.write_log,
                                       apply_units=self._apply_units, viewer=self._viewer)
+        self.language = LanguageSelector()
+        self.settings.append(self.language)
         for panel, names in CONTROLS.items():
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
@@ -111,6 +119,7 @@ class DICWidget(Container):
         self.inputs.inputs_changed.connect(self._validate)
         self.inputs.seeds_assigned.connect(self._use_seeds)
         self.correlation.settings_changed.connect(self._validate)
+        self.correlation.advise_requested.connect(lambda: start_advice(self))
         self.strain_panel.settings_changed.connect(self._validate)
         self.units.units_changed.connect(self._apply_units)
         self.display.display_changed.connect(self._refresh_results)
@@ -193,7 +202,8 @@ class DICWidget(Container):
         try:
             self.run_panel.set_preparing(False)
             if error:
-                self.run_panel.write_log(f"preparing the correlation engine failed: {error}")
+                self.run_panel.write_log(
+                    tr("preparing the correlation engine failed: {error}").format(error=error))
         except RuntimeError:  # the widget was closed meanwhile
             pass
 
@@ -221,9 +231,11 @@ class DICWidget(Container):
             return
         self.units.apply_to(self.inputs.input_layers, self._results.layers)
         p, unit = self.units.length
-        self.run_panel.write_log(f"units: pixel size {p:g} {unit}, frame interval "
-                                 f"{self.units.frame_interval.value:g} "
-                                 f"{self.units.time_unit.value}")
+        self.run_panel.write_log(tr("units: pixel size {p:g} {unit}, frame interval "
+                                    "{frame_interval:g} {time_unit}").format(
+                                        p=p, unit=unit,
+                                        frame_interval=self.units.frame_interval.value,
+                                        time_unit=self.units.time_unit.value))
         self._refresh_results()
 
     def _on_running(self, running: bool) -> None:
@@ -255,7 +267,7 @@ class DICWidget(Container):
         try:
             errors, warns = problems(self._choices())
         except Exception as exc:  # never let a check break the widget
-            errors, warns = [f"Cannot check the inputs: {exc}"], []
+            errors, warns = [tr("Cannot check the inputs: {exc}").format(exc=exc)], []
         self.run_panel.show_problems(errors, warns)
         self._errors = errors
         return not errors
@@ -286,8 +298,9 @@ class DICWidget(Container):
         try:
             job = self._job()
         except Exception as exc:
-            show_error(f"napari-aldic: could not prepare the run: {exc}")
-            self.run_panel.write_log(f"ERROR preparing the run: {exc}")
+            show_error(tr("napari-aldic: could not prepare the run: {exc}").format(
+                exc=with_explanation(str(exc))))
+            self.run_panel.write_log(tr("ERROR preparing the run: {exc}").format(exc=exc))
             return
         self._remember()
         image = self.inputs.image_layer
@@ -336,9 +349,10 @@ class DICWidget(Container):
             counts = {int(c): int(k) for c, k in zip(codes, n)}
         self.display.set_legend(counts)
         self.exports.refresh()
-        where = "deformed" if display.deformed else "reference"
-        self.run_panel.write_log(f"results drawn in the {where} configuration "
-                                 "(Display > deformed configuration)")
+        self.run_panel.write_log(
+            tr("results drawn in the deformed configuration (Display > deformed configuration)")
+            if display.deformed else
+            tr("results drawn in the reference configuration (Display > deformed configuration)"))
 
     def _display_options(self):
         return self.display.display(self.units.length, self.units.time)
@@ -353,7 +367,7 @@ class DICWidget(Container):
         except Exception as exc:
             from napari.utils.notifications import show_error
 
-            show_error(f"napari-aldic: could not update the results: {exc}")
+            show_error(tr("napari-aldic: could not update the results: {exc}").format(exc=exc))
 
     def _on_vector_length(self, length: float) -> None:
         if not self._results.set_vector_length(length):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 import warnings
 
+from ..i18n import set_language, tr
+from .advise import advise_command, noise_floor_command
 from .console import (
     DEBUG_ENV,
     PROG,
@@ -23,7 +25,8 @@ from .run import run_command
 
 #: command name -> function(args) returning the exit code (None: 0)
 COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
-            "params": params_command, "probe": probe_command}
+            "params": params_command, "probe": probe_command, "advise": advise_command,
+            "noise-floor": noise_floor_command}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     and exit code 2 (130 when interrupted); with the environment variable
     ``NAPARI_ALDIC_DEBUG=1`` the traceback is printed above that line.
     """
+    set_language(None)  # the environment's language, read now (docs/languages.md)
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -48,18 +52,22 @@ def main(argv: list[str] | None = None) -> int:
         except (CLIError, ValueError, TypeError, OSError, NotImplementedError) as exc:
             show_traceback()
             missing = isinstance(exc, FileNotFoundError) and exc.filename
-            print_error(f"no such file: {exc.filename}" if missing else str(exc) or repr(exc))
+            print_error(tr("no such file: {filename}").format(filename=exc.filename)
+                        if missing else str(exc) or repr(exc))
             return 2
         except MemoryError:
             show_traceback()
-            print_error("out of memory: the input is too large for this computer (a smaller "
-                        "region, a larger step or fewer frames at once need less)")
+            print_error(tr("out of memory: the input is too large for this computer (a "
+                           "smaller region, a larger step or fewer frames at once need "
+                           "less)"))
             return 2
         except Exception as exc:  # a bug or an input nobody foresaw: still one line
             show_traceback()
-            print_error(f"unexpected {type(exc).__name__}: {exc} (set {DEBUG_ENV}=1 to see "
-                        "where it happened, and please report it)")
+            print_error(tr("unexpected {name__}: {exc} (set {debug_env}=1 to see where it "
+                           "happened, and please report it)").format(
+                               name__=type(exc).__name__, exc=exc, debug_env=DEBUG_ENV))
             return 2
         except KeyboardInterrupt:
-            print(f"{PROG}: interrupted (results already written are kept)", file=sys.stderr)
+            print(tr("{prog}: interrupted (results already written are kept)").format(prog=PROG),
+                  file=sys.stderr)
             return 130

@@ -9,6 +9,8 @@ import traceback
 
 import numpy as np
 
+from ..i18n import tr
+
 PROG = "napari-aldic"
 #: environment variable that adds the traceback to an error line
 DEBUG_ENV = "NAPARI_ALDIC_DEBUG"
@@ -24,7 +26,8 @@ def one_line(message: str) -> str:
 
 
 def print_error(message: str) -> None:
-    print(f"{PROG}: error: {one_line(message)}", file=sys.stderr)
+    print(tr("{prog}: error: {message}").format(prog=PROG, message=one_line(message)),
+          file=sys.stderr)
 
 
 def show_traceback() -> None:
@@ -36,7 +39,7 @@ def show_traceback() -> None:
 
 def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """``warnings.showwarning`` of the CLI: one line, no source location."""
-    print(f"{PROG}: warning: {message}", file=sys.stderr)
+    print(tr("{prog}: warning: {message}").format(prog=PROG, message=message), file=sys.stderr)
 
 
 def silence_stdout() -> None:
@@ -73,8 +76,10 @@ def sequence_progress(n_frames: int):
         eta = "--:--" if not np.isfinite(left) else f"{int(left) // 60:02d}:{int(left) % 60:02d}"
         done = int(round(frac * n_frames))
         bar = int(round(30 * frac))
-        print(f"\r  [{'#' * bar}{'.' * (30 - bar)}] {done}/{n_frames} frames, "
-              f"{el:5.1f} s, {eta} left  {msg:<28.28}", end="", file=sys.stderr, flush=True)
+        line = tr("{done}/{n_frames} frames, {el:5.1f} s, {eta} left").format(
+            done=done, n_frames=n_frames, el=el, eta=eta)
+        print(f"\r  [{'#' * bar}{'.' * (30 - bar)}] {line}  {msg:<28.28}", end="",
+              file=sys.stderr, flush=True)
 
     return report
 
@@ -89,8 +94,10 @@ def counts_line(res) -> str:
     """Nodes, valid nodes, time and speed of one result."""
     total = float(res.meta.get("timing", {}).get("total", float("nan")))
     pct = 100.0 * res.n_valid / max(len(res), 1)
-    return (f"{len(res)} nodes, {res.n_valid} valid ({pct:.1f} %), {total:.3f} s "
-            f"({len(res) / max(total, 1e-9):,.0f} POI/s)")
+    return (tr("{n_res} nodes, {n_valid} valid ({pct:.1f} %), {total:.3f} s "
+               "({rate:,.0f} POI/s)").format(
+                   n_res=len(res), n_valid=res.n_valid, pct=pct, total=total,
+                   rate=len(res) / max(total, 1e-9)))
 
 
 def frame_summary(res) -> list[str]:
@@ -98,13 +105,15 @@ def frame_summary(res) -> list[str]:
     lines = [counts_line(res)]
     v = res.valid
     if v.any():
-        lines.append(f"u mean {res.u[v].mean():+.4f} px [{res.u[v].min():+.3f}, "
-                     f"{res.u[v].max():+.3f}]; v mean {res.v[v].mean():+.4f} px "
-                     f"[{res.v[v].min():+.3f}, {res.v[v].max():+.3f}]; "
-                     f"median ZNCC {np.median(res.zncc[v]):.4f}")
+        lines.append(tr("u mean {mean:+.4f} px [{min:+.3f}, {max:+.3f}]; v mean "
+                        "{mean2:+.4f} px [{min2:+.3f}, {max2:+.3f}]; median ZNCC "
+                        "{median:.4f}").format(
+                            mean=res.u[v].mean(), min=res.u[v].min(), max=res.u[v].max(),
+                            mean2=res.v[v].mean(), min2=res.v[v].min(), max2=res.v[v].max(),
+                            median=np.median(res.zncc[v])))
     if res.aldic_summary():
         lines.append(res.aldic_summary())
     flagged = {k: c for k, c in res.reason_counts().items() if k != "converged"}
     if flagged:
-        lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))
+        lines.append(tr("flagged:") + " " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))
     return lines

@@ -11,6 +11,7 @@ import numpy as np
 from ..engine import correlate
 from ..engine.synthetic import make_case
 from ..engine.viz import plot_displacement
+from ..i18n import tr
 from .console import PROG, CLIError, counts_line, progress_bar
 
 
@@ -18,26 +19,34 @@ def demo_command(args) -> None:
     """``napari-aldic demo``: synthetic pair, analysis, error report, files."""
     out = args.out.expanduser().resolve()
     case = make_case(args.field, (args.size, args.size), noise=args.noise, seed=args.seed)
-    print(f"{PROG} demo: {args.size} x {args.size} synthetic speckle pair, 8-bit, "
-          f"noise {args.noise:g} grey levels")
-    print(f"  field: {case.description}")
+    print(tr("{prog} demo: {size} x {size} synthetic speckle pair, 8-bit, "
+             "noise {noise:g} grey levels").format(
+                 prog=PROG, size=args.size, noise=args.noise))
+    print("  " + tr("field: {description}").format(description=case.description))
     warm = _warm_up(args)
-    print(f"  warm-up: {warm:.1f} s (Numba compiles the kernels on a first run, later runs "
-          "load them from its cache; not part of the analysis time)")
+    print("  " + tr("warm-up: {warm:.1f} s (Numba compiles the kernels on a first "
+                    "run, later runs load them from its cache; not part of the "
+                    "analysis time)").format(warm=warm))
     res = correlate(case.reference, case.deformed, roi=case.roi, subset=args.subset,
-                    step=args.step, method=args.method, progress=progress_bar("  correlate"))
-    print("  analysis: " + counts_line(res))
+                    step=args.step, method=args.method,
+                    progress=progress_bar("  " + tr("correlate")))
+    print("  " + tr("analysis:") + " " + counts_line(res))
     stats = _errors(res, case)
-    print(f"  error against the exact truth over the {res.n_valid} valid nodes:")
-    print(f"    u: RMSE {stats['rmse_u']:.4f} px, max {stats['max_u']:.4f} px")
-    print(f"    v: RMSE {stats['rmse_v']:.4f} px, max {stats['max_v']:.4f} px")
+    print("  " + tr("error against the exact truth over the {n_valid} valid nodes:").format(
+                        n_valid=res.n_valid))
+    print("    " + tr("u: RMSE {rmse_u:.4f} px, max {max_u:.4f} px").format(
+                          rmse_u=stats['rmse_u'], max_u=stats['max_u']))
+    print("    " + tr("v: RMSE {rmse_v:.4f} px, max {max_v:.4f} px").format(
+                          rmse_v=stats['rmse_v'], max_v=stats['max_v']))
     res.meta["demo"] = {"field": args.field, "description": case.description,
                         "size": args.size, "noise": args.noise, "seed": args.seed, **stats}
     written, roi_opt = _write_files(out, case, res, args.field)
-    print(f"  wrote {', '.join(written)} to")
+    print("  " + tr("wrote {join} to").format(join=', '.join(written)))
     print(f"  {out}")
-    print(f"  analyse them again with: {PROG} run {out / 'reference.tif'} "
-          f"{out / 'deformed.tif'}{roi_opt} --params {out / 'params.json'} -o result.npz")
+    print("  " + tr("analyse them again with: {prog} run {reference} {deformed}{roi_opt} "
+                    "--params {params} -o result.npz").format(
+                        prog=PROG, reference=out / 'reference.tif', deformed=out / 'deformed.tif',
+                        roi_opt=roi_opt, params=out / 'params.json'))
 
 
 def _warm_up(args) -> float:
@@ -56,7 +65,7 @@ def _errors(res, case) -> dict[str, float]:
     ut, vt = case.field.displacement(res.x, res.y)
     sel = res.valid
     if not sel.any():
-        raise CLIError("no node converged; nothing to compare with the truth")
+        raise CLIError(tr("no node converged; nothing to compare with the truth"))
     eu, ev = res.u[sel] - ut[sel], res.v[sel] - vt[sel]
     return {"rmse_u": float(np.sqrt(np.mean(eu**2))), "max_u": float(np.abs(eu).max()),
             "rmse_v": float(np.sqrt(np.mean(ev**2))), "max_v": float(np.abs(ev).max())}

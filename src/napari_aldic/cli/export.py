@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..engine import EncoderNotFoundError, Units, export_result
 from ..engine.io import collect_frames
+from ..i18n import tr
 from .console import PROG, CLIError
 from .parser import EXPORT_FORMATS
 from .settings import UNIT_OPTIONS, settings_file, settings_from_args, units_from_args
@@ -31,8 +32,10 @@ def export_command(args) -> int:
     single = len(formats) == 1 and base.suffix.lower() in SUFFIX.values()
     if base.suffix.lower() in SUFFIX.values() and not single:
         base = base.with_suffix("")
-    print(f"{PROG} export: {len(frames)} frame(s) ({frames[0].index} to {frames[-1].index}); "
-          f"{units.describe()}")
+    print(tr("{prog} export: {n_frames} frame(s) ({index} to {index2}); "
+             "{describe}").format(
+                 prog=PROG, n_frames=len(frames), index=frames[0].index, index2=frames[-1].index,
+                 describe=units.describe()))
     failed = 0
     for fmt in formats:
         for target, opts in _jobs(fmt, base, single, args):
@@ -58,8 +61,9 @@ def _units(args, stored: Units | None) -> Units:
         given = [f"--{k.replace('_', '-')}" for k in UNIT_OPTIONS
                  if getattr(args, k, None) is not None]
         by = ", ".join(given + (["--settings"] if file_units is not None else []))
-        print(f"{PROG}: warning: {by} override the units stored in the result "
-              f"({stored.describe()}); exporting with {units.describe()}",
+        print(tr("{prog}: warning: {by} override the units stored in the result "
+                 "({describe}); exporting with {describe2}").format(
+                     prog=PROG, by=by, describe=stored.describe(), describe2=units.describe()),
               file=sys.stderr, flush=True)
     return units
 
@@ -69,7 +73,8 @@ def _formats(items: list[str]) -> list[str]:
     formats = [f.strip().lower() for item in items for f in item.split(",") if f.strip()]
     bad = [f for f in formats if f not in EXPORT_FORMATS]
     if bad:
-        raise CLIError(f"unknown export format(s) {bad}; choose from {', '.join(EXPORT_FORMATS)}")
+        raise CLIError(tr("unknown export format(s) {bad}; choose from {join}").format(
+                              bad=bad, join=', '.join(EXPORT_FORMATS)))
     return formats
 
 
@@ -77,11 +82,11 @@ def _input(inputs: list[Path]):
     """One result file or run folder, or a list of result files."""
     for p in inputs:
         if not p.expanduser().exists():
-            raise CLIError(f"no such file or folder: {p}")
+            raise CLIError(tr("no such file or folder: {p}").format(p=p))
     if len(inputs) == 1:
         return inputs[0].expanduser()
     if any(p.is_dir() for p in inputs):
-        raise CLIError("give one run folder, or one or more result files")
+        raise CLIError(tr("give one run folder, or one or more result files"))
     return [p.expanduser() for p in inputs]
 
 
@@ -125,10 +130,12 @@ def _write(frames, target: Path, fmt: str, opts: dict) -> bool:
     try:
         out = export_result(frames, target, to=fmt, **opts)
     except (EncoderNotFoundError, ValueError, OSError) as exc:
-        print(f"{PROG}: error: {fmt}: {' '.join(str(exc).split())}", file=sys.stderr)
+        print(tr("{prog}: error: {fmt}: {join}").format(
+                     prog=PROG, fmt=fmt, join=' '.join(str(exc).split())), file=sys.stderr)
         return False
     paths = out if isinstance(out, list) else [out]
-    shown = paths if len(paths) <= 3 else [paths[0], f"... ({len(paths)} files)", paths[-1]]
+    shown = paths if len(paths) <= 3 else [paths[0], tr("... ({n_paths} files)").format(
+                                                            n_paths=len(paths)), paths[-1]]
     for p in shown:
         print(f"  {fmt}: {p.resolve() if isinstance(p, Path) else p}")
     return True

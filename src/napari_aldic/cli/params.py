@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..engine.io import write_settings
+from ..i18n import tr
 from .console import PROG
 from .settings import settings_from_args
 
@@ -15,5 +16,5 @@ def params_command(args) -> None:
         settings = settings.replace(tracking={**(settings.tracking or {}),
                                               "reference": args.reference})
     path = write_settings(args.output, settings)
-    print(f"wrote parameters to {path.resolve()}")
-    print(f"use them with: {PROG} run INPUT ... --params {path}")
+    print(tr("wrote parameters to {resolve}").format(resolve=path.resolve()))
+    print(tr("use them with: {prog} run INPUT ... --params {path}").format(prog=PROG, path=path))

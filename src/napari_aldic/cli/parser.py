@@ -8,52 +8,65 @@ from pathlib import Path
 
 from .. import __version__
 from ..engine.synthetic import CASES
+from ..i18n import tr, tr_noop
 from .console import PROG
 
 #: run/params options that override fields of the parameter file (dest = DICParams field)
 OVERRIDES = ("subset", "step", "search", "search_max", "method", "interpolation", "n_threads",
-             "smooth", "second_order_warp")
+             "smooth", "second_order_warp", "shape_function")
 EXPORT_FORMATS = ("mat", "csv", "vtu", "davis", "png", "gif", "mp4", "pdf")
 REFERENCE_MODES = ("accumulative", "incremental")
 #: help line and description of every command
 TEXTS = {
     "demo": (
-        "analyse a synthetic speckle pair with exact truth",
-        "Render a synthetic speckle pair with a known displacement field, "
-        "correlate it, report the error against the truth and write the "
-        "images, the result and a figure into a folder."),
+        tr_noop("analyse a synthetic speckle pair with exact truth"),
+        tr_noop("Render a synthetic speckle pair with a known displacement field, "
+                "correlate it, report the error against the truth and write the "
+                "images, the result and a figure into a folder.")),
     "run": (
-        "analyse an image pair, a TIFF stack or a folder of images",
-        "Correlate images against a reference. INPUT is either REF DEF "
-        "[DEF ...] (one image per file), or one multi-page TIFF stack or one "
-        "folder of images (natural sort order); frame 0 is the reference. A "
-        "stack writes a run folder (the format of track), resumed by rerunning."),
+        tr_noop("analyse an image pair, a TIFF stack or a folder of images"),
+        tr_noop("Correlate images against a reference. INPUT is either REF DEF "
+                "[DEF ...] (one image per file), or one multi-page TIFF stack or one "
+                "folder of images (natural sort order); frame 0 is the reference. A "
+                "stack writes a run folder (the format of track), resumed by rerunning.")),
     "params": (
-        "write a parameter file (defaults, a file, and options)",
-        "Write the analysis settings as readable JSON: the defaults, or "
-        "--params FILE, with the options below applied. Use the file with "
-        "'napari-aldic run --params FILE', 'export --settings FILE' or the "
-        "napari widget's 'Load parameters'."),
+        tr_noop("write a parameter file (defaults, a file, and options)"),
+        tr_noop("Write the analysis settings as readable JSON: the defaults, or "
+                "--params FILE, with the options below applied. Use the file with "
+                "'napari-aldic run --params FILE', 'export --settings FILE' or the "
+                "napari widget's 'Load parameters'.")),
     "export": (
-        "export results to MAT, CSV, VTU, DaVis text, PNG, GIF, MP4, PDF",
-        "Export results: one result .npz, several, a .mat written by "
-        "export, or a run folder (written by 'run -o FOLDER' or track). "
-        "Outputs are named OUT.<ext> (images OUT_<field>.png, one per frame "
-        "for a sequence: OUT_<field>_frame#####.png). See docs/exports.md."),
+        tr_noop("export results to MAT, CSV, VTU, DaVis text, PNG, GIF, MP4, PDF"),
+        tr_noop("Export results: one result .npz, several, a .mat written by "
+                "export, or a run folder (written by 'run -o FOLDER' or track). "
+                "Outputs are named OUT.<ext> (images OUT_<field>.png, one per frame "
+                "for a sequence: OUT_<field>_frame#####.png). See docs/exports.md.")),
     "probe": (
-        "line gauges, crack opening, points, areas and stress over the frames",
-        "Measure probes at every frame of RUN (a run folder or a result file), in "
-        "reference-image pixels: line gauges (strain, true strain, elongation, crack "
-        "opening/sliding), points and areas; with --load, the testing machine's load "
-        "and the engineering stress. Writes one CSV row per frame (and OUT.json: units "
-        "and probes). See docs/probes.md."),
+        tr_noop("line gauges, crack opening, points, areas and stress over the frames"),
+        tr_noop("Measure probes at every frame of RUN (a run folder or a result file), in "
+                "reference-image pixels: line gauges (strain, true strain, elongation, crack "
+                "opening/sliding), points and areas; with --load, the testing machine's load "
+                "and the engineering stress. Writes one CSV row per frame (and OUT.json: units "
+                "and probes). See docs/probes.md.")),
+    "advise": (
+        tr_noop("the smallest subset that meets a displacement-noise target"),
+        tr_noop("Predict the displacement noise of each subset size from the reference "
+                "image alone (its speckle gradients, SSSIG, and its noise) and recommend the "
+                "smallest subset at which most nodes meet the target. See docs/method.md, "
+                "'Measurement quality and uncertainty'.")),
+    "noise-floor": (
+        tr_noop("displacement and strain noise of a static pair"),
+        tr_noop("Correlate two images of the unloaded, unmoved specimen with the settings "
+                "of the measurement; the scatter of u, v (about a fitted rigid motion) and "
+                "of the strains is the noise floor to report with the results (iDICs Good "
+                "Practices Guide).")),
 }
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``napari-aldic``."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description="2-D digital image correlation (napari-aldic engine).")
+        prog=PROG, description=tr("2-D digital image correlation (napari-aldic engine)."))
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     add_demo(sub)
@@ -61,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_params(sub)
     add_export(sub)
     add_probe(sub)
+    add_advise(sub)
+    add_noise_floor(sub)
     return parser
 
 
@@ -68,149 +83,190 @@ def build_parser() -> argparse.ArgumentParser:
 def _command(sub, name: str) -> argparse.ArgumentParser:
     """The parser of command ``name`` (texts from ``TEXTS``)."""
     help_line, description = TEXTS[name]
-    return sub.add_parser(name, help=help_line, description=description)
+    return sub.add_parser(name, help=tr(help_line), description=tr(description))
 
 
 def add_demo(sub) -> None:
     demo = _command(sub, "demo")
     demo.add_argument("--out", type=Path, default=Path("aldic_demo"),
-                      help="output folder (default: ./aldic_demo)")
-    demo.add_argument("--size", type=int, default=512, help="image size N for N x N (default 512)")
+                      help=tr("output folder (default: ./aldic_demo)"))
+    demo.add_argument("--size", type=int, default=512,
+                      help=tr("image size N for N x N (default 512)"))
     demo.add_argument("--noise", type=float, default=1.0, metavar="GL",
-                      help="Gaussian noise std in grey levels, 8-bit images (default 1)")
+                      help=tr("Gaussian noise std in grey levels, 8-bit images (default 1)"))
     demo.add_argument("--field", choices=CASES, default=CASES[0],
-                      help="displacement field (default: strain = 1%% strain + 0.5 deg "
-                           "rotation + sub-pixel translation)")
-    demo.add_argument("--subset", type=int, default=31, help="subset full width, px (default 31)")
-    demo.add_argument("--step", type=int, default=8, help="node spacing, px (default 8)")
+                      help=tr("displacement field (default: strain = 1%% strain + 0.5 deg "
+                              "rotation + sub-pixel translation)"))
+    demo.add_argument("--subset", type=int, default=31,
+                      help=tr("subset full width, px (default 31)"))
+    demo.add_argument("--step", type=int, default=8, help=tr("node spacing, px (default 8)"))
     demo.add_argument("--method", choices=("local", "aldic"), default="local")
-    demo.add_argument("--seed", type=int, default=0, help="speckle pattern seed (default 0)")
+    demo.add_argument("--seed", type=int, default=0, help=tr("speckle pattern seed (default 0)"))
 
 
 def add_run(sub) -> None:
     run = _command(sub, "run")
     run.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
-                     help="REF DEF [DEF ...], or STACK.tif, or FOLDER")
+                     help=tr("REF DEF [DEF ...], or STACK.tif, or FOLDER"))
     run.add_argument("--roi", type=Path, metavar="MASK",
-                     help="ROI mask: image file (nonzero = analysed) or .npy array")
+                     help=tr("ROI mask: image file (nonzero = analysed) or .npy array"))
     add_param_options(run)
     run.add_argument("-o", "--output", type=Path, metavar="OUT",
-                     help="a pair: OUT.npz (default ./aldic_result.npz); a stack, or a "
+                     help=tr("a pair: OUT.npz (default ./aldic_result.npz); a stack, or a "
                           "folder given here: a run folder (sequence.json + "
                           "frame_#####.npz; OUT.npz means the folder OUT; default "
                           "./aldic_result) that the same command resumes and that is "
-                          "refused when it holds another analysis")
+                          "refused when it holds another analysis"))
     run.add_argument("--plot", action="store_true",
-                     help="also write a PNG figure of u and v beside each result")
+                     help=tr("also write a PNG figure of u and v beside each result"))
     run.add_argument("--reference", choices=REFERENCE_MODES, default="accumulative",
-                     help="stacks: correlate every frame against frame 0 (accumulative) "
+                     help=tr("stacks: correlate every frame against frame 0 (accumulative) "
                           "or against the previous frame, composed back to frame 0 "
-                          "(incremental); results always refer to frame 0")
+                          "(incremental); results always refer to frame 0"))
     run.add_argument("--scheduler", metavar="ADDRESS|threads|processes",
-                     help="stacks: run the frames in parallel on local threads, on local "
+                     help=tr("stacks: run the frames in parallel on local threads, on local "
                           "worker processes, or on the dask cluster at ADDRESS (e.g. "
                           "tcp://head:8786; workers read their frames from the stack "
                           "themselves, see docs/cluster.md); default: one frame after the "
-                          "other")
+                          "other"))
     run.add_argument("--workers", type=int, metavar="N",
-                     help="with --scheduler threads or processes: N frames at a time "
-                          "(default: the CPU count)")
+                     help=tr("with --scheduler threads or processes: N frames at a time "
+                          "(default: the CPU count)"))
+    run.add_argument("--tile-size", type=int, metavar="N", dest="tile_size",
+                     help=tr("a pair: correlate in blocks of N x N pixels, reading the images "
+                             "tile by tile (for images larger than memory); 0 never tiles; "
+                             "default: tiles pairs over 40 million pixels, blocks of 2048"))
+    run.add_argument("--tile-workers", type=int, metavar="N", dest="tile_workers",
+                     help=tr("with tiling: N blocks correlated at once (default 1)"))
     run.add_argument("--params-out", type=Path, metavar="FILE.json", dest="params_out",
-                     help="also write the complete parameters used (file and options "
-                          "merged) to FILE.json, for --params of a later run")
+                     help=tr("also write the complete parameters used (file and options "
+                          "merged) to FILE.json, for --params of a later run"))
     add_unit_options(run)
 
 
 def add_params(sub) -> None:
     prm = _command(sub, "params")
-    prm.add_argument("output", type=Path, metavar="OUT.json", help="file to write")
+    prm.add_argument("output", type=Path, metavar="OUT.json", help=tr("file to write"))
     add_param_options(prm)
     add_unit_options(prm)
     add_strain_options(prm)
     prm.add_argument("--reference", choices=REFERENCE_MODES,
-                     help="tracking of stacks (the 'tracking' section; see 'run --reference')")
+                     help=tr("tracking of stacks (the 'tracking' section; see 'run --reference')"))
 
 
 def add_export(sub) -> None:
     exp = _command(sub, "export")
     exp.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
-                     help="RESULT.npz [RESULT.npz ...], RESULT.mat or RUN_FOLDER")
+                     help=tr("RESULT.npz [RESULT.npz ...], RESULT.mat or RUN_FOLDER"))
     exp.add_argument("--to", nargs="+", required=True, metavar="FORMAT", dest="formats",
-                     help=f"one or more of: {', '.join(EXPORT_FORMATS)} (comma or space "
-                          "separated)")
+                     help=tr("one or more of: {join} (comma or space separated)").format(
+                                 join=', '.join(EXPORT_FORMATS)))
     exp.add_argument("-o", "--output", type=Path, metavar="OUT",
-                     help="output name without extension, or a folder (default: "
-                          "RUN_FOLDER/export or RESULT without .npz)")
+                     help=tr("output name without extension, or a folder (default: "
+                          "RUN_FOLDER/export or RESULT without .npz)"))
     exp.add_argument("--field", nargs="+", default=None, metavar="FIELD",
-                     help="field(s) drawn in png/gif/mp4 (default u): u, v, magnitude, "
+                     help=tr("field(s) drawn in png/gif/mp4 (default u): u, v, magnitude, "
                           "exx, eyy, exy, e1, e2, max_shear, von_mises, rotation, zncc, "
-                          "vx, vy, exx_rate, eyy_rate, exy_rate")
+                          "vx, vy, exx_rate, eyy_rate, exy_rate"))
     exp.add_argument("--frames", nargs="+", type=int, metavar="K",
-                     help="frame numbers to export (default all; the report picks up to 4)")
+                     help=tr("frame numbers to export (default all; the report picks up to 4)"))
     exp.add_argument("--line", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
-                     help="profile line for the PDF report, in pixels")
+                     help=tr("profile line for the PDF report, in pixels"))
     add_unit_options(exp)
     exp.add_argument("--settings", type=Path, metavar="FILE.json",
-                     help="take units and strain settings from a parameter file")
+                     help=tr("take units and strain settings from a parameter file"))
     exp.add_argument("--no-strain", action="store_true", dest="no_strain",
-                     help="do not compute strain")
+                     help=tr("do not compute strain"))
     add_strain_options(exp)
-    exp.add_argument("--fps", type=float, default=4.0, help="GIF/MP4 frames per second")
+    exp.add_argument("--fps", type=float, default=4.0, help=tr("GIF/MP4 frames per second"))
     exp.add_argument("--encoding", choices=("binary", "ascii"), default="binary",
-                     help="VTU data encoding (default binary = base64)")
-    exp.add_argument("--dpi", type=int, default=150, help="PNG resolution (default 150)")
+                     help=tr("VTU data encoding (default binary = base64)"))
+    exp.add_argument("--dpi", type=int, default=150, help=tr("PNG resolution (default 150)"))
 
 
 def add_probe(sub) -> None:
     prb = _command(sub, "probe")
-    prb.add_argument("run", type=Path, metavar="RUN", help="run folder or result file")
+    prb.add_argument("run", type=Path, metavar="RUN", help=tr("run folder or result file"))
     xy = {"type": float, "action": "append"}
     prb.add_argument("--line", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
-                     help="line gauge between two points, px (repeat for more)")
-    prb.add_argument("--point", nargs=2, metavar=("X", "Y"), **xy, help="point probe, px")
+                     help=tr("line gauge between two points, px (repeat for more)"))
+    prb.add_argument("--point", nargs=2, metavar=("X", "Y"), **xy, help=tr("point probe, px"))
     prb.add_argument("--area", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
-                     help="rectangular area probe, px")
+                     help=tr("rectangular area probe, px"))
     prb.add_argument("--circle", nargs=3, metavar=("CX", "CY", "R"), **xy,
-                     help="circular area probe, px")
+                     help=tr("circular area probe, px"))
     prb.add_argument("--probes", type=Path, metavar="FILE.json",
-                     help="probes from a file (e.g. the OUT.json of an earlier probe run)")
+                     help=tr("probes from a file (e.g. the OUT.json of an earlier probe run)"))
     prb.add_argument("--field", nargs="+", dest="fields", metavar="FIELD",
-                     help="fields of point and area probes (default u v exx eyy exy)")
-    prb.add_argument("--load", type=Path, metavar="LOAD.csv", help="testing-machine CSV")
+                     help=tr("fields of point and area probes (default u v exx eyy exy)"))
+    prb.add_argument("--load", type=Path, metavar="LOAD.csv", help=tr("testing-machine CSV"))
     prb.add_argument("--load-column", dest="load_column", metavar="NAME",
-                     help="name of the load column (default: found by name)")
+                     help=tr("name of the load column (default: found by name)"))
     prb.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
-                     help="cross-section in mm² (stress = load / A in MPa)")
+                     help=tr("cross-section in mm² (stress = load / A in MPa)"))
     prb.add_argument("--sync", choices=("frame", "time"),
-                     help="match load rows to frames by a frame column, or by time = "
-                          "frame / fps + offset (default: frame when the file has one)")
-    prb.add_argument("--fps", type=float, metavar="F", help="camera frames per second")
+                     help=tr("match load rows to frames by a frame column, or by time = "
+                          "frame / fps + offset (default: frame when the file has one)"))
+    prb.add_argument("--fps", type=float, metavar="F", help=tr("camera frames per second"))
     prb.add_argument("--offset", type=float, default=0.0, metavar="S",
-                     help="time of frame 0 on the load file's clock, s (default 0)")
+                     help=tr("time of frame 0 on the load file's clock, s (default 0)"))
     prb.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.csv")
     prb.add_argument("--plot", nargs="+", choices=("png", "pdf"),
-                     help="also write the curves (and stress-strain) as OUT.png/OUT.pdf")
+                     help=tr("also write the curves (and stress-strain) as OUT.png/OUT.pdf"))
     prb.add_argument("--kymograph", nargs="+", metavar="FIELD",
-                     help="also write FIELD along each line at every frame "
-                          "(OUT_line<i>_<FIELD>.csv)")
+                     help=tr("also write FIELD along each line at every frame "
+                          "(OUT_line<i>_<FIELD>.csv)"))
     add_unit_options(prb)
     add_strain_options(prb)
 
 
 # ----------------------------------------------------------------- shared options
+def add_advise(sub) -> None:
+    adv = _command(sub, "advise")
+    adv.add_argument("image", type=Path, metavar="IMAGE", help=tr("reference image"))
+    adv.add_argument("--roi", type=Path, metavar="MASK",
+                     help=tr("ROI mask: image file (nonzero = analysed) or .npy array"))
+    adv.add_argument("--target-noise", type=float, default=0.01, dest="target_noise",
+                     metavar="PX", help=tr("target standard uncertainty of u and v in px "
+                                           "(default 0.01)"))
+    adv.add_argument("--step", type=int, help=tr("node spacing in px (default: automatic)"))
+    adv.add_argument("--subsets", type=int, nargs="+", metavar="N",
+                     help=tr("subset widths to try (odd; default 11 to 101)"))
+    adv.add_argument("--noise", type=float, metavar="GL",
+                     help=tr("image noise in grey levels (default: estimated from the image)"))
+    adv.add_argument("--coverage", type=float, default=0.9,
+                     help=tr("fraction of nodes that must meet the target (default 0.9)"))
+    adv.add_argument("--json", type=Path, metavar="OUT.json",
+                     help=tr("also write the table as JSON"))
+
+
+def add_noise_floor(sub) -> None:
+    nf = _command(sub, "noise-floor")
+    nf.add_argument("reference", type=Path, metavar="REF", help=tr("first static image"))
+    nf.add_argument("static", type=Path, metavar="STATIC",
+                    help=tr("second image of the unloaded, unmoved specimen"))
+    nf.add_argument("--roi", type=Path, metavar="MASK",
+                    help=tr("ROI mask: image file (nonzero = analysed) or .npy array"))
+    add_param_options(nf)
+    nf.add_argument("--window", type=int, default=5,
+                    help=tr("strain window in nodes (default 5)"))
+    nf.add_argument("-o", "--output", type=Path, metavar="OUT.json",
+                    help=tr("also write the noise floor as JSON"))
+
+
 def add_unit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pixel-size", type=float, dest="pixel_size", metavar="S",
-                   help="length of one pixel in --unit (e.g. 0.05 with --unit um)")
-    p.add_argument("--unit", help="length unit name (default px)")
+                   help=tr("length of one pixel in --unit (e.g. 0.05 with --unit um)"))
+    p.add_argument("--unit", help=tr("length unit name (default px)"))
     p.add_argument("--frame-interval", type=float, dest="frame_interval", metavar="DT",
-                   help="time between frames in --time-unit (adds time, velocity and "
-                        "strain-rate columns)")
-    p.add_argument("--time-unit", dest="time_unit", help="time unit name (default s)")
+                   help=tr("time between frames in --time-unit (adds time, velocity and "
+                        "strain-rate columns)"))
+    p.add_argument("--time-unit", dest="time_unit", help=tr("time unit name (default s)"))
 
 
 def add_strain_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strain-window", type=int, dest="strain_window", metavar="N",
-                   help="strain window in nodes, odd >= 3 (default 5)")
+                   help=tr("strain window in nodes, odd >= 3 (default 5)"))
     p.add_argument("--strain-method", choices=("plane_fit", "fem"), dest="strain_method")
     p.add_argument("--strain-measure", dest="strain_measure",
                    choices=("green_lagrange", "infinitesimal", "euler_almansi"))
@@ -219,26 +275,29 @@ def add_strain_options(p: argparse.ArgumentParser) -> None:
 def add_param_options(p: argparse.ArgumentParser) -> None:
     """Options overriding fields of the parameter file (see ``OVERRIDES``)."""
     p.add_argument("--params", type=Path, metavar="FILE.json",
-                   help="parameter file (JSON: DICParams fields, or a file written by "
-                        "'napari-aldic params' / --params-out); options below override it")
-    p.add_argument("--subset", type=int, help="subset full width in px, odd (default 31)")
-    p.add_argument("--step", type=int, help="node spacing in px (default 8)")
-    p.add_argument("--search", type=int, help="initial search half-range in px (default 20)")
+                   help=tr("parameter file (JSON: DICParams fields, or a file written by "
+                        "'napari-aldic params' / --params-out); options below override it"))
+    p.add_argument("--subset", type=int, help=tr("subset full width in px, odd (default 31)"))
+    p.add_argument("--step", type=int, help=tr("node spacing in px (default 8)"))
+    p.add_argument("--search", type=int, help=tr("initial search half-range in px (default 20)"))
     p.add_argument("--search-max", type=int, dest="search_max",
-                   help="largest search half-range in px (default: automatic)")
+                   help=tr("largest search half-range in px (default: automatic)"))
     p.add_argument("--method", choices=("local", "aldic"),
-                   help="solver (default local, the faster one; the napari widget starts "
-                        "with aldic)")
+                   help=tr("solver (default local, the faster one; the napari widget starts "
+                        "with aldic)"))
     p.add_argument("--interpolation", choices=("auto", "cubic", "quintic"),
-                   help="B-spline order (default auto: quintic for very fine speckle, "
-                        "else cubic; the choice is recorded in the result)")
-    p.add_argument("--threads", type=int, dest="n_threads", help="Numba threads (default all)")
+                   help=tr("B-spline order (default auto: quintic for very fine speckle, "
+                        "else cubic; the choice is recorded in the result)"))
+    p.add_argument("--shape", choices=("affine", "quadratic"), dest="shape_function",
+                   help=tr("subset shape function (default affine; quadratic subsets also bend: "
+                        "finer spatial resolution, a little more noise, slower)"))
+    p.add_argument("--threads", type=int, dest="n_threads", help=tr("Numba threads (default all)"))
     p.add_argument("--smooth", type=smooth_arg, metavar="auto|PX",
-                   help="AL-DIC thin-plate smoothing length in px; 'auto' (default) picks it "
-                        "from the image noise, 0 = the paper's plain Algorithm 1")
+                   help=tr("AL-DIC thin-plate smoothing length in px; 'auto' (default) picks it "
+                        "from the image noise, 0 = the paper's plain Algorithm 1"))
     p.add_argument("--affine-warp", action="store_const", const=False,
                    dest="second_order_warp",
-                   help="AL-DIC: never bend subsets with the global field's curvature")
+                   help=tr("AL-DIC: never bend subsets with the global field's curvature"))
 
 
 def smooth_arg(text: str):
@@ -248,8 +307,10 @@ def smooth_arg(text: str):
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--smooth {text!r}: give 'auto' or a length in "
-                                         "pixels (e.g. 8)") from None
+        raise argparse.ArgumentTypeError(
+            tr("--smooth {text!r}: give 'auto' or a length in pixels (e.g. 8)").format(
+                text=text)) from None
     if not value >= 0:
-        raise argparse.ArgumentTypeError(f"--smooth {text!r}: the length must be >= 0 px")
+        raise argparse.ArgumentTypeError(tr("--smooth {text!r}: the length must be >= 0 px").format(
+                                                text=text))
     return value

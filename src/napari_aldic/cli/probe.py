@@ -19,6 +19,7 @@ from ..engine.probes import (
     measure_probes,
     read_load_csv,
 )
+from ..i18n import tr
 from .console import PROG, CLIError
 from .settings import STRAIN_OPTIONS, units_from_args
 
@@ -27,13 +28,13 @@ def probe_command(args) -> int:
     """``napari-aldic probe``: measure, write the CSV (and plots); returns 0."""
     run = args.run.expanduser()
     if not run.exists():
-        raise CLIError(f"no run folder or result file at {run}")
+        raise CLIError(tr("no run folder or result file at {run}").format(run=run))
     probes = probe_set(args)
     if args.load is None and (args.area_mm2 is not None or args.sync or args.fps):
-        raise CLIError("--area-mm2, --sync and --fps go with --load LOAD.csv")
+        raise CLIError(tr("--area-mm2, --sync and --fps go with --load LOAD.csv"))
     if args.load is not None and args.area_mm2 is None:
-        raise CLIError("--load needs --area-mm2 A (the specimen's cross-section in mm²) "
-                       "for the stress")
+        raise CLIError(tr("--load needs --area-mm2 A (the specimen's cross-section in "
+                          "mm²) for the stress"))
     units = units_from_args(args, None)
     strain = {STRAIN_OPTIONS[k]: getattr(args, k) for k in STRAIN_OPTIONS
               if getattr(args, k, None) is not None} or None
@@ -44,14 +45,18 @@ def probe_command(args) -> int:
         record = read_load_csv(args.load, load_column=args.load_column)
         attach_load(table, record, area_mm2=args.area_mm2, sync=args.sync, fps=args.fps,
                     offset=args.offset)
-        print(f"  load: {record.describe()}; synchronised by {table.info['load']['sync']}")
+        print("  " + tr("load: {describe}; synchronised by {sync}").format(
+                            describe=record.describe(), sync=table.info['load']['sync']))
     out = export_probes_csv(table, args.output)
-    print(f"{PROG} probe: {len(table)} frame(s) ({table.frames[0]} to {table.frames[-1]}), "
-          f"{len(probes)} probe(s); lengths in {table.units.unit}")
+    print(tr("{prog} probe: {n_table} frame(s) ({first} to {last}), {n_probes} "
+             "probe(s); lengths in {unit}").format(
+                 prog=PROG, n_table=len(table), first=table.frames[0], last=table.frames[-1],
+                 n_probes=len(probes), unit=table.units.unit))
     for line in table.status_summary():
         print(f"  {line}")
-    print(f"  csv: {out.resolve()}")
-    print(f"  units and probes: {out.with_suffix('.json').resolve()}")
+    print("  " + tr("csv: {resolve}").format(resolve=out.resolve()))
+    print("  " + tr("units and probes: {resolve}").format(
+                        resolve=out.with_suffix('.json').resolve()))
     if args.plot:
         for fmt in args.plot:
             p = export_probe_plot(table, out.with_suffix(f".{fmt}"))
@@ -61,7 +66,8 @@ def probe_command(args) -> int:
             for name in args.kymograph:
                 k = kymograph(run, line, name, units=units, strain=strain)
                 p = export_kymograph_csv(k, out.with_name(f"{out.stem}_line{i}_{name}.csv"))
-                print(f"  profile of {name} along line{i}, every frame: {p.resolve()}")
+                print("  " + tr("profile of {name} along line{i}, every frame: {resolve}").format(
+                                    name=name, i=i, resolve=p.resolve()))
     return 0
 
 
@@ -72,10 +78,12 @@ def probe_set(args) -> ProbeSet:
         try:
             data = json.loads(Path(args.probes).expanduser().read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError) as exc:
-            raise CLIError(f"cannot read the probe file {args.probes}: {exc}") from None
+            raise CLIError(tr("cannot read the probe file {probes}: {exc}").format(
+                                  probes=args.probes, exc=exc)) from None
         if isinstance(data, dict) and data.get("format") == "napari-aldic-settings":
             if not isinstance(data.get("probes"), dict):  # a parameter file without probes
-                raise CLIError(f"{args.probes} is a parameter file without a 'probes' section")
+                raise CLIError(tr("{probes} is a parameter file without a 'probes' section").format(
+                                      probes=args.probes))
             data = data["probes"]
         try:
             probes = ProbeSet.from_dict(data.get("probes", data) if isinstance(data, dict)
@@ -90,6 +98,6 @@ def probe_set(args) -> ProbeSet:
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     if not len(probes):
-        raise CLIError("give at least one probe: --line X0 Y0 X1 Y1, --point X Y, "
-                       "--area X0 Y0 X1 Y1, --circle CX CY R or --probes FILE.json")
+        raise CLIError(tr("give at least one probe: --line X0 Y0 X1 Y1, --point X Y, "
+                          "--area X0 Y0 X1 Y1, --circle CX CY R or --probes FILE.json"))
     return probes

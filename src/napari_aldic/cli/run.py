@@ -15,8 +15,10 @@ import numpy as np
 from ..engine import correlate, track
 from ..engine.io import FrameSource, read_image, write_settings
 from ..engine.viz import plot_displacement
+from ..i18n import tr
 from .console import PROG, CLIError, clear_bar, frame_summary, progress_bar, sequence_progress
 from .settings import settings_from_args
+from .tiled import metadata_units, run_tiled_pair
 
 
 def run_command(args) -> None:
@@ -26,23 +28,33 @@ def run_command(args) -> None:
     roi = read_mask(args.roi) if args.roi is not None else None
     if args.params_out is not None:
         used = settings.replace(tracking={"reference": args.reference})
-        print(f"parameters written to {write_settings(args.params_out, used).resolve()}")
+        print(tr("parameters written to {resolve}").format(
+                     resolve=write_settings(args.params_out, used).resolve()))
+    if units is None:  # the pixel size recorded in the images, if any
+        units = metadata_units(args.inputs)
+    if run_folder_of(args.output, pair=True) is None and \
+            run_tiled_pair(args, params, units, roi, args.output):
+        return  # a large pair, read tile by tile and correlated block by block
     with FrameSource(args.inputs) as src:
         n = len(src)
         folder = run_folder_of(args.output, pair=n == 2 and args.reference == "accumulative")
-        print(f"{PROG} run: reference {src.frame_name(0)}, {n - 1} deformed frame(s); subset "
-              f"{params.subset} px, step {params.step} px, method {params.method}, "
-              f"reference {args.reference}")
+        print(tr("{prog} run: reference {frame_name}, {n_deformed} deformed frame(s); "
+                 "subset {subset} px, step {step} px, method {method}, "
+                 "reference {reference}").format(
+                     prog=PROG, frame_name=src.frame_name(0), n_deformed=n - 1,
+                     subset=params.subset, step=params.step, method=params.method,
+                     reference=args.reference))
         if folder is None:
             out = Path("aldic_result.npz") if args.output is None else args.output.expanduser()
             res = correlate(src[0], src[1], roi=roi, params=params,
-                            progress=progress_bar("  frame 1/1"))
+                            progress=progress_bar("  " + tr("frame 1/1")))
             res.meta["inputs"] = {"reference": src.frame_name(0),
                                   "deformed": src.frame_name(1), "frame": 1,
                                   "roi": None if args.roi is None else str(args.roi)}
             if units is not None:  # carried with the result into every export
                 res.meta["units"] = units.to_dict()
-            _report(res, _save(res, out), f"frame 1/1 ({src.frame_name(1)})",
+            _report(res, _save(res, out), tr("frame 1/1 ({frame_name})").format(
+                                                 frame_name=src.frame_name(1)),
                     src if args.plot else None)
             return
         _run_folder(src, folder, roi, params, units, args)
@@ -51,7 +63,8 @@ def run_command(args) -> None:
 def _run_folder(src, folder: Path, roi, params, units, args) -> None:
     """Track the stack into the run folder ``folder`` (resuming it)."""
     n = len(src)
-    print(f"  run folder {folder.resolve()} (rerun the same command to resume)")
+    print("  " + tr("run folder {resolve} (rerun the same command to resume)").format(
+                        resolve=folder.resolve()))
     loaded: list[int] = []
     bar = sequence_progress(n - 1)
 
@@ -63,7 +76,8 @@ def _run_folder(src, folder: Path, roi, params, units, args) -> None:
 
     def show(k: int, res) -> None:
         path = folder / f"frame_{k:05d}.npz"
-        _report(res, path, f"frame {k}/{n - 1} ({src.frame_name(k)})",
+        _report(res, path, tr("frame {k}/{last} ({frame_name})").format(
+                                  k=k, last=n - 1, frame_name=src.frame_name(k)),
                 src if args.plot else None)
 
     t0 = time.perf_counter()
@@ -73,8 +87,9 @@ def _run_folder(src, folder: Path, roi, params, units, args) -> None:
           workers=getattr(args, "workers", None))
     clear_bar()
     done = n - 1 - len(loaded)
-    print(f"{done} frames in {time.perf_counter() - t0:.2f} s"
-          + (f"; {len(loaded)} finished frame(s) resumed from {folder}" if loaded else ""))
+    print(tr("{done} frames in {seconds:.2f} s").format(done=done, seconds=time.perf_counter() - t0)
+          + (tr("; {n_loaded} finished frame(s) resumed from {folder}").format(
+                    n_loaded=len(loaded), folder=folder) if loaded else ""))
 
 
 def _scheduler(args):
@@ -82,12 +97,13 @@ def _scheduler(args):
     dask scheduler address; ``--workers`` must be positive."""
     sched, n = getattr(args, "scheduler", None), getattr(args, "workers", None)
     if n is not None and n < 1:
-        raise CLIError(f"--workers {n} must be at least 1")
+        raise CLIError(tr("--workers {n} must be at least 1").format(n=n))
     if sched is None or sched in ("threads", "processes"):
         return sched
     if "://" not in sched and ":" not in sched:
-        raise CLIError(f"--scheduler {sched!r} is not 'threads', 'processes' or a dask "
-                       "scheduler address such as tcp://host:8786")
+        raise CLIError(tr("--scheduler {sched!r} is not 'threads', 'processes' or a dask "
+                          "scheduler address such as tcp://host:8786").format(
+                              sched=sched))
     return sched
 
 
@@ -101,7 +117,8 @@ def run_folder_of(output: Path | None, pair: bool) -> Path | None:
     if out.suffix.lower() == ".npz":
         return None if pair else out.with_suffix("")
     if out.exists() and not out.is_dir():
-        raise CLIError(f"output {out} exists and is not a folder; give OUT.npz or a folder")
+        raise CLIError(tr("output {out} exists and is not a folder; give OUT.npz or a "
+                          "folder").format(out=out))
     return out
 
 
@@ -127,17 +144,19 @@ def _report(res, path: Path, title: str, plot_src=None) -> None:
 def read_mask(path: Path) -> np.ndarray:
     """ROI mask from a ``.npy`` array or an image file (nonzero = analysed)."""
     if not path.exists():
-        raise CLIError(f"no such file: {path}")
+        raise CLIError(tr("no such file: {path}").format(path=path))
     if path.suffix.lower() == ".npy":
         try:
             m = np.load(path, allow_pickle=False)
         except Exception as exc:
-            raise CLIError(f"cannot read ROI mask {path}: {exc}") from None
+            raise CLIError(tr("cannot read ROI mask {path}: {exc}").format(
+                path=path, exc=exc)) from None
     else:
         m = read_image(path)
     m = np.asarray(m)
     if m.ndim == 3 and m.shape[-1] in (3, 4):  # RGB(A) mask image: any nonzero colour
         m = (m[..., :3] != 0).any(axis=-1)
     if m.ndim != 2:
-        raise CLIError(f"ROI mask {path} must be a 2-D image; got shape {m.shape}")
+        raise CLIError(tr("ROI mask {path} must be a 2-D image; got shape {shape}").format(
+                              path=path, shape=m.shape))
     return m != 0

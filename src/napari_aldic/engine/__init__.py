@@ -16,7 +16,8 @@ Layout, by role (imports flow downwards only; see docs/architecture.md):
 * ``dic/``       the algorithm, one module per step of Algorithm 1;
 * ``io/``        image stacks, run folders and every result file format;
 * ``viz/``       matplotlib figures, PNG/GIF/MP4 and the PDF report;
-* ``workflow/``  what strings the steps together: ``track`` and ``export_result``;
+* ``workflow/``  what strings the steps together: ``track``, ``export_result`` and
+  ``correlate_tiled`` (pairs larger than memory, block by block);
 * ``synthetic/`` exact-truth images and the named demo cases.
 """
 
@@ -34,7 +35,9 @@ from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
 from .core.units import Units
 from .dic.correlate import correlate
+from .dic.noise_floor import noise_floor
 from .dic.quadtree import Refinement, resolve_refinement
+from .dic.quality import SubsetAdvice, advise_subset
 from .dic.strain import StrainResult, compute_strain
 from .io.runs import load_run
 from .io.settings_file import load_params, save_params
@@ -42,11 +45,15 @@ from .io.stack import open_stack
 from .viz.report import export_report
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
+from .workflow.tiled import correlate_tiled, needs_tiling
 
 __all__ = [
     # analysis
-    "correlate", "track", "compute_strain", "DICParams", "Settings", "Refinement",
+    "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
+    "Settings", "Refinement",
     "resolve_refinement", "Cancelled",
+    # measurement quality
+    "advise_subset", "SubsetAdvice", "noise_floor",
     # results
     "DICResult", "SequenceResult", "StrainResult", "Reason", "Units", "load_result",
     "load_run", "open_stack",

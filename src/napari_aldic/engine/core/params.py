@@ -62,12 +62,29 @@ class DICParams:
         node (first-order extrapolation with its gradient). ``None`` picks
         the multiple of ``step`` closest to ``2 * subset``. ``step`` (or any
         value <= step) correlates every node.
+    anchor_spacing : int or None, default None
+        Spacing in pixels of the anchor nodes: a sparse subset of the coarse
+        nodes searched first over the widening range; each coarse node's
+        search is then centred on the motion predicted from its nearest
+        matched anchor (first-order, with the anchor's gradient), so large
+        and spatially varying motion costs no wider searches. ``None`` picks
+        4 x the coarse spacing; ``0`` turns anchors off (every coarse node
+        searched around zero motion).
     interpolation : {"auto", "cubic", "quintic"}, default "auto"
         B-spline order used to sample the deformed image at sub-pixel
         positions (coefficients are precomputed once per image). ``"auto"``
         uses cubic, and quintic when the speckle is very fine (reference
         autocorrelation half-width under 1.8 px), where cubic splines leave a
         sub-pixel bias of 0.005-0.01 px; the choice is in ``res.meta``.
+    shape_function : {"affine", "quadratic"}, default "affine"
+        Subset shape function of Local IC-GN. ``"affine"``: the subset
+        stretches, shears and rotates (6 parameters). ``"quadratic"``: it may
+        also bend (12 parameters, second derivatives of ``u`` and ``v``),
+        which keeps the amplitude of displacements varying over a subset
+        width (finer spatial resolution) at some cost in noise and speed.
+        With ``method="aldic"`` it applies to the initial Local step; the
+        ADMM local steps bend subsets with the global field instead
+        (``second_order_warp``).
     max_iter : int, default 40
         Iteration cap of the IC-GN solver per node (at most
         :data:`MAX_ITER_CAP`).
@@ -150,7 +167,9 @@ class DICParams:
     search: int = 20
     search_max: int | None = None
     init_spacing: int | None = None
+    anchor_spacing: int | None = None
     interpolation: Literal["auto", "cubic", "quintic"] = "auto"
+    shape_function: Literal["affine", "quadratic"] = "affine"
     max_iter: int = 40
     tol: float = 1e-3
     zncc_min: float = 0.6
@@ -170,7 +189,7 @@ class DICParams:
     def __post_init__(self) -> None:
         for name in ("subset", "step", "search", "max_iter", "admm_max_iter"):
             object.__setattr__(self, name, _integer(name, getattr(self, name)))
-        for name in ("search_max", "init_spacing", "n_threads"):
+        for name in ("search_max", "init_spacing", "anchor_spacing", "n_threads"):
             object.__setattr__(self, name, _integer(name, getattr(self, name), optional=True))
         for name in ("tol", "zncc_min", "zncc_rel", "min_component", "mu", "beta", "admm_tol"):
             object.__setattr__(self, name, _number(name, getattr(self, name)))
@@ -190,6 +209,7 @@ class DICParams:
         _choice("method", self.method, ("local", "aldic"))
         _choice("init", self.init, ("fft", "seeds"))
         _choice("interpolation", self.interpolation, ("auto", "cubic", "quintic"))
+        _choice("shape_function", self.shape_function, ("affine", "quadratic"))
         if self.refine is not None:
             _choice("refine", self.refine, ("light", "medium", "strong", "none"), "None, ")
         if self.init == "seeds" and not self.seeds:
@@ -206,6 +226,9 @@ class DICParams:
             _bad(f"search_max={self.search_max} must be >= search={self.search}")
         if self.init_spacing is not None and self.init_spacing < 1:
             _bad(f"init_spacing={self.init_spacing} must be >= 1 pixel or None")
+        if self.anchor_spacing is not None and self.anchor_spacing < 0:
+            _bad(f"anchor_spacing={self.anchor_spacing} must be >= 0 pixels (0: no anchors) "
+                 "or None")
         if not 1 <= self.max_iter <= MAX_ITER_CAP:
             _bad(f"max_iter={self.max_iter} must be between 1 and {MAX_ITER_CAP}")
         if not (MIN_TOL <= self.tol < 1):
@@ -243,6 +266,15 @@ class DICParams:
             return max(self.step, (self.init_spacing // self.step) * self.step)
         k = max(1, round(2 * self.subset / self.step))
         return k * self.step
+
+    def resolved_anchor_spacing(self) -> int:
+        """Anchor-node spacing in pixels, a multiple of the coarse spacing (0: none)."""
+        coarse = self.resolved_init_spacing()
+        if self.anchor_spacing is None:
+            return 4 * coarse
+        if self.anchor_spacing == 0:
+            return 0
+        return max(coarse, (self.anchor_spacing // coarse) * coarse)
 
     def resolved_search_max(self, shape: tuple[int, int]) -> int:
         """Largest search half-range in pixels for an image of ``shape`` (at

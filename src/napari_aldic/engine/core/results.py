@@ -20,7 +20,7 @@ _FORMAT = "napari-aldic-result"
 _FORMAT_VERSION = 1
 _ARRAYS = ("x", "y", "u", "v", "dudx", "dudy", "dvdx", "dvdy", "valid", "zncc",
            "reason", "iterations", "grid_ix", "grid_iy", "grid_xs", "grid_ys")
-_OPTIONAL = ("u_local", "v_local", "u_std", "v_std", "elements", "hanging")
+_OPTIONAL = ("u_local", "v_local", "u_std", "v_std", "sssig", "mig", "elements", "hanging")
 
 
 @dataclass
@@ -60,11 +60,17 @@ class DICResult:
         For ``method="aldic"``: the last local (subset) displacements, kept
         for inspection; ``u``/``v`` are then the compatible global field.
     u_std, v_std : (n,) float64 or None
-        Predicted standard uncertainty of ``u`` and ``v`` at each node (pixels),
-        from the subset's Gauss-Newton matrix and its correlation residual
-        (``dic.reliability``); a node whose larger value exceeds
-        ``params.max_uncertainty`` is flagged ``UNCERTAIN``. NaN where the
-        subset did not converge.
+        Predicted standard uncertainty of the subset displacement at each node
+        (pixels; for AL-DIC of ``u_local``/``v_local``, an upper bound of the
+        smoothed ``u``/``v``), from the subset's Gauss-Newton matrix and its
+        correlation residual (``dic.quality``, checked against Monte-Carlo);
+        a node whose larger value exceeds ``params.max_uncertainty`` is
+        flagged ``UNCERTAIN`` (by ``dic.reliability``'s older estimate). NaN
+        where the subset did not converge.
+    sssig, mig : (n,) float64 or None
+        Speckle quality of each reference subset: the smaller of the sums of
+        squared intensity gradients ``Σ f_x²``, ``Σ f_y²`` (grey levels²;
+        Pan et al. 2008) and the mean intensity gradient (grey levels/px).
     elements : (E, 4) int64 or None
         Q4 elements (corner node indices) of the AL-DIC / quadtree mesh.
     hanging : (H, 3) int64 or None
@@ -96,6 +102,8 @@ class DICResult:
     v_local: np.ndarray | None = None
     u_std: np.ndarray | None = None
     v_std: np.ndarray | None = None
+    sssig: np.ndarray | None = None
+    mig: np.ndarray | None = None
     elements: np.ndarray | None = None
     hanging: np.ndarray | None = None
     roi: np.ndarray | None = None

@@ -67,9 +67,9 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
              mesh: Q4Mesh, u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray,
              trusted: np.ndarray, usable: np.ndarray, *, mu: float, beta: float,
              step: float, max_iter: int, tol: float, icgn_max_iter: int, icgn_tol: float,
-             smooth: float = 0.0, second_order: bool = False,
+             smooth: float | np.ndarray = 0.0, second_order: bool = False,
              noise_var: np.ndarray | None = None, subset: int | None = None,
-             solver: GlobalSolver | None = None,
+             solver: GlobalSolver | None = None, solver_method: str = "auto",
              on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
     """Run AL-DIC ADMM from a Local DIC result.
 
@@ -79,12 +79,15 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     trusted : nodes whose local result is reliable (data weight 1).
     usable : nodes whose subset can be correlated at all (mask component OK).
     mu, beta : dimensionless penalties (see module docstring).
-    smooth : thin-plate smoothing length of the global step, pixels (0: none).
+    smooth : thin-plate smoothing length of the global step, pixels (0: none);
+        or an (n,) array of per-node lengths (adaptive smoothing).
     second_order : bend each subset by the global field's second derivatives.
     noise_var : (n, 2) predicted local displacement variances; with
         ``subset``, used to shrink noisy curvature estimates (see
         :func:`~napari_aldic.engine.regularise.shrink_curvature`).
     solver : a :class:`GlobalSolver` to reuse (same mesh and weights).
+    solver_method : linear solver of the global step (see
+        :func:`~napari_aldic.engine.global_solve.solver_method`).
     on_iteration : callable(k), optional; called before ADMM iteration k
         (a progress / cancellation point).
     """
@@ -92,7 +95,8 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     t = time.perf_counter()
     if solver is None:
         solver = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted,
-                              curvature=smooth**4 / mu)
+                              curvature=np.asarray(smooth, float)**4 / mu,
+                              method=solver_method)
     timing["global_factorise"] = time.perf_counter() - t
     n = u0.size
     W = np.zeros((n, 4))
@@ -111,7 +115,7 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     active = usable.copy()
     gains = None
     if second_order and noise_var is not None and subset is not None:
-        gains = curvature_noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
+        gains = _noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
     grad = solver.gradients(uh, vh)
     for k in range(max_iter):
         if on_iteration is not None:
@@ -141,6 +145,18 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     grad = grad.copy()
     grad[~solver.covered] = grad0[~solver.covered]  # no element: local gradient
     return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing), solver
+
+
+def _noise_gains(smooth, curv_length: float, step: float, subset: int):
+    """:func:`curvature_noise_gains` of one length, or per node (arrays) of
+    per-node lengths (each distinct length computed once)."""
+    smooth = np.asarray(smooth, float)
+    if smooth.ndim == 0:
+        return curvature_noise_gains(float(smooth), curv_length, step, subset)
+    lengths, inverse = np.unique(smooth, return_inverse=True)
+    g = np.array([curvature_noise_gains(float(ell), curv_length, step, subset)
+                  for ell in lengths])
+    return g[inverse, 0], g[inverse, 1]
 
 
 def _global_step(solver: GlobalSolver, F, W, u, v, vu, vv, timing: dict):

@@ -18,9 +18,11 @@ from ..core.reasons import Reason
 from ..core.results import DICResult
 from .admm import CURVATURE_SMOOTHING, run_admm
 from .global_solve import Q4Mesh, uniform_mesh
+from .interpolation import choose_order
 from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
+from .quality import result_quality
 from .regularise import choose_smoothing, gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .subsets import SubsetMasks, split_subsets
@@ -128,9 +130,10 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         if ref_spec is not None and ref_spec.error:
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
+    quality = _quality(im, mask, grid, sol, params, timing)
     _record(meta, sol, ref_spec, grid, timing, t_start)
     report(1.0, "done")
-    return _assemble(sol, grid, f.shape, params, meta, mask)
+    return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
 
 def _reporter(progress, cancel):
@@ -235,7 +238,11 @@ def reference_result(image, roi=None, params: DICParams | None = None,
                     np.zeros(n, np.int32), mesh)
     meta = {"versions": _versions(), "n_nodes": n, "frame": 0,
             "n_valid": int(np.count_nonzero(sub.reason == Reason.OK))}
-    return _assemble(sol, grid, img.shape, params, meta, mask)
+    order = choose_order(params.interpolation, img)
+    quality = result_quality(img, None, order, mask, grid.x, grid.y, params.subset,
+                             zncc=None, u=None, v=None, grad=None,
+                             shape_function=getattr(params, "shape_function", "affine"))
+    return _assemble(sol, grid, img.shape, params, meta, mask, quality)
 
 
 def _merge_params(params, subset, step, method, kwargs) -> DICParams:
@@ -295,17 +302,29 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     reason = _aldic_reasons(validity, state, trusted, reason, zncc, zncc_local)
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
-                     sol.u, sol.v, state.history, dict(table, smooth_px=smooth),
+                     sol.u, sol.v, state.history, _smoothing_record(table, smooth),
                      sol.std, validity.summary(zncc_local, reason == Reason.OK))
 
 
-def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth: float) -> str:
-    """What the global system matrix depends on, hashed."""
+def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth) -> str:
+    """What the global system matrix depends on, hashed (``smooth``: one
+    length or per-node lengths)."""
     h = hashlib.sha1()
-    for a in (mesh.x, mesh.y, mesh.elements, mesh.hanging, trusted):
+    for a in (mesh.x, mesh.y, mesh.elements, mesh.hanging, trusted, np.asarray(smooth, float)):
         h.update(np.ascontiguousarray(a).tobytes())
-    h.update(repr((params.mu, params.beta, params.step, float(smooth))).encode())
+    h.update(repr((params.mu, params.beta, params.step)).encode())
     return h.hexdigest()
+
+
+def _smoothing_record(table: dict, smooth) -> dict:
+    """meta["regularisation"]: ``smooth_px`` is the length used, or with
+    per-node lengths their mean, with their range and the best single
+    length (``smooth_px_global``)."""
+    lengths = np.asarray(smooth, float)
+    if lengths.ndim == 0:
+        return dict(table, smooth_px=float(lengths))
+    return dict(table, smooth_px=float(np.mean(lengths)), adaptive=True,
+                smooth_px_range=[float(lengths.min()), float(lengths.max())])
 
 
 def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
@@ -355,16 +374,36 @@ def _regularisation(validity: Validity, mesh: Q4Mesh, sol: _Solution,
                               params.subset, curv_length=curv)
     ok = trusted & np.isfinite(var).all(axis=1)
     noise = float(np.sqrt(np.mean(var[ok].sum(axis=1)))) if ok.any() else float("nan")
-    return choice.smooth_px, choice.second_order, {
+    smooth = choice.smooth_px if choice.node_smooth_px is None else choice.node_smooth_px
+    return smooth, choice.second_order, {
         "mode": "auto", "second_order_warp": choice.second_order,
+        "smooth_px_global": choice.smooth_px,
         "predicted_local_noise_px": noise,
         "undermatching_bias_px": float(np.sqrt(choice.deconvolution_gain_px2)),
         "risk": choice.table, "seconds": time.perf_counter() - t}, var
 
 
+def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams,
+             timing: dict) -> dict:
+    """Speckle quality (SSSIG, MIG) and the standard uncertainty of the
+    subset displacements (``dic.quality``; for AL-DIC: of ``u_local``)."""
+    t = time.perf_counter()
+    local = sol.u_local is not None
+    out = result_quality(im.f, (im.fgx, im.fgy), im.g_spline.order, mask, grid.x, grid.y,
+                         params.subset, zncc=sol.zncc,
+                         u=sol.u_local if local else sol.u, v=sol.v_local if local else sol.v,
+                         grad=sol.grad,
+                         shape_function=getattr(params, "shape_function", "affine"))
+    timing["quality"] = time.perf_counter() - t
+    return out
+
+
 def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: dict,
-              roi) -> DICResult:
+              roi, quality: dict | None = None) -> DICResult:
     valid = sol.reason == Reason.OK
+    if quality is None:
+        quality = {"u_std": None if sol.std is None else sol.std[:, 0],
+                   "v_std": None if sol.std is None else sol.std[:, 1]}
     return DICResult(
         x=grid.x.astype(np.float64), y=grid.y.astype(np.float64), u=sol.u, v=sol.v,
         dudx=sol.grad[:, 0], dudy=sol.grad[:, 1], dvdx=sol.grad[:, 2], dvdy=sol.grad[:, 3],
@@ -372,8 +411,7 @@ def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: di
         grid_ix=grid.ix, grid_iy=grid.iy, grid_xs=grid.xs, grid_ys=grid.ys,
         image_shape=tuple(shape), params=params, meta=meta,
         u_local=sol.u_local, v_local=sol.v_local,
-        u_std=None if sol.std is None else sol.std[:, 0],
-        v_std=None if sol.std is None else sol.std[:, 1],
+        **quality,
         elements=None if sol.mesh is None else sol.mesh.elements,
         hanging=None if sol.mesh is None else sol.mesh.hanging,
         roi=roi,

@@ -46,10 +46,15 @@ from .subsets import rect_sums
 
 __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
            "element_inside_roi", "CurvatureEstimator", "curvature_operator",
-           "second_difference_operators", "level_transition_nodes"]
+           "second_difference_operators", "level_transition_nodes", "solver_method", "SPDSolver",
+           "DIRECT_MAX_UNKNOWNS"]
 
 UNTRUSTED_WEIGHT = 1e-6
-DIRECT_MAX_UNKNOWNS = 150_000  # above this a warm-started CG keeps memory bounded
+# above this many unknowns the SuperLU factor (fill grows like n log n) needs
+# gigabytes and factorising takes longer than an AMG-preconditioned CG solve:
+# the crossover measured by benchmarks/bench_smoothing.py (RESULTS.md)
+DIRECT_MAX_UNKNOWNS = 150_000
+SOLVER_METHODS = ("auto", "direct", "amg", "jacobi")
 
 
 @dataclass
@@ -275,17 +280,26 @@ def level_transition_nodes(mesh: Q4Mesh) -> np.ndarray:
     return _cached(mesh, "level_transition", build)
 
 
-def curvature_operator(mesh: Q4Mesh) -> sp.csr_matrix:
+def curvature_operator(mesh: Q4Mesh, weights: np.ndarray | None = None) -> sp.csr_matrix:
     """Thin-plate penalty ``Kᵀ K`` of a scalar nodal field: the sum over nodes of
     ``u_xx² + u_yy²`` plus, per element, ``2 u_xy²`` (1/px⁴). Zero for any
     affine field (uniform strain and rotation), so it smooths noise without
     biasing them; with weight ``ℓ⁴`` against a unit data weight per node it
-    damps a displacement wave of wavenumber ``k`` by ``1/(1 + (kℓ)⁴)``."""
+    damps a displacement wave of wavenumber ``k`` by ``1/(1 + (kℓ)⁴)``.
+
+    ``weights`` (N,), optional: a per-node weight of the node's second
+    differences (an element's twist takes the mean of its corners'), the
+    spatially varying ``ℓ_i⁴`` of the adaptive smoothing."""
     def build(m):
         Dxx, Dyy, Dxy, _, _ = second_difference_operators(m)
         return (Dxx.T @ Dxx + Dyy.T @ Dyy + 2.0 * (Dxy.T @ Dxy)).tocsr()
 
-    return _cached(mesh, "curvature", build)
+    if weights is None:
+        return _cached(mesh, "curvature", build)
+    Dxx, Dyy, Dxy, _, _ = second_difference_operators(mesh)
+    w = sp.diags(np.asarray(weights, float))
+    we = sp.diags(2.0 * np.asarray(weights, float)[mesh.elements].mean(axis=1))
+    return (Dxx.T @ w @ Dxx + Dyy.T @ w @ Dyy + Dxy.T @ we @ Dxy).tocsr()
 
 
 def _fill_from_inside(D: sp.csr_matrix, has: np.ndarray, nb2: np.ndarray) -> sp.csr_matrix:
@@ -301,21 +315,46 @@ def _fill_from_inside(D: sp.csr_matrix, has: np.ndarray, nb2: np.ndarray) -> sp.
     return (P @ D).tocsr()
 
 
-class _SPDSolver:
-    """Repeated solves with one sparse SPD matrix: a SuperLU factor, or (for
-    very large meshes, where a factor would need more than a gigabyte)
-    Jacobi-preconditioned conjugate gradients warm-started from the previous
-    solution (or from a given guess on the first call)."""
+def solver_method(n_unknowns: int, method: str = "auto") -> str:
+    """The linear solver of an SPD system of ``n_unknowns``: ``method`` itself,
+    or for ``"auto"`` a SuperLU factor up to ``DIRECT_MAX_UNKNOWNS`` and
+    algebraic-multigrid-preconditioned CG above."""
+    if method not in SOLVER_METHODS:
+        raise ValueError(f"solver method {method!r} is not one of {', '.join(SOLVER_METHODS)}")
+    if method != "auto":
+        return method
+    return "direct" if n_unknowns <= DIRECT_MAX_UNKNOWNS else "amg"
 
-    def __init__(self, A: sp.csc_matrix, direct: bool, rtol: float):
+
+class SPDSolver:
+    """Repeated solves with one sparse SPD matrix: a SuperLU factor; or
+    conjugate gradients warm-started from the previous solution (or from a
+    given guess on the first call), preconditioned by a smoothed-aggregation
+    AMG hierarchy (pyamg; built once, reused by every solve with this matrix)
+    or by the diagonal (Jacobi). CG keeps memory linear in the mesh size."""
+
+    def __init__(self, A: sp.csc_matrix, method: str, rtol: float):
+        self.method = solver_method(A.shape[0], method)
         self.A = A
         self.rtol = rtol
         self._last = None
-        if direct:
+        self._lu = self._M = None
+        self.iterations: list[int] = []  # CG iterations of each solve (per column)
+        if self.method == "direct":
             self._lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+        elif self.method == "amg":
+            import pyamg
+
+            self.A = A.tocsr()
+            self._M = pyamg.smoothed_aggregation_solver(self.A, symmetry="symmetric",
+                                                        max_coarse=500).aspreconditioner()
         else:
-            self._lu = None
             self._M = sp.diags(1.0 / A.diagonal())
+
+    @property
+    def factor_nnz(self) -> int:
+        """Non-zeros of the SuperLU factor (0 for CG): its memory is ~12 bytes each."""
+        return 0 if self._lu is None else int(self._lu.L.nnz + self._lu.U.nnz)
 
     def solve(self, rhs: np.ndarray, guess: np.ndarray) -> np.ndarray:
         if self._lu is not None:
@@ -323,8 +362,14 @@ class _SPDSolver:
         start = guess if self._last is None else self._last
         sol = np.empty_like(rhs)
         for c in range(rhs.shape[1]):
+            count = [0]
+
+            def tick(_x, count=count):
+                count[0] += 1
+
             sol[:, c], _ = spla.cg(self.A, rhs[:, c], x0=start[:, c], M=self._M,
-                                   rtol=self.rtol, maxiter=5000)
+                                   rtol=self.rtol, maxiter=5000, callback=tick)
+            self.iterations.append(count[0])
         self._last = sol
         return sol
 
@@ -352,7 +397,7 @@ class CurvatureEstimator:
         wd = np.ones(n) if data is None else np.where(data, 1.0, UNTRUSTED_WEIGHT)
         self._Wd = self.T.T @ sp.diags(wd)
         # well conditioned (length ~ step): warm-started CG beats a factor
-        self._smoother = _SPDSolver((self._Wd @ self.T + length**4 * K).tocsc(), direct=False,
+        self._smoother = SPDSolver((self._Wd @ self.T + length**4 * K).tocsc(), "jacobi",
                                     rtol=1e-6)
         nb = _cached(mesh, "axis_neighbours", _axis_neighbours)
         e = mesh.elements
@@ -382,17 +427,23 @@ class GlobalSolver:
     The matrix depends only on the mesh, β, μ and the node weights, so it is
     factorised once (SuperLU) and reused for every ADMM iteration and for
     every frame with the same mesh and weights. Meshes with more than
-    ``DIRECT_MAX_UNKNOWNS`` free nodes use conjugate gradients with a Jacobi
-    preconditioner, warm-started from the previous solution, to keep memory
-    bounded (the factor of a 500k-node mesh needs >1 GB).
+    ``DIRECT_MAX_UNKNOWNS`` free nodes use conjugate gradients preconditioned
+    by algebraic multigrid (the hierarchy built once and reused the same
+    way), warm-started from the previous solution: memory stays linear in the
+    mesh size (the factor of a 500k-node mesh needs >1 GB). ``method``
+    (``"auto"``, ``"direct"``, ``"amg"``, ``"jacobi"``) forces one; ``direct``
+    is the former flag (True: ``"direct"``, False: ``"jacobi"``).
+    ``curvature`` is ``κ``, or an (N,) array of per-node ``κ_i`` (adaptive
+    smoothing, :func:`curvature_operator` weights).
     """
 
     def __init__(self, mesh: Q4Mesh, beta: float, mu: float, weights: np.ndarray,
-                 direct: bool | None = None, curvature: float = 0.0):
+                 direct: bool | None = None, curvature=0.0, method: str = "auto"):
         self.mesh = mesh
         self.beta = float(beta)
         self.mu = float(mu)
-        self.curvature = float(curvature)
+        kappa = np.asarray(curvature, float)
+        self.curvature = float(kappa) if kappa.ndim == 0 else kappa
         self.Gx, self.Gy, self.covered = gradient_operator(mesh)
         self.T, self.free = mesh.prolongation()
         self.w = np.where(weights, 1.0, UNTRUSTED_WEIGHT).astype(float)
@@ -403,12 +454,16 @@ class GlobalSolver:
         Wg = sp.diags(self.wg)
         L = (self.Gx.T @ Wg @ self.Gx + self.Gy.T @ Wg @ self.Gy)
         A = self.beta * L + self.mu * sp.diags(self.w)
-        if self.curvature > 0:
+        if kappa.ndim:
+            A = A + curvature_operator(mesh, kappa)
+        elif self.curvature > 0:
             A = A + self.curvature * curvature_operator(mesh)
         self.A = (self.T.T @ A @ self.T).tocsc()
-        n_free = self.A.shape[0]
-        self.direct = n_free <= DIRECT_MAX_UNKNOWNS if direct is None else direct
-        self._system = _SPDSolver(self.A, self.direct, rtol=1e-7)
+        if direct is not None:
+            method = "direct" if direct else "jacobi"
+        self.system = SPDSolver(self.A, method, rtol=1e-7)
+        self.method = self.system.method
+        self.direct = self.method == "direct"
         self._curv = None  # (length, CurvatureEstimator) of second_gradients
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
@@ -438,6 +493,6 @@ class GlobalSolver:
         rhs_u = b * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mu * w * (u - vu)
         rhs_v = b * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mu * w * (v - vv)
         rhs = self.T.T @ np.column_stack([rhs_u, rhs_v])
-        sol = self._system.solve(rhs, np.column_stack([u - vu, v - vv])[self.free])
+        sol = self.system.solve(rhs, np.column_stack([u - vu, v - vv])[self.free])
         full = self.T @ sol
         return full[:, 0], full[:, 1]

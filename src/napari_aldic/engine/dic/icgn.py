@@ -15,6 +15,12 @@ References: S. Baker, I. Matthews, "Lucas-Kanade 20 years on", IJCV 56, 2004;
 B. Pan, K. Li, W. Tong, "Fast, robust and accurate DIC calculation without
 redundant computations", Exp. Mech. 53, 2013.
 
+The second-order (quadratic) shape function adds the six second derivatives
+``(uxx, uxy, uyy, vxx, vxy, vyy)`` (``shape="quadratic"``, kernel
+:mod:`~napari_aldic.engine.kernels.icgn_quadratic`): the subset may bend,
+which keeps the amplitude of displacements that vary over a subset width
+(H. Lu, P. D. Cary, Exp. Mech. 40, 2000).
+
 The Numba kernels are in :mod:`napari_aldic.engine.kernels.icgn` and
 :mod:`~napari_aldic.engine.kernels.gauss_newton`; the functions here prepare
 their inputs and outputs.
@@ -27,8 +33,12 @@ import numpy as np
 from ..core.reasons import Reason
 from ..kernels import gauss_newton as status
 from ..kernels.icgn import icgn_affine, icgn_translation
+from ..kernels.icgn_quadratic import NPAR, icgn_quadratic
 
-__all__ = ["icgn_solve", "icgn_solve_translation"]
+__all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS"]
+
+#: the subset shape functions ``icgn_solve`` knows
+SHAPE_FUNCTIONS = ("affine", "quadratic")
 
 # the kernels write these status codes as plain integers
 if (status.OK, status.NOT_CONVERGED, status.OUT_OF_IMAGE, status.NO_TEXTURE,
@@ -41,7 +51,7 @@ _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
 
 
 def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, masks,
-               half, max_iter=40, tol=1e-3, out=None, stats=None):
+               half, max_iter=40, tol=1e-3, out=None, stats=None, shape="affine"):
     """Run IC-GN at the ``active`` nodes.
 
     Parameters
@@ -65,6 +75,10 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         Receives, at the active nodes, the reference subset statistics
         ``(m, var_f, hxx, hxy, hyy)`` (see
         :class:`~napari_aldic.engine.dic.reliability.SubsetStats`).
+    shape : {"affine", "quadratic"}
+        Subset shape function. ``"quadratic"`` starts every node with zero
+        second derivatives and returns only the affine part in ``p`` (the
+        displacement and its gradient at the node).
 
     Returns
     -------
@@ -77,9 +91,20 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     p, zn, it, rs = out
     if stats is None:
         stats = np.empty((n, 5))
-    icgn_affine(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
-                np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
-                int(half), int(max_iter), float(tol), p, zn, it, rs, stats)
+    if shape == "affine":
+        icgn_affine(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
+                    np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
+                    int(half), int(max_iter), float(tol), p, zn, it, rs, stats)
+    elif shape == "quadratic":
+        p12 = np.zeros((n, NPAR))
+        p12[:, :6] = p_init
+        q = np.zeros((n, NPAR))
+        q[:, :6] = p
+        icgn_quadratic(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y, p12, active,
+                       slot, masks, int(half), int(max_iter), float(tol), q, zn, it, rs, stats)
+        p[active] = q[active, :6]
+    else:
+        raise ValueError(f"shape={shape!r} must be one of {SHAPE_FUNCTIONS}")
     return p, zn, it, rs
 
 

@@ -194,16 +194,19 @@ def _ncc_peak(c: np.ndarray, R: int, cu, cv):
 
 
 def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
-                        accept=0.5, workers: int = -1, templates=None) -> NCCResult:
+                        accept=0.5, workers: int = -1, templates=None,
+                        cu=None, cv=None) -> NCCResult:
     """NCC search that doubles the range for nodes whose peak is on the
     border of the tested shifts or below ``accept`` (a number, or one per
     node), up to ``search_max``.
 
     A wider search only replaces a result when its peak is higher. At the
     widest range ``on_border`` stays set where the peak is on its border
-    (the motion is probably beyond it).
+    (the motion is probably beyond it). ``cu, cv`` (integers per node)
+    centre every range on a predicted displacement (default 0).
     """
-    res = ncc_search(f, g, xs, ys, half, search, masks, workers=workers, templates=templates)
+    res = ncc_search(f, g, xs, ys, half, search, masks, cu, cv, workers=workers,
+                     templates=templates)
     R = search
     while R < search_max:
         redo = np.nonzero(res.on_border | ~(res.peak >= accept))[0]
@@ -211,7 +214,9 @@ def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
             break
         R = min(2 * R, search_max)
         sub = ncc_search(f, g, xs[redo], ys[redo], half, R,
-                         None if masks is None else masks[redo], workers=workers,
+                         None if masks is None else masks[redo],
+                         None if cu is None else np.asarray(cu)[redo],
+                         None if cv is None else np.asarray(cv)[redo], workers=workers,
                          templates=None if templates is None else templates[redo])
         better = ~(sub.peak <= res.peak[redo])  # NaN-safe: take sub when old is NaN
         better &= np.isfinite(sub.peak)

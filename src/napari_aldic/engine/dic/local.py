@@ -40,6 +40,9 @@ ProgressFn = Callable[[float, str], None]
 #: most nodes searched with rotated subsets (once per analysis, when no
 #: coarse node, or no node at all after the repair waves, matches)
 ROTATION_NODES = 8
+#: fewest anchor nodes worth searching before the coarse nodes (fewer: the
+#: coarse nodes are searched around zero motion, as without anchors)
+ANCHOR_MIN = 4
 
 
 @dataclass
@@ -82,6 +85,9 @@ class _State:
         self.searched = np.zeros(n, bool)  # own NCC search done
         self.rotation_tried = False
         self._nbrs5 = None
+        # diagnostics (in ``meta["timing"]``): matched anchors; nodes the
+        # repair stage had to retry, and those it searched on their own
+        self.counts = {"anchors": 0, "rescue_nodes": 0, "rescue_searches": 0}
 
     @property
     def nbrs5(self) -> np.ndarray:
@@ -97,7 +103,8 @@ class _State:
         im, g, prm = self.im, self.grid, self.params
         return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, g.x, g.y, p_init, active,
                           self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
-                          out=out, stats=self.validity.stats.table)
+                          out=out, stats=self.validity.stats.table,
+                          shape=prm.shape_function)
 
     def store(self, res, nodes: np.ndarray) -> None:
         rp, rz, ri, rr = res
@@ -112,10 +119,11 @@ class _State:
         return self.usable & (self.reason == Reason.OK) & (self.zncc >= zmin)
 
     def ncc_guess(self, nodes: np.ndarray, params: DICParams | None = None,
-                  accept: float = 0.5) -> np.ndarray:
+                  accept: float = 0.5, centre: np.ndarray | None = None) -> np.ndarray:
         """Affine parameters from an NCC search at ``nodes`` (gradients
-        zero); marks ``beyond`` where the search ended at ``search_max`` on
-        the border of the range or without a peak >= ``accept``."""
+        zero), around ``centre`` ((m, 2) predicted u, v; default 0); marks
+        ``beyond`` where the search ended at ``search_max`` on the border of
+        the range or without a peak >= ``accept``."""
         prm = params or self.params
         im, grid, sub = self.im, self.grid, self.sub
         masks = None
@@ -124,8 +132,12 @@ class _State:
             cut = sub.slot[nodes] >= 0
             masks[cut] = sub.masks[sub.slot[nodes][cut]]
         top = prm.resolved_search_max(im.f.shape)
+        cu = cv = None
+        if centre is not None:
+            cu, cv = np.rint(centre).astype(np.int64).T
         res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], prm.half,
-                                  min(prm.search, top), top, masks, accept=accept)
+                                  min(prm.search, top), top, masks, accept=accept,
+                                  cu=cu, cv=cv)
         self.beyond[nodes] = (res.search >= top) & (res.on_border | ~(res.peak >= accept))
         if params is None:
             self.searched[nodes] = True
@@ -170,6 +182,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     _repair(st, report)
     _flag(st)
     timing["rescue"] = time.perf_counter() - t
+    timing.update({k: float(c) for k, c in st.counts.items()})
     return st.p, st.zncc, st.iters, st.reason
 
 
@@ -352,7 +365,15 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
     if coarse.size == 0:
         coarse = np.nonzero(usable)[0]
     p_init = np.zeros((n, 6))
-    p_init[coarse] = st.ncc_guess(coarse)
+    pred = _anchor_prediction(st, coarse, k)
+    if pred is None:
+        p_init[coarse] = st.ncc_guess(coarse)
+    else:
+        # predicted out of view: IC-GN confirms it (OUT_OF_IMAGE) without a
+        # search, which would only widen in vain; the repair waves retry them
+        gone = _leaves_image(st, coarse, pred)
+        p_init[coarse[gone]] = pred[gone]
+        p_init[coarse[~gone]] = st.ncc_guess(coarse[~gone], centre=pred[~gone][:, [0, 3]])
     timing["init"] = time.perf_counter() - t
     report(0.3, f"initial guess at {coarse.size} coarse nodes")
 
@@ -383,6 +404,54 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
     return t
 
 
+def _anchor_prediction(st: _State, coarse: np.ndarray, k: int) -> np.ndarray | None:
+    """Predicted affine warps ``(m, 6)`` of the ``coarse`` nodes from a few anchors.
+
+    Anchors (every ``anchor_spacing``-th lattice node among the coarse ones)
+    get the widening NCC search and IC-GN; each coarse node is predicted
+    from its nearest acceptable anchor, extrapolated to first order with the
+    anchor's full affine warp, so its own search needs no wider range than
+    for small motion. ``None`` (search around zero) when anchors are off,
+    too few for the lattice to gain from them, or none matches (e.g. a large
+    rotation: the rotated search then takes over)."""
+    grid, prm = st.grid, st.params
+    ka = prm.resolved_anchor_spacing() // prm.step
+    if ka <= k or coarse.size < 4 * ANCHOR_MIN:
+        return None
+    # offset by half a spacing: away from the image border, where material
+    # leaves the view and a search would widen in vain
+    off = (ka // k // 2) * k
+    anchors = coarse[(grid.ix[coarse] % ka == off) & (grid.iy[coarse] % ka == off)]
+    if anchors.size < ANCHOR_MIN:
+        return None
+    p_init = np.zeros((grid.n, 6))
+    p_init[anchors] = st.ncc_guess(anchors)
+    active = np.zeros(grid.n, bool)
+    active[anchors] = True
+    st.store(st.run(active, p_init), anchors)
+    good = anchors[st.acceptable(st.floor())[anchors]]
+    st.counts["anchors"] = int(good.size)
+    if good.size == 0:
+        return None
+    tree = cKDTree(np.column_stack([grid.x[good], grid.y[good]]))
+    _, j = tree.query(np.column_stack([grid.x[coarse], grid.y[coarse]]))
+    src = good[j]
+    return _extrapolate(st.p[src], grid.x[coarse] - grid.x[src], grid.y[coarse] - grid.y[src])
+
+
+def _leaves_image(st: _State, nodes: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Whether the affine warps ``p`` take a corner of the nodes' subsets out
+    of the deformed image."""
+    rows, cols = st.im.g.shape
+    h = st.params.half
+    out = np.zeros(nodes.size, bool)
+    for dx, dy in ((-h, -h), (-h, h), (h, -h), (h, h)):
+        x = st.grid.x[nodes] + dx + p[:, 0] + p[:, 1] * dx + p[:, 2] * dy
+        y = st.grid.y[nodes] + dy + p[:, 3] + p[:, 4] * dx + p[:, 5] * dy
+        out |= (x < 0) | (x > cols - 1) | (y < 0) | (y > rows - 1)
+    return out
+
+
 def _repair(st: _State, report: ProgressFn) -> None:
     """Repair failed, poorly matching or inconsistent nodes: grow trusted
     regions into them, then (FFT mode) try rotated searches at a few when no
@@ -403,6 +472,7 @@ def _repair(st: _State, report: ProgressFn) -> None:
         """Grow trusted regions into failed, poor or inconsistent nodes."""
         _grow(st, nbrs1, good_nodes(), usable, zmin, max_tries=2, report=report)
 
+    st.counts["rescue_nodes"] = int(bad_nodes().size)
     repair_waves()
     if st.params.init != "fft":  # seeds: motion may exceed any FFT range
         return
@@ -413,6 +483,7 @@ def _repair(st: _State, report: ProgressFn) -> None:
     bad = bad_nodes()
     bad = bad[~st.searched[bad]]  # a node's own search gives the same peak again
     if bad.size:
+        st.counts["rescue_searches"] = int(bad.size)
         p_try = st.p.copy()
         p_try[bad] = st.ncc_guess(bad)
         active = np.zeros(grid.n, bool)

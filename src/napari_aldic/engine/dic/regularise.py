@@ -40,12 +40,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.ndimage as ndi
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .global_solve import (
+    UNTRUSTED_WEIGHT,
     CurvatureEstimator,
     Q4Mesh,
+    SPDSolver,
     curvature_operator,
     level_transition_nodes,
     second_difference_operators,
@@ -53,16 +55,22 @@ from .global_solve import (
 from .reliability import displacement_variance, subset_statistics
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
-           "shrink_curvature", "SMOOTH_CANDIDATES"]
+           "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
 
 # candidate smoothing lengths, in units of the subset width (ratio ~sqrt 2):
 # the local errors are correlated over about one subset width. At most half
 # a subset: the field keeps (about) the spatial resolution of the subsets,
 # and even a perfectly smooth field gains little beyond that.
 SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
-# larger meshes: the risk is estimated on a central window of this many nodes
-# (a mean over thousands of nodes; keeps the trial factorisations cheap)
-_SELECT_MAX_NODES = 3_000
+# adaptive smoothing: the risk of each length is averaged over a Gaussian
+# window of this standard deviation (in subset widths) around each node
+ADAPTIVE_WINDOW = 1.0
+# without the second-order warp, Local DIC's undermatching bias (the cross
+# term of the risk) is estimated from the curvature smoothed over this
+# fraction of the subset half-width (as the warp's, admm.CURVATURE_SMOOTHING)
+BIAS_SMOOTHING = 0.5
+# fixed-point steps of that deconvolution (the warp's ADMM iterations run a few)
+DECONVOLUTION_STEPS = 3
 
 
 def gradient_noise_gain(order: int) -> float:
@@ -189,30 +197,23 @@ def shrink_curvature(curv: np.ndarray, noise_var: np.ndarray, gains) -> np.ndarr
     return curv * np.divide(c2, c2 + vc, out=np.ones_like(c2), where=(c2 + vc) > 0)
 
 
-def _central_window(mesh: Q4Mesh, keep: np.ndarray, max_nodes: int) -> np.ndarray:
-    """Nodes of a square window around the mesh centre holding about
-    ``max_nodes`` nodes (risk estimation on very large meshes)."""
-    cx, cy = np.median(mesh.x), np.median(mesh.y)
-    r = np.maximum(np.abs(mesh.x - cx), np.abs(mesh.y - cy))
-    lim = np.sort(r)[max_nodes - 1]
-    return keep & (r <= lim)
-
-
 @dataclass
 class SmoothingChoice:
     """Outcome of :func:`choose_smoothing`."""
 
-    smooth_px: float  # thin-plate smoothing length, pixels
+    smooth_px: float  # the best single smoothing length (pixels) for the whole mesh
     second_order: bool  # whether the second-order warp pays off
-    table: list = field(default_factory=list)  # risk per candidate (px²)
+    table: list = field(default_factory=list)  # mean risk per candidate (px²)
     deconvolution_gain_px2: float = 0.0  # estimated bias² the warp removes, per node
+    # (N,) per-node lengths (pixels) of the spatially adaptive choice; None: use smooth_px
+    node_smooth_px: np.ndarray | None = None
 
 
 def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
                      noise_var: np.ndarray, step: float, subset: int,
-                     candidates=SMOOTH_CANDIDATES,
-                     curv_length: float | None = None) -> SmoothingChoice:
-    """Smoothing length (and use of the second-order warp) of least estimated risk.
+                     candidates=SMOOTH_CANDIDATES, curv_length: float | None = None,
+                     adaptive: bool = True, window: float = ADAPTIVE_WINDOW) -> SmoothingChoice:
+    """Smoothing length(s) (and use of the second-order warp) of least estimated risk.
 
     Parameters
     ----------
@@ -227,6 +228,10 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
         :func:`_lattice_noise_factor`) and without it (plain SURE plus the
         undermatching bias the warp would remove, ``‖γ ∇² u‖²``, estimated
         from the smoothed local field minus its noise share).
+    adaptive : also choose a length per node, from the risk averaged over a
+        Gaussian window of ``window`` subset widths around it
+        (``node_smooth_px``): fine detail in one region no longer makes the
+        whole field smoother, nor smooth regions the detail.
 
     Returns
     -------
@@ -235,98 +240,165 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     keep = trusted & np.isfinite(noise_var).all(axis=1)
     if mesh.n_elements == 0 or keep.sum() < 16:
         return SmoothingChoice(0.0, curv_length is not None)
-    if mesh.n_nodes > _SELECT_MAX_NODES:
-        sub_nodes = _central_window(mesh, np.ones(mesh.n_nodes, bool), _SELECT_MAX_NODES)
-        mesh, u, v, keep, noise_var = _restrict(mesh, sub_nodes, u, v, keep, noise_var)
-    T, free = mesh.prolongation()
-    KtK = T.T @ curvature_operator(mesh) @ T
-    w = keep.astype(float)
-    Wd = T.T @ sp.diags(np.where(keep, 1.0, 1e-6)) @ T
-    rhs = T.T @ np.column_stack([w * u, w * v])
-    total_var = float(noise_var[keep].sum())
-    data = np.column_stack([u, v])[keep]
-    n_keep = int(keep.sum())
+    lengths = [float(c) * subset for c in candidates]
+    plain, warp, gain_nodes = _node_risks(mesh, u, v, keep, noise_var, step, subset, lengths,
+                                          curv_length)
     gain = 0.0
-    if curv_length is not None:
-        gain = _deconvolution_gain(mesh, T, free, u, v, keep, noise_var, step, subset,
-                                   curv_length)
-
-    def risks(c: float) -> tuple[float, float]:
-        ell = float(c) * subset
-        if ell == 0:
-            smooth = data
-        else:
-            A = (Wd + ell**4 * KtK).tocsc()
-            sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(np.asfortranarray(rhs))
-            smooth = (T @ sol)[keep]
-        resid = float(np.sum((smooth - data) ** 2)) / n_keep
-        plain = resid + _lattice_noise_factor(ell, step, subset) * total_var / n_keep
-        if curv_length is None:
-            return plain, np.inf
-        warp = resid + _lattice_noise_factor(ell, step, subset, curv_length) * total_var / n_keep
-        return plain + gain, warp
-
-    i, cache = _walk_downhill(len(candidates), lambda k: risks(candidates[k]))
-    table = [{"smooth_px": float(candidates[k]) * subset, "risk_px2": cache[k][0],
-              **({"risk_second_order_px2": cache[k][1]} if curv_length is not None else {})}
-             for k in sorted(cache)]
-    plain, warp = cache[i]
-    return SmoothingChoice(float(candidates[i]) * subset, bool(warp < plain), table, gain)
+    if curv_length is not None and np.isfinite(gain_nodes).any():
+        gain = max(float(np.nanmean(gain_nodes)), 0.0)
+    mean_plain = np.nanmean(plain, axis=0) + gain
+    mean_warp = np.nanmean(warp, axis=0) if warp is not None else np.full(len(lengths), np.inf)
+    best = np.minimum(mean_plain, mean_warp)
+    i = int(np.argmin(best))
+    table = [{"smooth_px": lengths[k], "risk_px2": float(mean_plain[k]),
+              **({"risk_second_order_px2": float(mean_warp[k])} if warp is not None else {})}
+             for k in range(len(lengths))]
+    choice = SmoothingChoice(lengths[i], bool(mean_warp[i] < mean_plain[i]), table, gain)
+    if adaptive:
+        # the warp is used everywhere or nowhere (its mean risk decides); the
+        # length varies: each node takes the least risk over its window
+        choice.node_smooth_px = _adaptive_lengths(mesh, plain, step, window * subset, lengths, i)
+        if choice.second_order:
+            # the warp's risk assumes its deconvolution works; where noise makes
+            # the shrinkage fade it, it does not: never smooth more than the
+            # affine-subset risk (which assumes no deconvolution) would
+            choice.node_smooth_px = np.minimum(choice.node_smooth_px, _adaptive_lengths(
+                mesh, warp, step, window * subset, lengths, i))
+    return choice
 
 
-def _walk_downhill(n: int, risks) -> tuple[int, dict[int, tuple[float, float]]]:
-    """Index of the least risk among ``n`` candidates, and the risks computed.
+def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv_length):
+    """Per-node risk terms (N, K) of each length (NaN off ``keep``), against
+    the true field: ``(plain, warp, gain)``.
 
-    The risk is unimodal in log(ell) in practice: walk downhill from the
-    middle candidate, evaluating (factorising) only the candidates visited.
-    ``risks(k)`` returns ``(plain, second_order)``; a candidate scores the
-    lower of the two.
+    ``plain`` (affine subsets): SURE plus the cross term of the smoothing
+    with Local DIC's own undermatching bias ``b = E u_L - u ≈ γ ∇² u``:
+    ``2 <(S-1) E u_L, b>``, estimated by ``2 (S u_L - u_L)·γ∇²u_L`` minus its
+    noise covariance. Smoothing an already attenuated fine structure
+    attenuates it further: SURE alone (which targets ``E u_L``) misses
+    that. ``warp`` (None without ``curv_length``): the risk with the
+    second-order warp, whose fixed point deconvolves the subset average: its
+    signal error is that of the smoother on the deconvolved field
+    ``u_L - γ∇²u_L`` (SURE-corrected), its noise that of the whole fixed
+    point (:func:`_lattice_noise_factor`); ``gain`` (N,): the bias² the warp
+    removes, minus its noise share (NaN where not estimated).
     """
-    cache: dict[int, tuple[float, float]] = {}
+    nvar = np.where(keep, np.nan_to_num(noise_var).sum(axis=1), np.nan)
+    bias_length = curv_length if curv_length is not None else BIAS_SMOOTHING * (subset // 2)
+    lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, bias_length)
+    both = _residuals(mesh, np.column_stack([u, v, np.nan_to_num(lap)]), keep, lengths)
+    diff = both[..., :2]
+    resid = np.sum(diff**2, axis=2)
+    qx, qy, r = _lattice_symbols(step, subset)
+    D = _deconvolution_symbol(step, subset, bias_length, qx, qy)
+    cross_noise = np.array([np.mean((_thin_plate_symbol(ell, step, qx, qy) - 1) * (1 - D) * r)
+                            for ell in lengths])
+    cross = 2 * (np.einsum("nkc,nc->nk", diff, np.nan_to_num(lap))
+                 - np.where(np.isfinite(lap).all(axis=1), 1.0, 0.0)[:, None]
+                 * cross_noise * nvar[:, None])
+    plain = resid + cross + np.array([_lattice_noise_factor(ell, step, subset)
+                                      for ell in lengths]) * nvar[:, None]
+    if curv_length is None:
+        return plain, None, gain
+    deconv = np.sum((diff - both[..., 2:]) ** 2, axis=2)
+    # nodes without a curvature estimate (edges) are not deconvolved
+    has = np.isfinite(lap).all(axis=1)[:, None]
+    deconv_noise = np.where(has, [np.mean((_thin_plate_symbol(ell, step, qx, qy) - 1) ** 2
+                                          * D**2 * r) for ell in lengths],
+                            [np.mean((_thin_plate_symbol(ell, step, qx, qy) - 1) ** 2 * r)
+                             for ell in lengths])
+    fixed_point = np.array([_lattice_noise_factor(ell, step, subset, curv_length)
+                            + np.mean((_thin_plate_symbol(ell, step, qx, qy) - 1) ** 2 * r)
+                            for ell in lengths])
+    warp = deconv + (fixed_point - deconv_noise) * nvar[:, None]
+    return plain, warp, gain
 
-    def at(i: int) -> float:
-        if i not in cache:
-            cache[i] = risks(i)
-        return min(cache[i])
 
-    i = n // 2
-    while True:
-        here = at(i)
-        if i > 0 and at(i - 1) < here:
-            i -= 1
-        elif i + 1 < n and at(i + 1) < here:
-            i += 1
-        else:
-            break
-    return i, cache
+def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths) -> np.ndarray:
+    """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
+    ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes."""
+    T, _ = mesh.prolongation()
+    KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
+    w = keep.astype(float)
+    Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
+    data = np.where(keep[:, None], fields, 0.0)
+    rhs = T.T @ (w[:, None] * data)
+    out = np.full((mesh.n_nodes, len(lengths), fields.shape[1]), np.nan)
+    out[keep] = 0.0
+    guess = rhs / np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
+    for k, ell in enumerate(lengths):
+        if ell == 0:
+            continue
+        # a risk needs ~4 digits: CG stops early on large meshes
+        sol = SPDSolver((Wd + ell**4 * KtK).tocsc(), "auto", rtol=1e-5).solve(rhs, guess)
+        guess = sol
+        out[keep, k] = ((T @ sol) - data)[keep]
+    return out
 
 
-def _deconvolution_gain(mesh, T, free, u, v, keep, noise_var, step, subset, curv_length):
-    """Mean per node of ``‖γ ∇² u‖²``: the squared undermatching bias of an
-    affine subset, from the local field's curvature estimated exactly as the
-    second-order warp estimates it, minus the noise share of that estimate."""
+def _adaptive_lengths(mesh: Q4Mesh, risk, step, sigma_px, lengths, i_global) -> np.ndarray:
+    """Per-node lengths (pixels) minimising the windowed risk (N, K); nodes
+    whose window holds no trusted node take the single best length."""
+    risk = window_mean(mesh, risk, step, sigma_px)
+    ok = np.isfinite(risk).all(axis=1)
+    idx = np.full(mesh.n_nodes, i_global)
+    idx[ok] = np.argmin(risk[ok], axis=1)
+    return np.asarray(lengths, float)[idx]
+
+
+def window_mean(mesh: Q4Mesh, values: np.ndarray, step: float, sigma_px: float) -> np.ndarray:
+    """Gaussian-weighted mean (standard deviation ``sigma_px``) of nodal
+    ``values`` (N, M) around each node, ignoring NaN; NaN where the window
+    holds no value. Nodes are binned on their lattice of spacing ``step``
+    (quadtree nodes fall in the nearest cell), so the cost is linear in N."""
+    ix = np.rint((mesh.x - mesh.x.min()) / step).astype(np.int64)
+    iy = np.rint((mesh.y - mesh.y.min()) / step).astype(np.int64)
+    shape = (int(iy.max()) + 1, int(ix.max()) + 1)
+    s = sigma_px / step
+    out = np.full(values.shape, np.nan)
+    for j in range(values.shape[1]):
+        ok = np.isfinite(values[:, j])
+        num = np.zeros(shape)
+        den = np.zeros(shape)
+        np.add.at(num, (iy[ok], ix[ok]), values[ok, j])
+        np.add.at(den, (iy[ok], ix[ok]), 1.0)
+        num = ndi.gaussian_filter(num, s, mode="constant", truncate=2.5)
+        den = ndi.gaussian_filter(den, s, mode="constant", truncate=2.5)
+        d = den[iy, ix]
+        out[:, j] = np.where(d > 1e-3, num[iy, ix] / np.maximum(d, 1e-3), np.nan)
+    return out
+
+
+def _deconvolution_symbol(step, subset, length, qx, qy):
+    """Symbol of the deconvolution ``d = u_L + g d`` (``DECONVOLUTION_STEPS``
+    fixed-point steps from ``d = u_L``): ``1 + g + ... + g^m``."""
+    g = _feedback_symbol(step, subset, length, qx, qy)
+    return sum(g**j for j in range(DECONVOLUTION_STEPS + 1))
+
+
+def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
+    """``(b, gain)``: per node (N, 2) the undermatching bias ``b = u_L - d`` of
+    an affine subset, ``d`` the local field deconvolved by the fixed point
+    ``d = u_L - γ ∇² d`` that the second-order warp solves (curvature
+    smoothed over ``length``), and (N,) ``|b|²`` minus its noise share; NaN
+    where not estimated."""
     _, _, _, hx, hy = second_difference_operators(mesh)
     inner = keep & hx & hy & ~level_transition_nodes(mesh)
+    bias = np.full((mesh.n_nodes, 2), np.nan)
+    gain = np.full(mesh.n_nodes, np.nan)
     if not inner.any():
-        return 0.0
-    curv = CurvatureEstimator(mesh, curv_length, keep, T, free)(u, v)
-    lap = _subset_gamma(subset) * np.column_stack([curv[:, 0] + curv[:, 2],
-                                                   curv[:, 3] + curv[:, 5]])
-    raw = float(np.mean(np.sum(lap[inner] ** 2, axis=1)))
+        return bias, gain
+    T, free = mesh.prolongation()
+    estimate = CurvatureEstimator(mesh, length, keep, T, free)
+    uv = np.column_stack([u, v])
+    d = uv
+    for _ in range(DECONVOLUTION_STEPS):
+        curv = estimate(d[:, 0], d[:, 1])
+        d = uv - _subset_gamma(subset) * np.column_stack([curv[:, 0] + curv[:, 2],
+                                                          curv[:, 3] + curv[:, 5]])
+    bias[inner] = (uv - d)[inner]
     qx, qy, r = _lattice_symbols(step, subset)
-    g = _feedback_symbol(step, subset, curv_length, qx, qy)
-    noise = float(np.mean(g * g * r)) * float(np.mean(noise_var[inner].sum(axis=1)))
-    return max(raw - noise, 0.0)
-
-
-def _restrict(mesh: Q4Mesh, nodes: np.ndarray, u, v, keep, noise_var):
-    """The sub-mesh of elements whose corners are all in ``nodes``."""
-    e = mesh.elements
-    e = e[nodes[e].all(axis=1)]
-    used = np.unique(e)
-    new = -np.ones(mesh.n_nodes, np.int64)
-    new[used] = np.arange(used.size)
-    h = mesh.hanging
-    h = h[np.isin(h, used).all(axis=1)] if h.size else h
-    sub = Q4Mesh(mesh.x[used], mesh.y[used], new[e], new[h] if h.size else h)
-    return sub, u[used], v[used], keep[used], noise_var[used]
+    D = _deconvolution_symbol(step, subset, length, qx, qy)
+    noise = float(np.mean((1 - D) ** 2 * r)) * noise_var[inner].sum(axis=1)
+    gain[inner] = np.sum(bias[inner] ** 2, axis=1) - noise
+    return bias, gain

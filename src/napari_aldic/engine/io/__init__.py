@@ -2,7 +2,8 @@
 
 * :func:`open_stack` / :class:`FrameSource` / :func:`read_image` -- the one image and
   image-stack reader (arrays, multi-page TIFF, image folders, lists of image files)
-  used by ``track``, the CLI and the napari reader;
+  used by ``track``, the CLI and the napari reader; :func:`open_image` /
+  :func:`open_lazy` -- one image read window by window (tiled TIFF, zarr, OME-Zarr);
 * :func:`load_run`, :func:`collect_frames`, :func:`load_mat` -- results back from
   any file or folder the package writes;
 * writers/readers per format: CSV, MATLAB, VTK (.vtu/.pvd), DaVis text;
@@ -23,14 +24,17 @@ from .stack import (
     grey_frame,
     image_files,
     natural_key,
+    open_image,
     open_stack,
     read_image,
 )
+from .tiles import LazyImage, PixelSize, open_lazy, pixel_size_of
 from .vtk import export_vtu, read_vtu, result_cells
 
 __all__ = [
     "FrameSource", "open_stack", "read_image", "image_files", "natural_key", "grey_frame",
-    "IMAGE_SUFFIXES", "TIFF_SUFFIXES",
+    "IMAGE_SUFFIXES", "TIFF_SUFFIXES", "open_image", "open_lazy", "LazyImage", "PixelSize",
+    "pixel_size_of",
     "Frame", "FrameSet", "collect_frames", "load_run", "load_mat", "frame_columns", "FIELD_INFO",
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
     "export_davis", "save_params", "load_params", "load_settings", "read_settings",

@@ -31,7 +31,14 @@ FIELD_INFO: dict[str, tuple[str, str]] = {
     "eyy_rate": ("strain rate d(eyy)/dt", "rate"),
     "exy_rate": ("strain rate d(exy)/dt", "rate"),
     "zncc": ("ZNCC (correlation quality)", "none"),
+    "u_std": ("standard uncertainty of u", "length"),
+    "v_std": ("standard uncertainty of v", "length"),
+    "sssig": ("SSSIG (speckle quality, GL²)", "none"),
+    "mig": ("mean intensity gradient (GL/px)", "none"),
 }
+
+#: per-node measurement-quality fields of a result (``None`` when not computed)
+QUALITY_FIELDS = ("u_std", "v_std", "sssig", "mig")
 
 
 def unit_of(kind: str, units: Units) -> str:
@@ -114,6 +121,11 @@ def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
     cols["valid"] = (np.asarray(res.valid, bool), "")
     cols["reason"] = (np.asarray(res.reason, np.int64), "")
     cols["zncc"] = (np.asarray(res.zncc, float), "")
+    for name in QUALITY_FIELDS:  # kept at every node, like zncc; NaN when not computed
+        vals = getattr(res, name, None)
+        vals = np.full(n, np.nan) if vals is None else np.asarray(vals, float)
+        length = name.endswith("_std")
+        cols[name] = (vals * (ps if length else 1.0), L if length else "")
     cols["u_attempt"] = (np.asarray(res.u, float) * ps, L)
     cols["v_attempt"] = (np.asarray(res.v, float) * ps, L)
     return cols

@@ -11,7 +11,7 @@ import numpy as np
 from ..core.files import atomic_write, target_path
 from ..core.reasons import Reason
 from ..core.units import Units
-from .columns import UNTRUSTED_RULE, frame_columns, same_nodes, software_name
+from .columns import QUALITY_FIELDS, UNTRUSTED_RULE, frame_columns, same_nodes, software_name
 from .runs import (
     MAT_FORMAT,
     MAT_FORMAT_VERSION,
@@ -38,6 +38,8 @@ def _mat_frame(fr: Frame, units: Units) -> dict[str, Any]:
         d[k] = cols[k][0] if k in cols else np.empty((0, 1))
     for k in ("dudx", "dudy", "dvdx", "dvdy", "zncc"):
         d[k] = np.asarray(getattr(res, k), float)
+    for k in QUALITY_FIELDS:  # empty when the result has none
+        d[k] = cols[k][0] if k in cols else np.empty((0, 1))
     d["valid"] = np.asarray(res.valid, np.uint8)
     d["reason"] = np.asarray(res.reason, np.int8)
     d["iterations"] = np.asarray(res.iterations, np.int32)

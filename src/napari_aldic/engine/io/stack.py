@@ -32,8 +32,8 @@ import numpy as np
 
 from ..core.images import as_gray_float
 
-__all__ = ["FrameSource", "open_stack", "read_image", "image_files", "natural_key",
-           "grey_frame", "frame_numbers", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
+__all__ = ["FrameSource", "open_stack", "read_image", "open_image", "image_files",
+           "natural_key", "grey_frame", "frame_numbers", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
 
 #: file name endings read as TIFF (with tifffile; pages can be stack frames)
 TIFF_SUFFIXES = (".tif", ".tiff")
@@ -98,6 +98,20 @@ def read_image(path) -> np.ndarray:
     except Exception as exc:  # any reader failure is a bad input file
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise ValueError(f"cannot read image {path}: {first}") from None
+
+
+def open_image(source):
+    """One image opened for window-by-window reading (a
+    :class:`~napari_aldic.engine.io.tiles.LazyImage`): TIFF/BigTIFF files, zarr
+    and OME-Zarr folders and zarr arrays are read tile by tile (:mod:`.tiles`);
+    other image files (PNG, BMP, ...) are read whole with :func:`read_image`;
+    arrays are used as they are. Errors name the file."""
+    from . import tiles
+
+    if isinstance(source, (str, os.PathLike)) and not tiles.is_lazy_source(source):
+        path = _image_file(source)
+        return tiles.open_lazy(_one_frame(read_image(path), path))
+    return tiles.open_lazy(source)
 
 
 def grey_frame(frame) -> np.ndarray:

@@ -37,21 +37,21 @@ from .gauss_newton import (
 )
 from .subset import gather_subset, subset_buffers
 
-__all__ = ["icgn_affine", "icgn_translation", "cholesky6", "chol_solve6",
+__all__ = ["icgn_affine", "icgn_translation", "cholesky", "chol_solve",
            "affine_reference_sums", "inverse_compose", "affine_step",
            "translation_reference_sums", "curvature_offsets", "penalty_system",
            "translation_step"]
 
 
 @nb.njit(**INLINE)
-def cholesky6(H, L):
-    """In-place lower Cholesky factor of a 6 x 6 symmetric matrix.
+def cholesky(H, L):
+    """In-place lower Cholesky factor of a symmetric ``n x n`` matrix.
 
     Parameters
     ----------
-    H : (6, 6) float64
-        Symmetric matrix.
-    L : (6, 6) float64
+    H : (n, n) float64
+        Symmetric matrix (6 x 6 affine, 12 x 12 quadratic Gauss-Newton).
+    L : (n, n) float64
         Receives the factor (lower triangle).
 
     Returns
@@ -60,7 +60,7 @@ def cholesky6(H, L):
         False if a pivot is not clearly positive (``H`` not positive
         definite to working precision: a subset without texture).
     """
-    for i in range(6):
+    for i in range(H.shape[0]):
         for j in range(i + 1):
             s = H[i, j]
             for k in range(j):
@@ -75,27 +75,28 @@ def cholesky6(H, L):
 
 
 @nb.njit(**INLINE)
-def chol_solve6(L, b, x):
+def chol_solve(L, b, x):
     """Solve ``L L^T x = b`` by forward and back substitution.
 
     Parameters
     ----------
-    L : (6, 6) float64
-        Factor from :func:`cholesky6`.
-    b : (6,) float64
+    L : (n, n) float64
+        Factor from :func:`cholesky`.
+    b : (n,) float64
         Right-hand side.
-    x : (6,) float64
+    x : (n,) float64
         Receives the solution.
     """
-    y = np.empty(6)
-    for i in range(6):
+    n = b.size
+    y = np.empty(n)
+    for i in range(n):
         s = b[i]
         for k in range(i):
             s -= L[i, k] * y[k]
         y[i] = s / L[i, i]
-    for i in range(5, -1, -1):
+    for i in range(n - 1, -1, -1):
         s = y[i]
-        for k in range(i + 1, 6):
+        for k in range(i + 1, n):
             s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
 
@@ -243,7 +244,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     sj, bf : 6-tuples of float
         Reference sums from :func:`affine_reference_sums`.
     L : (6, 6) float64
-        Cholesky factor of the reference Hessian.
+        Cholesky factor of the reference Hessian (:func:`cholesky`).
     b, dp : (6,) float64
         Work arrays.
     h, span : int
@@ -278,7 +279,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     b[3] = bf[3] - r * (t3 - gm * sj[3])
     b[4] = bf[4] - r * (t4 - gm * sj[4])
     b[5] = bf[5] - r * (t5 - gm * sj[5])
-    chol_solve6(L, b, dp)
+    chol_solve(L, b, dp)
     du = -dp[0]
     dux = -dp[1]
     duy = -dp[2]
@@ -351,7 +352,7 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
             stats_out[k, 4] = H[3, 3]
             p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
                  p_init[k, 5])
-            if df2 <= 1e-6 * m or not cholesky6(H, L):
+            if df2 <= 1e-6 * m or not cholesky(H, L):
                 store_node(k, p, np.nan, 0, NO_TEXTURE, p_out, zncc_out, iters_out, reason_out)
                 continue
             dfn = np.sqrt(df2)

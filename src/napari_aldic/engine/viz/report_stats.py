@@ -92,6 +92,31 @@ def frame_statistics(fr, names, units) -> dict[str, tuple[float, float, float, f
     return out
 
 
+def quality_rows(fr, units) -> list[list[str]]:
+    """Table rows on measurement quality: the predicted standard uncertainty
+    and SSSIG over the trusted nodes, and the noise floor of a static pair
+    (``meta["noise_floor"]``) when one was measured."""
+    rows = []
+    names = [n for n in ("u_std", "v_std", "sssig") if getattr(fr.result, n, None) is not None]
+    stats = frame_statistics(fr, names, units)
+    for n in names:
+        if stats[n][4]:
+            label = f"{n} ({units.unit}, predicted)" if n.endswith("_std") else "SSSIG (GL²)"
+            rows.append([label] + [f"{v:.4g}" for v in stats[n][:4]] + [str(stats[n][4])])
+    nf = fr.result.meta.get("noise_floor")
+    if nf:
+        ps = units.pixel_size
+        for key, label, scale in (("u_std_px", f"noise floor u ({units.unit})", ps),
+                                  ("v_std_px", f"noise floor v ({units.unit})", ps),
+                                  ("exx_std", "noise floor exx", 1.0),
+                                  ("eyy_std", "noise floor eyy", 1.0),
+                                  ("exy_std", "noise floor exy", 1.0)):
+            if key in nf:
+                rows.append([label, "0", f"{nf[key] * scale:.4g}", "", "",
+                             str(nf.get("n_valid", ""))])
+    return rows
+
+
 def _names(frames) -> list[str]:
     return ["u", "v"] + (["exx", "eyy", "exy"] if frames[-1].strain is not None else [])
 
@@ -246,7 +271,7 @@ def _validity_single(fr, units, info):
     names = _names([fr])
     stats = frame_statistics(fr, names, units)
     rows = [[_short_label(n, units)] + [f"{v:.4g}" for v in stats[n][:4]] + [str(stats[n][4])]
-            for n in names]
+            for n in names] + quality_rows(fr, units)
     fig.text(0.07, 0.62, "Statistics over the trusted nodes"
              + (f" (strain: {_measure(info)})" if "exx" in names else ""), fontsize=10)
     tab = fig.add_axes((0.07, 0.05, 0.86, 0.55))

@@ -36,6 +36,7 @@ from ..core.files import RunFolderError, array_digest, write_roi_file
 from ..core.images import validate_roi
 from ..core.params import DICParams
 from ..core.progress import Cancelled
+from ..core.reasons import Reason
 from ..core.results import DICResult, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
 from ..io.stack import frame_numbers, open_stack
@@ -82,9 +83,12 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``.
 
     ``du`` is interpolated bilinearly on the lattice of ``inc``; where that is
-    not possible inside the lattice (next to an untrusted node) the nearest
-    trusted node within 0.75 steps is extrapolated with its gradient. Material
-    that moved past the lattice edge is flagged (reason OUT_OF_IMAGE).
+    not possible (next to an untrusted node, or between the lattice's last
+    nodes and the image edge, where material moves after frame 0) the nearest
+    trusted node is extrapolated with its gradient: within 0.75 steps inside
+    the lattice (not across holes), 1.5 steps outside it. Nodes left without
+    an increment are flagged with the reason that holds: OUT_OF_IMAGE when
+    their subset has left the image, else the nearest increment node's.
     """
     from scipy.spatial import cKDTree
 
@@ -94,16 +98,19 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     names = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
     vals = {n: _sample_on_lattice(inc, n, xd, yd) for n in names}
     miss = base.valid & ~np.all([np.isfinite(v) for v in vals.values()], axis=0)
-    # only inside the lattice: extrapolating past its edge accumulates the
-    # edge nodes' errors frame after frame
-    miss &= ((xd >= inc.grid_xs[0]) & (xd <= inc.grid_xs[-1])
-             & (yd >= inc.grid_ys[0]) & (yd <= inc.grid_ys[-1]))
+    inside = ((xd >= inc.grid_xs[0]) & (xd <= inc.grid_xs[-1])
+              & (yd >= inc.grid_ys[0]) & (yd <= inc.grid_ys[-1]))
+    gone = _subset_left(inc, xd, yd)
+    miss &= ~gone
     good = np.nonzero(inc.valid)[0]
+    step = float(inc.params.step)
     if miss.any() and good.size:
-        step = float(inc.params.step)
+        # past the lattice edge, but a subset there is inside the image:
+        # one extrapolation of the small increment, not of the total motion
+        reach = np.where(inside[miss], 0.75, 1.5) * step
         d, j = cKDTree(np.column_stack([inc.x[good], inc.y[good]])).query(
-            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=0.75 * step)
-        hit = np.isfinite(d)
+            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=1.5 * step)
+        hit = d <= reach
         src = good[np.where(hit, j, 0)]
         dx = xd[miss] - inc.x[src]
         dy = yd[miss] - inc.y[src]
@@ -124,10 +131,28 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     out.dvdx, out.dvdy = C[1, 0], C[1, 1] - 1
     out.zncc = vals["zncc"]
     out.valid = ok
-    # nodes whose material is not covered by a trusted increment are flagged
-    out.reason = np.where(ok, 0, np.where(base.valid, 3, base.reason)).astype(np.int8)
+    out.reason = np.where(ok, Reason.OK, base.reason).astype(np.int8)
+    dropped = np.nonzero(base.valid & ~ok)[0]
+    if dropped.size:
+        _, jn = cKDTree(np.column_stack([inc.x, inc.y])).query(
+            np.column_stack([xd[dropped], yd[dropped]]))
+        why = inc.reason[jn]
+        # a trusted nearest node that could not be used (too far): its
+        # material is not covered by the increment's lattice
+        why = np.where(why == Reason.OK, Reason.NO_INITIAL_GUESS, why)
+        out.reason[dropped] = np.where(gone[dropped], Reason.OUT_OF_IMAGE, why)
     out.meta = {**inc.meta}
     return out
+
+
+def _subset_left(inc: DICResult, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
+    """Whether the subset around each displaced point leaves ``inc``'s image
+    (or the point is not finite)."""
+    rows, cols = inc.image_shape
+    h = inc.params.half
+    with np.errstate(invalid="ignore"):
+        inside = (xd - h >= 0) & (xd + h <= cols - 1) & (yd - h >= 0) & (yd + h <= rows - 1)
+    return ~inside
 
 
 class TrackError(ValueError):

@@ -1,0 +1,130 @@
+"""Measurement quality: predicted uncertainty against Monte-Carlo, subset advice.
+
+Usage::
+
+    python benchmarks/bench_quality.py            # full tables (30 realisations)
+    python benchmarks/bench_quality.py --quick    # 10 realisations, fewer rows
+
+1. **Uncertainty**: one synthetic pair (exact truth: a translation), many
+   noise realisations (independent white noise in both images); per node the
+   standard deviation of the measured displacement over the realisations is
+   the actual uncertainty. The table gives the median over nodes of
+   predicted/actual for the model now stored in ``u_std``/``v_std``
+   (``dic.quality``) and for the previous 2 x 2 model (``dic.reliability``),
+   for Local DIC and for AL-DIC (whose ``u_std`` is that of ``u_local``; the
+   last column compares it with the actual scatter of the smoothed ``u``).
+2. **Advice**: the subset ``advise_subset`` recommends for a target, and the
+   measured displacement noise of a static pair (fresh noise) at that subset.
+3. **Cost**: ``advise_subset`` on 1024² and the share of ``correlate`` spent on
+   the quality fields (same run, so contention cancels).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from napari_aldic.engine import advise_subset, correlate, synthetic as S
+from napari_aldic.engine.dic.quality import speckle_quality
+from napari_aldic.engine.dic.regularise import gradient_noise_gain
+from napari_aldic.engine.dic.reliability import SubsetStats, displacement_variance
+
+
+def _old_model(ref, res, sub):
+    """The previous prediction: 2 x 2 matrix, residual noise, full E."""
+    q = speckle_quality(ref, res.x.astype(int), res.y.astype(int), sub)
+    k = q.hessian.shape[1] // 2
+    h = q.hessian
+    st = SubsetStats(np.column_stack([q.m, q.var_f, h[:, 0, 0], h[:, 0, k], h[:, k, k]]))
+    var_e = (1 - np.minimum(res.zncc, 1)) * q.var_f
+    return np.sqrt(displacement_variance(st, var_e, gradient_noise_gain(3)))
+
+
+def uncertainty_row(method, shift, noise, sub, n, size=192, step=10):
+    ref0, dfm0 = S.speckle_pair((size, size), S.Translation(*shift), seed=3, bit_depth=None)
+    rng = np.random.default_rng(1)
+    d_loc, d_glob, new, old = [], [], [], []
+    for _ in range(n):
+        ref = ref0 + rng.normal(0, noise, ref0.shape)
+        dfm = dfm0 + rng.normal(0, noise, ref0.shape)
+        res = correlate(ref, dfm, subset=sub, step=step, method=method, max_uncertainty=None,
+                        interpolation="cubic")
+        loc = res.u_local is not None
+        d_loc.append(np.stack([res.u_local if loc else res.u, res.v_local if loc else res.v]))
+        d_glob.append(np.stack([res.u, res.v]))
+        new.append(np.stack([res.u_std, res.v_std]))
+        old.append(_old_model(ref, res, sub).T)
+    d_loc, d_glob, new, old = map(np.array, (d_loc, d_glob, new, old))
+    ok = (np.isfinite(d_loc).all(axis=(0, 1)) & np.isfinite(new).all(axis=(0, 1))
+          & np.isfinite(old).all(axis=(0, 1)))
+    act = d_loc[:, :, ok].std(axis=0, ddof=1)
+    act_g = d_glob[:, :, ok].std(axis=0, ddof=1)
+    med = lambda p, a: float(np.median(np.median(p[:, :, ok], axis=0) / a))  # noqa: E731
+    return {"method": method, "shift": shift, "noise": noise, "subset": sub,
+            "actual_px": float(np.median(act)), "new": med(new, act), "old": med(old, act),
+            "new_vs_global": med(new, act_g), "nodes": int(ok.sum())}
+
+
+def advice_row(noise, target, size=512):
+    ref, _ = S.speckle_pair((size, size), S.Translation(0, 0), noise=noise, seed=11)
+    adv = advise_subset(ref, target_noise=target)
+    if adv.recommended is None:
+        return {"noise": noise, "target": target, "subset": None}
+    r0, d0 = S.speckle_pair((size, size), S.Translation(0, 0), noise=noise, seed=11)
+    res = correlate(r0, d0, subset=adv.recommended, step=adv.recommended // 2)
+    ok = res.valid
+    row = next(r for r in adv.rows if r["subset"] == adv.recommended)
+    meas = float(np.sqrt(0.5 * (np.var(res.u[ok]) + np.var(res.v[ok]))))
+    return {"noise": noise, "target": target, "subset": adv.recommended,
+            "predicted_median_px": row["median_std_px"], "measured_px": meas,
+            "noise_est": adv.noise}
+
+
+def cost():
+    ref, dfm = S.speckle_pair((1024, 1024), S.Translation(1.2, 0.3), noise=3.0, seed=2)
+    t = time.perf_counter()
+    advise_subset(ref, target_noise=0.01)
+    t_adv = time.perf_counter() - t
+    res = correlate(ref, dfm, subset=31, step=8)
+    tm = res.meta["timing"]
+    return t_adv, tm["quality"], tm["total"]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args()
+    n = 10 if a.quick else 30
+    print("| method | shift (px) | noise (GL) | subset | actual std (px) | new/actual | "
+          "old/actual | u_std / actual global | nodes |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    shifts = [(2.3, -1.4)] if a.quick else [(2.3, -1.4), (2.5, -1.5), (2.0, -1.0)]
+    for method in ("local", "aldic"):
+        for shift in (shifts if method == "local" else shifts[:1]):
+            for noise in (2.0, 5.0, 10.0):
+                for sub in (21, 31):
+                    r = uncertainty_row(method, shift, noise, sub, n)
+                    print(f"| {method} | {shift} | {noise:g} | {sub} | {r['actual_px']:.4f} | "
+                          f"{r['new']:.3f} | {r['old']:.3f} | {r['new_vs_global']:.3f} | "
+                          f"{r['nodes']} |", flush=True)
+    print()
+    print("| noise (GL) | target (px) | advised subset | predicted median (px) | "
+          "measured std (px) | measured/target |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for noise in (2.0, 5.0, 10.0):
+        for target in (0.005, 0.01, 0.02):
+            r = advice_row(noise, target)
+            if r["subset"] is None:
+                print(f"| {noise:g} | {target:g} | none | | | |")
+                continue
+            print(f"| {noise:g} | {target:g} | {r['subset']} | {r['predicted_median_px']:.4f} | "
+                  f"{r['measured_px']:.4f} | {r['measured_px'] / target:.2f} |", flush=True)
+    t_adv, t_q, t_tot = cost()
+    print(f"\nadvise_subset on 1024²: {t_adv:.2f} s; correlate 1024² (subset 31, step 8): "
+          f"quality fields {t_q:.3f} s of {t_tot:.3f} s ({100 * t_q / t_tot:.0f} %)")
+
+
+if __name__ == "__main__":
+    main()

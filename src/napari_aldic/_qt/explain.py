@@ -1,0 +1,75 @@
+"""Translated explanations beside the engine's English messages (no Qt here).
+
+Engine exceptions and reason texts stay in English (they are searched for and
+quoted in issues); the widget shows them unchanged and adds a translated
+explanation where it knows one: the reason codes of unreliable nodes, and the
+kinds of error a run commonly meets (matched by a phrase of the English text).
+"""
+
+from __future__ import annotations
+
+from ..engine import Reason
+from ..i18n import tr, tr_noop
+
+__all__ = ["reason_text", "explain_error", "with_explanation", "REASON_TEXTS", "ERROR_HINTS"]
+
+#: reason code -> what it means (translated where shown); see engine.Reason
+REASON_TEXTS = {
+    int(Reason.OK): tr_noop("converged"),
+    int(Reason.SMALL_COMPONENT): tr_noop("subset component too small (mask)"),
+    int(Reason.NOT_CONVERGED): tr_noop("not converged (iteration cap)"),
+    int(Reason.OUT_OF_IMAGE): tr_noop("deformed subset leaves the image"),
+    int(Reason.LOW_CORRELATION): tr_noop("low correlation (ZNCC below threshold)"),
+    int(Reason.NO_TEXTURE): tr_noop("no texture in subset"),
+    int(Reason.DIVERGED): tr_noop("diverged"),
+    int(Reason.NO_INITIAL_GUESS): tr_noop("no initial guess"),
+    int(Reason.OUTLIER): tr_noop("outlier (median test)"),
+    int(Reason.POOR_MATCH): tr_noop("poor match (residual above image noise)"),
+    int(Reason.BEYOND_SEARCH): tr_noop("motion beyond the search range"),
+    int(Reason.UNCERTAIN): tr_noop("uncertain (noise)"),
+    int(Reason.GLOBAL_MISMATCH): tr_noop("global field departs from the subset match (AL-DIC)"),
+}
+
+#: (phrase of the engine's English message, translated explanation); first match wins
+ERROR_HINTS = (
+    ("is larger than the image", tr_noop("The subset is larger than the image: choose a "
+                                         "smaller subset.")),
+    ("outside the ROI", tr_noop("A seed point lies outside the region of interest: move it "
+                                "onto the analysed material.")),
+    ("no seed could be matched", tr_noop("No seed point was found in the deformed image: "
+                                         "move the seeds or widen the search.")),
+    ("differs from image shape", tr_noop("The region of interest and the images have "
+                                         "different sizes.")),
+    ("must be an odd", tr_noop("This value must be an odd number.")),
+    ("Invalid DIC parameter", tr_noop("A correlation parameter is not valid: check the "
+                                      "Mesh and correlation section.")),
+    ("run folder", tr_noop("The run folder cannot be used: choose another output folder.")),
+    ("out of memory", tr_noop("Not enough memory: analyse a smaller region or fewer frames.")),
+    ("MemoryError", tr_noop("Not enough memory: analyse a smaller region or fewer frames.")),
+)
+
+
+def reason_text(code: int) -> str:
+    """The translated meaning of a reason code (the engine's English text for an
+    unknown code)."""
+    text = REASON_TEXTS.get(int(code))
+    return tr(text) if text is not None else Reason.describe(code)
+
+
+def explain_error(message: str) -> str | None:
+    """A translated explanation of an engine error message, or ``None``."""
+    for phrase, hint in ERROR_HINTS:
+        if phrase in message:
+            return tr(hint)
+    return None
+
+
+def with_explanation(message: str) -> str:
+    """``message`` (English, unchanged) followed by its translated explanation when
+    one is known and the language is not English."""
+    from ..i18n import current_language
+
+    hint = explain_error(message)
+    if hint is None or current_language() == "en":
+        return message
+    return f"{message} ({hint})"

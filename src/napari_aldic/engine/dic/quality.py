@@ -1,0 +1,430 @@
+"""Measurement quality: speckle quality, predicted displacement noise, subset advice.
+
+* **Speckle quality per node** -- the mean intensity gradient (MIG, mean of
+  ``|∇f|`` over the subset) and the sum of squared subset intensity gradients
+  (SSSIG, Pan et al. 2008: ``Σ f_x²`` and ``Σ f_y²`` over the subset; the
+  smaller of the two limits the match).
+* **Standard uncertainty of u, v per node** -- first-order propagation of
+  white image noise (variance ``σ²`` in each image) through the subset's
+  Gauss-Newton solution: ``Cov p = 2 σ² S⁻¹ H S⁻¹`` with ``H`` the full
+  Gauss-Newton matrix of the subset shape function (6 x 6 affine, 12 x 12
+  quadratic; the displacement gradients the subset also estimates take part
+  of the information) and ``S = H - E`` its speckle part (``E``: the noise
+  energy the spline derivative of the noisy reference adds). For ``σ²`` the
+  node's own residual ``(1 - ZNCC) V`` is used, corrected for the B-spline
+  interpolation of the deformed image at a sub-pixel position, which lowers
+  the residual variance of its noise (by up to 30 % at half a pixel) but
+  not the noise the match picks up (that lies at the speckle's low spatial
+  frequencies, which interpolation passes). Pan's rule ``σ_u ≈ √2 σ / √SSSIG``
+  is the translation-only, noise-free-gradient limit of this formula.
+* **Subset advice** -- the predicted standard uncertainty of a static
+  (integer-shift) match for a range of subset sizes, from the reference
+  image alone and its noise (Immerkær's estimator); the smallest subset at
+  which a chosen fraction of the nodes meets the target.
+
+References: B. Pan, H. Xie, Z. Wang, K. Qian, Z. Wang, "Study on subset size
+selection in digital image correlation for speckle patterns", Optics Express
+16(10), 7037-7048, 2008 (SSSIG); B. Pan, Z. Lu, H. Xie, "Mean intensity
+gradient: an effective global parameter for quality assessment of the speckle
+patterns used in digital image correlation", Optics and Lasers in Engineering
+48(4), 469-477, 2010 (MIG); E. M. C. Jones, M. A. Iadicola (eds.), A Good
+Practices Guide for Digital Image Correlation, iDICs, 2018 (noise floor).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from math import comb
+
+import numpy as np
+from scipy import ndimage
+
+from .interpolation import prefilter, reference_gradients
+from .regularise import gradient_noise_gain
+from .reliability import image_noise
+
+__all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
+           "SubsetAdvice", "advise_subset", "interpolated_noise_factor", "SHAPE_TERMS"]
+
+#: monomials (dx^p dy^q) of the subset shape function of each displacement
+#: component: the affine one has 3, the quadratic one 6
+SHAPE_TERMS = {"affine": ((0, 0), (1, 0), (0, 1)),
+               "quadratic": ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))}
+#: the speckle part S of the Gauss-Newton matrix is kept at least this
+#: fraction of H (extreme noise would otherwise make it singular)
+_MIN_SPECKLE_FRACTION = 0.1
+_CHUNK = 4096  # nodes per batch of small matrix inversions
+
+
+class _BoxSums:
+    """Sums of an image over the square windows of half-width ``half``
+    centred on nodes, by summed-area tables (one O(image) pass per image)."""
+
+    def __init__(self, shape, x, y, half: int):
+        h, w = shape
+        self.y0 = np.clip(np.asarray(y, np.int64) - half, 0, h)
+        self.y1 = np.clip(np.asarray(y, np.int64) + half + 1, 0, h)
+        self.x0 = np.clip(np.asarray(x, np.int64) - half, 0, w)
+        self.x1 = np.clip(np.asarray(x, np.int64) + half + 1, 0, w)
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        ii = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
+        np.cumsum(np.cumsum(a, axis=0, dtype=np.float64), axis=1, out=ii[1:, 1:])
+        return (ii[self.y1, self.x1] - ii[self.y0, self.x1] - ii[self.y1, self.x0]
+                + ii[self.y0, self.x0])
+
+
+def _centred_moments(box: _BoxSums, a: np.ndarray, x, y, order: int) -> dict:
+    """``{(p, q): Σ a (X - x)^p (Y - y)^q}`` over each node's window, p + q <= order.
+
+    Raw moments of the image-centred coordinates are summed once per
+    monomial and shifted to each node by the binomial expansion."""
+    ny, nx = a.shape
+    cx, cy = (nx - 1) / 2.0, (ny - 1) / 2.0
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    xx = xx - cx
+    yy = yy - cy
+    raw = {}
+    for p in range(order + 1):
+        for q in range(order + 1 - p):
+            raw[p, q] = box(a * xx**p * yy**q) if (p or q) else box(a)
+    dx = np.asarray(x, float) - cx
+    dy = np.asarray(y, float) - cy
+    out = {}
+    for (p, q) in raw:
+        m = np.zeros(dx.shape)
+        for i in range(p + 1):
+            for j in range(q + 1):
+                m += comb(p, i) * comb(q, j) * (-dx) ** (p - i) * (-dy) ** (q - j) * raw[i, j]
+        out[p, q] = m
+    return out
+
+
+def _block(mom: dict, terms) -> np.ndarray:
+    """(n, k, k) matrix ``Σ a t_i t_j`` of the monomials ``terms``."""
+    k = len(terms)
+    n = next(iter(mom.values())).shape[0]
+    out = np.empty((n, k, k))
+    for i, (p1, q1) in enumerate(terms):
+        for j, (p2, q2) in enumerate(terms):
+            out[:, i, j] = mom[p1 + p2, q1 + q2]
+    return out
+
+
+@dataclass
+class SpeckleQuality:
+    """Speckle statistics of each node's reference subset.
+
+    Attributes
+    ----------
+    mig : (n,) float
+        Mean intensity gradient ``mean |∇f|`` (grey levels per pixel).
+    sssig_x, sssig_y : (n,) float
+        ``Σ f_x²`` and ``Σ f_y²`` over the subset (grey levels²).
+    sssig : (n,) float
+        ``min(sssig_x, sssig_y)``: the direction that limits the match.
+    m : (n,) float
+        Pixels of the subset inside the ROI.
+    var_f : (n,) float
+        Grey-level variance of the subset.
+    hessian, noise : (n, 2k, 2k) float
+        Gauss-Newton matrix of the shape function and its expected noise part
+        per unit noise variance (``E / σ²``); internal to the uncertainty.
+    """
+
+    mig: np.ndarray
+    sssig_x: np.ndarray
+    sssig_y: np.ndarray
+    m: np.ndarray
+    var_f: np.ndarray
+    hessian: np.ndarray = field(repr=False)
+    noise: np.ndarray = field(repr=False)
+
+    @property
+    def sssig(self) -> np.ndarray:
+        return np.minimum(self.sssig_x, self.sssig_y)
+
+
+def _gradients(image: np.ndarray, order: int):
+    """The spline gradients the IC-GN kernels use, and their noise gain."""
+    gx, gy = reference_gradients(prefilter(image, order))
+    return gx.astype(np.float64), gy.astype(np.float64), gradient_noise_gain(order)
+
+
+def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str = "affine",
+                    order: int = 3, gradients=None) -> SpeckleQuality:
+    """MIG, SSSIG and the Gauss-Newton matrix of the subsets centred at ``(x, y)``.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Reference image.
+    x, y : (n,) int-like
+        Node coordinates (pixels; column, row).
+    subset : int
+        Odd full subset width.
+    roi : (H, W) bool, optional
+        Pixels outside are left out of every subset.
+    shape_function : {"affine", "quadratic"}
+    order : {3, 5}
+        B-spline order of the gradients (as the correlation uses).
+    gradients : (gx, gy), optional
+        The spline gradients of ``image`` of that order when already known.
+    """
+    img = np.asarray(image, np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"speckle_quality needs a 2-D image, got shape {img.shape}")
+    if subset < 3 or subset % 2 == 0:
+        raise ValueError(f"subset must be an odd width >= 3, got {subset}")
+    if shape_function not in SHAPE_TERMS:
+        raise ValueError(f"shape_function must be one of {sorted(SHAPE_TERMS)}, "
+                         f"got {shape_function!r}")
+    mask = np.ones(img.shape) if roi is None else np.asarray(roi, bool).astype(np.float64)
+    if gradients is None:
+        gx, gy, gain = _gradients(img, order)
+    else:
+        gx, gy = (np.asarray(a, np.float64) for a in gradients)
+        gain = gradient_noise_gain(order)
+    gx = gx * mask
+    gy = gy * mask
+    box = _BoxSums(img.shape, x, y, subset // 2)
+    terms = SHAPE_TERMS[shape_function]
+    deg = 2 * max(p + q for p, q in terms)
+    mxx = _centred_moments(box, gx * gx, x, y, deg)
+    mxy = _centred_moments(box, gx * gy, x, y, deg)
+    myy = _centred_moments(box, gy * gy, x, y, deg)
+    mm = _centred_moments(box, mask, x, y, deg)
+    k = len(terms)
+    hess = np.zeros((mm[0, 0].size, 2 * k, 2 * k))
+    hess[:, :k, :k] = _block(mxx, terms)
+    hess[:, :k, k:] = _block(mxy, terms)
+    hess[:, k:, :k] = hess[:, :k, k:].transpose(0, 2, 1)
+    hess[:, k:, k:] = _block(myy, terms)
+    noise = np.zeros_like(hess)
+    noise[:, :k, :k] = noise[:, k:, k:] = gain * _block(mm, terms)
+    m = mm[0, 0]
+    s1, s2 = box(img * mask), box(img * img * mask)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mig = box(np.hypot(gx, gy)) / m
+        var_f = np.maximum(s2 / m - (s1 / m) ** 2, 0.0)
+    return SpeckleQuality(mig, mxx[0, 0], myy[0, 0], m, var_f, hess, noise)
+
+
+def _covariance_diag(q: SpeckleQuality, var_e: np.ndarray) -> np.ndarray:
+    """``diag(2 var_e S⁻¹ H S⁻¹)`` at the u and v entries, ``(n, 2)`` px²."""
+    k = q.hessian.shape[1] // 2
+    out = np.full((q.m.size, 2), np.nan)
+    for s in range(0, q.m.size, _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        h = q.hessian[sl]
+        e = q.noise[sl] * var_e[sl, None, None]
+        # the noise part may not take more than (1 - min fraction) of any diagonal
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.diagonal(h, axis1=1, axis2=2) / np.diagonal(e, axis1=1, axis2=2)
+            lim = np.min(np.where(np.isfinite(ratio), ratio, np.inf), axis=1)
+        t = np.clip(np.nan_to_num((1 - _MIN_SPECKLE_FRACTION) * lim, nan=0.0), 0.0, 1.0)
+        spk = h - t[:, None, None] * e
+        ok = np.isfinite(spk).all(axis=(1, 2)) & (q.m[sl] > 2 * k) & np.isfinite(var_e[sl])
+        ok &= np.linalg.det(np.where(ok[:, None, None], spk, np.eye(2 * k))) > 0
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            continue
+        inv = np.linalg.inv(spk[idx])
+        # the reference's gradient noise is anti-correlated with its own noise at
+        # the neighbouring pixels: it adds E / 2, not E, to the data term
+        cov = inv @ (spk[idx] + 0.5 * t[idx, None, None] * e[idx]) @ inv
+        out[s + idx, 0] = 2.0 * var_e[sl][idx] * cov[:, 0, 0]
+        out[s + idx, 1] = 2.0 * var_e[sl][idx] * cov[:, k, k]
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _interp_variance_table(order: int, n: int = 65) -> tuple[np.ndarray, np.ndarray]:
+    """Variance of unit white noise interpolated by the cardinal B-spline of
+    ``order`` at fractional offsets ``t`` in [0, 1] (1 at t = 0 and 1)."""
+    delta = np.zeros(64)
+    delta[32] = 1.0
+    t = np.linspace(0.0, 1.0, n)
+    rho = np.array([np.sum(ndimage.shift(delta, s, order=order, mode="grid-wrap") ** 2)
+                    for s in t])
+    return t, rho
+
+
+def interpolated_noise_factor(u, v, order: int = 3) -> np.ndarray:
+    """Variance of white noise of unit variance in the deformed image, after
+    B-spline interpolation at the sub-pixel offsets ``(u mod 1, v mod 1)``:
+    the product of the 1-D factors (1 at whole pixels, about 0.6-0.7 at half
+    a pixel for cubic splines)."""
+    t, rho = _interp_variance_table(int(order))
+    fu = np.interp(np.mod(np.asarray(u, float), 1.0), t, rho)
+    fv = np.interp(np.mod(np.asarray(v, float), 1.0), t, rho)
+    return fu * fv
+
+
+def node_uncertainty(q: SpeckleQuality, zncc, u, v, grad=None, order: int = 3) -> np.ndarray:
+    """Standard uncertainty (px) of ``u`` and ``v`` per node, ``(n, 2)``.
+
+    The noise variance of each image is estimated from the node's own
+    residual: a correct match leaves ``(1 - ZNCC) V = (σ² + ρ σ²) / 2`` per
+    pixel, where ``ρ`` (:func:`interpolated_noise_factor`) is what remains
+    of the deformed image's noise after interpolation at the match's
+    sub-pixel position -- averaged over the subset when the displacement
+    gradient ``grad`` (n, 4) sweeps it across pixels. Then
+    ``Cov = 2 σ² S⁻¹ H S⁻¹`` (module docstring). NaN where the node has no
+    finite ZNCC or usable subset."""
+    zncc = np.minimum(np.asarray(zncc, float), 1.0)
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    rho = interpolated_noise_factor(u, v, order)
+    if grad is not None:
+        h = np.sqrt(np.maximum(q.m, 1.0)) / 2  # about the subset half-width
+        off = np.linspace(-1.0, 1.0, 5) * h[:, None]
+        g = np.nan_to_num(np.asarray(grad, float))
+        rho = np.mean([interpolated_noise_factor(u + g[:, 0] * off[:, i] + g[:, 1] * off[:, j],
+                                                 v + g[:, 2] * off[:, i] + g[:, 3] * off[:, j],
+                                                 order)
+                       for i in range(5) for j in range(5)], axis=0)
+    var_e = 2.0 * (1.0 - zncc) * q.var_f / (1.0 + rho)
+    var_e = np.where(np.isfinite(zncc), var_e, np.nan)
+    return np.sqrt(_covariance_diag(q, var_e))
+
+
+def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
+    """Standard uncertainty (px) of ``u``, ``v`` per node, ``(n, 2)``, of a
+    whole-pixel match between two images with white noise of standard
+    deviation ``noise`` (grey levels) each: ``Cov = 2 σ² S⁻¹ H S⁻¹``."""
+    var = np.full(q.m.shape, float(noise) ** 2)
+    return np.sqrt(_covariance_diag(q, var))
+
+
+def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
+                   shape_function: str = "affine") -> dict:
+    """The quality fields ``correlate`` stores with a result: ``sssig``,
+    ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
+    subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
+    the reference alone: no uncertainty)."""
+    xi = np.rint(np.asarray(x, float)).astype(np.int64)
+    yi = np.rint(np.asarray(y, float)).astype(np.int64)
+    q = speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function, order=order,
+                        gradients=gradients)
+    out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
+    if zncc is not None:
+        s = node_uncertainty(q, zncc, u, v, grad, order)
+        out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
+    return out
+
+
+#: subset widths the advice tries when none are given
+ADVICE_SUBSETS = (11, 15, 19, 21, 25, 31, 41, 51, 61, 81, 101)
+#: the advice looks at a central window of at most this many pixels a side
+ADVICE_WINDOW = 512
+
+
+@dataclass
+class SubsetAdvice:
+    """Predicted displacement noise for a range of subset widths.
+
+    Attributes
+    ----------
+    rows : list of dict
+        Per subset: ``subset``, ``nodes``, ``median_std_px`` (median over
+        nodes of the larger of the u, v standard uncertainties),
+        ``p90_std_px`` and ``fraction`` (of nodes meeting the target).
+    recommended : int or None
+        Smallest subset where at least ``coverage`` of the nodes meet the
+        target; None when no tried subset does.
+    noise : float
+        Image noise (grey levels, standard deviation) used.
+    target : float
+        Target standard uncertainty (px).
+    coverage : float
+    """
+
+    rows: list
+    recommended: int | None
+    noise: float
+    target: float
+    coverage: float
+
+
+def _advice_window(img: np.ndarray, mask: np.ndarray):
+    """The central ``ADVICE_WINDOW`` square of the ROI's bounding box."""
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        raise ValueError("the ROI is empty: nothing to advise on")
+    cy, cx = (rows.min() + rows.max()) // 2, (cols.min() + cols.max()) // 2
+    half = ADVICE_WINDOW // 2
+    r0 = max(0, min(cy - half, img.shape[0] - ADVICE_WINDOW))
+    c0 = max(0, min(cx - half, img.shape[1] - ADVICE_WINDOW))
+    sl = (slice(r0, r0 + ADVICE_WINDOW), slice(c0, c0 + ADVICE_WINDOW))
+    return img[sl], mask[sl]
+
+
+def advise_subset(image, roi=None, target_noise: float = 0.01, *, step: int | None = None,
+                  subsets=None, noise: float | None = None, coverage: float = 0.9,
+                  shape_function: str = "affine") -> SubsetAdvice:
+    """The smallest subset whose predicted displacement noise meets a target.
+
+    For each subset width the standard uncertainty of u and v of a static
+    match (two images of the same speckle with white noise ``noise`` each)
+    is predicted at nodes every ``step`` pixels from the reference image
+    alone (:func:`static_uncertainty`); a node meets the target when the
+    larger of the two is at most ``target_noise``. The analysis uses the
+    central 512 x 512 pixels of the ROI's bounding box.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Reference image.
+    roi : (H, W) bool, optional
+    target_noise : float
+        Target standard uncertainty of the displacement (px).
+    step : int, optional
+        Node spacing (default: half the smallest subset, at least 8).
+    subsets : sequence of odd int, optional
+        Widths to try (default :data:`ADVICE_SUBSETS`).
+    noise : float, optional
+        Image noise (grey levels); estimated from the image when None
+        (Immerkær's estimator, :func:`~napari_aldic.engine.dic.reliability.image_noise`).
+    coverage : float
+        Fraction of nodes that must meet the target (0-1].
+    """
+    from ..core.images import as_gray_float, validate_roi
+    from .mesh import make_grid
+
+    img = as_gray_float(image, "reference image")
+    mask = validate_roi(roi, img.shape)
+    if not target_noise > 0:
+        raise ValueError(f"target_noise must be > 0 px, got {target_noise}")
+    if not 0 < coverage <= 1:
+        raise ValueError(f"coverage must be in (0, 1], got {coverage}")
+    widths = sorted(int(s) for s in (subsets or ADVICE_SUBSETS))
+    if any(s < 3 or s % 2 == 0 for s in widths):
+        raise ValueError(f"subsets must be odd widths >= 3, got {widths}")
+    sigma = image_noise(img, mask) if noise is None else float(noise)
+    img, mask = _advice_window(img, mask)
+    step = int(step) if step else max(8, widths[0] // 2)
+    gx, gy, _ = _gradients(img, 3)
+    rows, best = [], None
+    for s in widths:
+        if s > min(img.shape):
+            break
+        grid = make_grid(mask, s, step)
+        if grid.n == 0:
+            continue
+        q = speckle_quality(img, grid.x, grid.y, s, mask, shape_function=shape_function,
+                            gradients=(gx, gy))
+        worst = np.max(static_uncertainty(q, sigma), axis=1)
+        worst = worst[np.isfinite(worst)]
+        if worst.size == 0:
+            continue
+        frac = float(np.mean(worst <= target_noise))
+        rows.append({"subset": s, "nodes": int(worst.size),
+                     "median_std_px": float(np.median(worst)),
+                     "p90_std_px": float(np.percentile(worst, 90)), "fraction": frac})
+        if best is None and frac >= coverage:
+            best = s
+    if not rows:
+        raise ValueError("no subset of the tried widths fits in the ROI")
+    return SubsetAdvice(rows, best, sigma, float(target_noise), float(coverage))

@@ -1,0 +1,325 @@
+"""Inverse-compositional Gauss-Newton with the second-order subset shape function.
+
+The quadratic warp has twelve parameters, stored as the affine six followed
+by the second derivatives,
+``p = (u, ux, uy, v, vx, vy, uxx, uxy, uyy, vxx, vxy, vyy)``, so that the
+first six columns mean what they mean for :func:`~.icgn.icgn_affine`: the
+subset pixel at offset ``(dx, dy)`` maps to
+``x0 + dx + u + ux dx + uy dy + uxx dx^2/2 + uxy dx dy + uyy dy^2/2`` (and
+likewise in ``y``). A subset can then follow a displacement that bends over
+its width, which an affine subset averages away.
+
+The skeleton is the affine solver's (:mod:`.icgn`, :mod:`.gauss_newton`): the
+reference Hessian (12 x 12) is built and factorised once per node, and every
+step warps the subset (the second-order part as the fixed offsets that
+:func:`~.gauss_newton.gn_step` already adds), samples the deformed image
+once and forms the right-hand side. The inverse composition of second-order
+warps is not closed; the increment is composed to first order in the
+increment and truncated at second order in the offsets
+(:func:`compose_quadratic`). Gauss-Newton stops where the increment
+vanishes, so the truncation changes the path, not the solution.
+
+References: H. Lu, P. D. Cary, "Deformation measurements by digital image
+correlation: implementation of a second-order displacement gradient",
+Exp. Mech. 40, 2000; Y. Gao, T. Cheng, Y. Su, X. Xu, Y. Zhang, Q. Zhang,
+"High-efficiency and high-accuracy digital image correlation for
+three-dimensional measurement", Opt. Lasers Eng. 65, 2015.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .flags import FASTMATH, INLINE, PARALLEL
+from .gauss_newton import (
+    CHUNK,
+    DIVERGED,
+    NO_TEXTURE,
+    NOT_CONVERGED,
+    OK,
+    chunk_layout,
+    gn_step,
+    store_node,
+)
+from .icgn import chol_solve, cholesky
+from .subset import gather_subset, subset_buffers
+
+__all__ = ["NPAR", "quadratic_jacobian", "quadratic_reference_sums", "quadratic_offsets",
+           "compose_quadratic", "quadratic_step", "icgn_quadratic"]
+
+#: parameters of the second-order shape function
+NPAR = 12
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def quadratic_jacobian(dx, dy, gx, gy, J):
+    """Steepest-descent image of one pixel for the twelve parameters.
+
+    Parameters
+    ----------
+    dx, dy : float
+        Offset of the pixel from the node.
+    gx, gy : float
+        Reference gradient at the pixel.
+    J : (12,) float64
+        Receives ``(gx, gx dx, gx dy, gy, gy dx, gy dy, gx dx^2/2, gx dx dy,
+        gx dy^2/2, gy dx^2/2, gy dx dy, gy dy^2/2)``.
+    """
+    xx = 0.5 * dx * dx
+    xy = dx * dy
+    yy = 0.5 * dy * dy
+    J[0] = gx
+    J[1] = gx * dx
+    J[2] = gx * dy
+    J[3] = gy
+    J[4] = gy * dx
+    J[5] = gy * dy
+    J[6] = gx * xx
+    J[7] = gx * xy
+    J[8] = gx * yy
+    J[9] = gy * xx
+    J[10] = gy * xy
+    J[11] = gy * yy
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, H, sj, bf, J):
+    """Gauss-Newton Hessian and sums of the reference subset (quadratic warp).
+
+    Parameters
+    ----------
+    dxs, dys, gx, gy, fs : 1-D float64
+        The gathered subset.
+    m : int
+        Subset pixels.
+    fm : float
+        Mean of the reference subset.
+    H : (12, 12) float64
+        Receives ``sum J J^T``.
+    sj, bf : (12,) float64
+        Receive ``sum J`` and ``sum J (f - fm)``.
+    J : (12,) float64
+        Work array.
+    """
+    H[:, :] = 0.0
+    sj[:] = 0.0
+    bf[:] = 0.0
+    for q in range(m):
+        quadratic_jacobian(dxs[q], dys[q], gx[q], gy[q], J)
+        fv = fs[q] - fm
+        for i in range(NPAR):
+            ji = J[i]
+            sj[i] += ji
+            bf[i] += ji * fv
+            for j in range(i + 1):
+                H[i, j] += ji * J[j]
+    for i in range(NPAR):
+        for j in range(i + 1, NPAR):
+            H[i, j] = H[j, i]
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def quadratic_offsets(p, dxs, dys, m, qx, qy):
+    """Second-order part of the warp at every subset pixel.
+
+    Parameters
+    ----------
+    p : (12,) float64
+        Current parameters.
+    dxs, dys : 1-D float64
+        Pixel offsets.
+    m : int
+        Subset pixels.
+    qx, qy : 1-D float64
+        Receive ``uxx dx^2/2 + uxy dx dy + uyy dy^2/2`` and the same for ``v``.
+    """
+    for q in range(m):
+        dx = dxs[q]
+        dy = dys[q]
+        xx = 0.5 * dx * dx
+        xy = dx * dy
+        yy = 0.5 * dy * dy
+        qx[q] = p[6] * xx + p[7] * xy + p[8] * yy
+        qy[q] = p[9] * xx + p[10] * xy + p[11] * yy
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def compose_quadratic(p, d):
+    """Inverse-compositional update ``W(p) <- W(p) o W(d)^-1``, to first order.
+
+    With the Gauss-Newton increment ``-d``, ``W(-d)^-1`` moves a pixel by
+    ``+d(X)`` to first order in ``d``; through ``W(p)`` that is
+    ``(I + grad u_p(X)) d(X)``, a polynomial of degree three in the offsets
+    whose terms up to degree two are kept.
+
+    Parameters
+    ----------
+    p : (12,) float64
+        Current parameters, updated in place.
+    d : (12,) float64
+        ``H^-1 b``, minus the Gauss-Newton increment.
+    """
+    a0, a1, a2, b0, b1, b2, a3, a4, a5, b3, b4, b5 = (
+        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11])
+    d0, d1, d2, e0, e1, e2, d3, d4, d5, e3, e4, e5 = (
+        d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], d[8], d[9], d[10], d[11])
+    for c in range(2):
+        # row c of I + grad(u_p): constant part (A, B), x slope (ax, bx), y slope (ay, by)
+        if c == 0:
+            A, B, ax, ay, bx, by = 1.0 + a1, a2, a3, a4, a4, a5
+        else:
+            A, B, ax, ay, bx, by = b1, 1.0 + b2, b3, b4, b4, b5
+        k0 = A * d0 + B * e0
+        kx = A * d1 + ax * d0 + B * e1 + bx * e0
+        ky = A * d2 + ay * d0 + B * e2 + by * e0
+        kxx = A * d3 + 2.0 * ax * d1 + B * e3 + 2.0 * bx * e1
+        kxy = A * d4 + ax * d2 + ay * d1 + B * e4 + bx * e2 + by * e1
+        kyy = A * d5 + 2.0 * ay * d2 + B * e5 + 2.0 * by * e2
+        o = 3 * c  # u: columns 0-2 and 6-8; v: 3-5 and 9-11
+        p[o] += k0
+        p[o + 1] += kx
+        p[o + 2] += ky
+        p[6 + o] += kxx
+        p[7 + o] += kxy
+        p[8 + o] += kyy
+
+
+@nb.njit(fastmath=FASTMATH, nogil=True)
+def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm, dfn,
+                   xw, yw, gv, xmax, ymax, qx, qy, sj, bf, L, b, dp, h, span, start, tol):
+    """One quadratic IC-GN step of a node.
+
+    Warps the subset (affine part plus :func:`quadratic_offsets`), samples
+    it (:func:`~.gauss_newton.gn_step`), adds the six second-order sums of
+    ``J g`` from the sampled values, solves ``H d = b`` with the Cholesky
+    factor ``L`` and composes ``d`` into ``p`` (:func:`compose_quadratic`).
+
+    Parameters
+    ----------
+    c1, stride, coef, order, x0, y0, dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv
+        As :func:`~.gauss_newton.gn_step`.
+    xmax, ymax, qx, qy
+        As :func:`~.gauss_newton.gn_step`; ``qx, qy`` are work arrays here.
+    p : (12,) float64
+        Current parameters, updated in place on success.
+    sj, bf : (12,) float64
+        Reference sums (:func:`quadratic_reference_sums`).
+    L : (12, 12) float64
+        Cholesky factor of the reference Hessian.
+    b, dp : (12,) float64
+        Work arrays.
+    h, span : int
+        Subset half-width and width.
+    start : (float, float)
+        Starting ``(u, v)`` (divergence test).
+    tol : float
+        Convergence tolerance (pixels) on the increment's largest
+        displacement at the subset edge.
+
+    Returns
+    -------
+    status : int
+        ``NOT_CONVERGED`` to go on, ``OK`` on convergence, else the failure.
+    zn : float
+        ZNCC of this step (NaN if the step failed).
+    """
+    quadratic_offsets(p, dxs, dys, m, qx, qy)
+    st, zn, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
+        c1, stride, coef, order, x0, y0, p[0], p[1], p[2], p[3], p[4], p[5],
+        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, True, qx, qy)
+    if st != OK:
+        return st, np.nan
+    s6 = s7 = s8 = s9 = s10 = s11 = 0.0
+    for q in range(m):
+        g = np.float64(gv[q])
+        xx = 0.5 * dxs[q] * dxs[q]
+        xy = dxs[q] * dys[q]
+        yy = 0.5 * dys[q] * dys[q]
+        a1 = gx[q] * g
+        a2 = gy[q] * g
+        s6 += a1 * xx
+        s7 += a1 * xy
+        s8 += a1 * yy
+        s9 += a2 * xx
+        s10 += a2 * xy
+        s11 += a2 * yy
+    t = (t0, t1, t2, t3, t4, t5, s6, s7, s8, s9, s10, s11)
+    for i in range(NPAR):  # b = sum J [(f - fm) - (df/dg)(g - gm)]
+        b[i] = bf[i] - r * (t[i] - gm * sj[i])
+    chol_solve(L, b, dp)
+    compose_quadratic(p, dp)
+    h2 = h * h
+    h4 = 0.25 * h2 * h2
+    nrm = (dp[0] * dp[0] + dp[3] * dp[3]
+           + h2 * (dp[1] * dp[1] + dp[2] * dp[2] + dp[4] * dp[4] + dp[5] * dp[5])
+           + h4 * (dp[6] * dp[6] + dp[7] * dp[7] + dp[8] * dp[8] + dp[9] * dp[9]
+                   + dp[10] * dp[10] + dp[11] * dp[11]))
+    if abs(p[0] - start[0]) > span or abs(p[3] - start[1]) > span or not np.isfinite(nrm):
+        return DIVERGED, zn
+    if nrm < tol * tol:
+        return OK, zn
+    return NOT_CONVERGED, zn
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
+def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
+                   h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
+    """Quadratic IC-GN at the ``active`` nodes, chunks of nodes in parallel.
+
+    As :func:`~.icgn.icgn_affine` with twelve parameters: per node gather the
+    subset, build and factorise the 12 x 12 reference Hessian (a node without
+    texture is stored as ``NO_TEXTURE`` with its initial parameters), then
+    iterate :func:`quadratic_step` while it reports ``NOT_CONVERGED`` and
+    ``max_iter`` allows.
+
+    Parameters
+    ----------
+    f, fgx, fgy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+        As :func:`~.icgn.icgn_affine`.
+    p_init : (n, 12) float64
+        Initial parameters (layout in the module docstring).
+    p_out, zncc_out, iters_out, reason_out : (n, 12), (n,), (n,), (n,)
+        Receive parameters, ZNCC, iterations and status.
+    stats_out : (n, 5) float64
+        Receives the reference subset's statistics, as for the affine solver.
+    """
+    n = nx.size
+    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
+    for c in nb.prange(nchunks):
+        dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        qx = np.empty(npx)
+        qy = np.empty(npx)
+        H = np.empty((NPAR, NPAR))
+        L = np.zeros((NPAR, NPAR))
+        sj = np.empty(NPAR)
+        bf = np.empty(NPAR)
+        b = np.empty(NPAR)
+        dp = np.empty(NPAR)
+        p = np.empty(NPAR)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if not active[k]:
+                continue
+            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
+                                               dxs, dys, gx, gy, fs)
+            quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, H, sj, bf, b)
+            stats_out[k, 0] = m
+            stats_out[k, 1] = df2 / m
+            stats_out[k, 2] = H[0, 0]
+            stats_out[k, 3] = H[3, 0]
+            stats_out[k, 4] = H[3, 3]
+            p[:] = p_init[k]
+            if df2 <= 1e-6 * m or not cholesky(H, L):
+                store_node(k, p, np.nan, 0, NO_TEXTURE, p_out, zncc_out, iters_out, reason_out)
+                continue
+            dfn = np.sqrt(df2)
+            start = (p[0], p[3])
+            status, zn, it = NOT_CONVERGED, np.nan, 0
+            while status == NOT_CONVERGED and it < max_iter:
+                it += 1
+                status, z = quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
+                                           gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, qx, qy,
+                                           sj, bf, L, b, dp, h, span, start, tol)
+                if np.isfinite(z):
+                    zn = z
+            store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
