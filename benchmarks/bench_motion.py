@@ -20,11 +20,13 @@ after a JIT warm-up, so the ratio of their POI/s is measured under the same
 load (the machine is shared); each time is the minimum of ``--repeat`` runs.
 ``--no-anchors`` adds a third column, the large pair with
 ``anchor_spacing=0`` (coarse nodes searched around zero motion, the guess
-before anchors), in the same run. Reported per case: seconds, POI/s, the
-stage times and diagnostics of ``meta["timing"]`` (``anchors`` matched,
-``rescue_nodes`` retried by the repair stage, ``rescue_searches`` searched on
-their own), valid nodes, RMSE and the number of valid nodes off by more than
-0.5 px ("wrong"). Pairs are cached in ``benchmarks/_cache/`` (not tracked).
+before anchors), in the same run. Reported per case: seconds, POI/s (also
+without the ``quality`` stage, the per-node speckle-quality and uncertainty
+maps, which cost the same for any motion), the stage times and diagnostics
+of ``meta["timing"]`` (``anchors`` matched, ``rescue_nodes`` retried by the
+repair stage, ``rescue_searches`` searched on their own), valid nodes, RMSE
+and the number of valid nodes off by more than 0.5 px ("wrong"). Pairs are
+cached in ``benchmarks/_cache/`` (not tracked).
 """
 
 from __future__ import annotations
@@ -103,13 +105,22 @@ def bench_size(n: int, methods, repeat: int, no_anchors: bool) -> list[dict]:
                 if name not in best or r["seconds"] < best[name]["seconds"]:
                     best[name] = r
         small = best["small"]["n_poi"] / best["small"]["seconds"]
+        small_dic = best["small"]["n_poi"] / _dic_seconds(best["small"])
         for name, _, _ in cases:
             r = best[name]
             r.update(size=n, method=method, case=name, poi_per_s=r["n_poi"] / r["seconds"])
             r["ratio_to_small"] = r["poi_per_s"] / small
+            r["dic_poi_per_s"] = r["n_poi"] / _dic_seconds(r)
+            r["dic_ratio_to_small"] = r["dic_poi_per_s"] / small_dic
             rows.append(r)
             _print(r)
     return rows
+
+
+def _dic_seconds(r: dict) -> float:
+    """Seconds without the speckle-quality stage (SSSIG and uncertainty maps,
+    the same work whatever the motion)."""
+    return r["seconds"] - r["timing"].get("quality", 0.0)
 
 
 def _print(r: dict) -> None:
@@ -118,7 +129,8 @@ def _print(r: dict) -> None:
     diag = " ".join(f"{k}={int(t.get(k, 0))}" for k in ("anchors", "rescue_nodes",
                                                          "rescue_searches"))
     print(f"{r['size']:6d} {r['method']:6s} {r['case']:19s} {r['seconds']:7.2f} s "
-          f"{r['poi_per_s']:8.0f} POI/s  x{r['ratio_to_small']:.2f}  valid {r['valid']}/"
+          f"{r['poi_per_s']:8.0f} POI/s  x{r['ratio_to_small']:.2f} (without quality "
+          f"{r['dic_poi_per_s']:.0f} POI/s x{r['dic_ratio_to_small']:.2f})  valid {r['valid']}/"
           f"{r['n_poi']} wrong {r['wrong']} rmse {r['rmse_px']:.4f}  [{stages}] [{diag}]",
           flush=True)
 

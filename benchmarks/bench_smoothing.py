@@ -162,22 +162,25 @@ def solver(args) -> dict:
     from napari_aldic.engine.dic.global_solve import GlobalSolver
 
     out = {}
-    step, subset = 16.0, 31
+    # the default AL-DIC parameters (mu = beta = 0.1) at subset 31, step 8,
+    # with the largest automatic smoothing length (half a subset): the
+    # stiffest (worst-conditioned) system the automatic choice can build
+    step, subset, mu, beta = 8.0, 31, 0.1, 0.1
     for n in args.sizes:
         mesh = lattice_mesh(n, step)
         N = mesh.n_nodes
         rng = np.random.default_rng(n)
         # a smooth field plus local-DIC-like noise, ADMM-like right-hand sides
-        u = 0.5 * np.sin(mesh.x / 900.0) + 0.01 * rng.standard_normal(N)
-        v = 0.3 * np.cos(mesh.y / 700.0) + 0.01 * rng.standard_normal(N)
+        u = 0.5 * np.sin(mesh.x / 400.0) + 0.01 * rng.standard_normal(N)
+        v = 0.3 * np.cos(mesh.y / 300.0) + 0.01 * rng.standard_normal(N)
         trusted = rng.random(N) > 0.02
         row = {}
         for method in args.methods:
             if method == "direct" and N > args.direct_max:
                 continue
             t = time.perf_counter()
-            gs = GlobalSolver(mesh, beta=1e-3 * step**2, mu=1.0, weights=trusted,
-                              curvature=(0.25 * subset) ** 4, method=method)
+            gs = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted,
+                              curvature=(0.5 * subset) ** 4 / mu, method=method)
             setup = time.perf_counter() - t
             F = gs.gradients(u, v)
             z = np.zeros(N)

@@ -40,6 +40,8 @@ def test_help_in_the_pseudo_locale(environment, capsys):
     text = _help(capsys, ["--help"])
     assert pseudo_translate("2-D digital image correlation (napari-aldic engine).") in text
     assert pseudo_translate("analyse a synthetic speckle pair with exact truth") in text
+    for heading in ("usage:", "options", "show this help message and exit"):
+        assert pseudo_translate(heading) in text  # argparse's own texts too
     sub = _help(capsys, ["demo", "--help"])
     assert pseudo_translate("speckle pattern seed (default 0)") in sub
     assert "--seed" in sub and "--out" in sub  # option names are never translated

@@ -66,6 +66,12 @@ def _percent(text: str) -> list[str]:
     return sorted(_PERCENT.findall(text))
 
 
+def _has_words(text: str) -> bool:
+    """Whether ``text`` has words to translate (not only placeholders, tags, numbers)."""
+    bare = re.sub(r"<[^<>]*>|&[#\w]+;", " ", _BRACES.sub(" ", text))
+    return re.search(r"[^\W\d_]{2}", bare) is not None
+
+
 def _strings(msgid) -> tuple:
     return msgid if isinstance(msgid, tuple) else (msgid,)
 
@@ -105,7 +111,8 @@ def test_catalogue_is_complete(template, lang):
             empty.append(m.id)
         elif t.fuzzy:
             fuzzy.append(m.id)
-        elif strs[0] == _strings(m.id)[0] and _strings(m.id)[0] not in allowed:
+        elif strs[0] == _strings(m.id)[0] and _strings(m.id)[0] not in allowed and \
+                _has_words(_strings(m.id)[0]):
             english.append(m.id)
     problems = [(what, ids) for what, ids in (("missing", missing), ("empty", empty),
                                                ("fuzzy", fuzzy), ("left in English", english))
@@ -131,6 +138,15 @@ def test_translations_keep_the_placeholders(lang):
                 bad.append(f"{source!r} -> {text!r}")
     assert not bad, f"{lang}: {len(bad)} translations change the placeholders:\n  " + \
         "\n  ".join(bad[:10])
+
+
+@pytest.mark.parametrize("lang", TRANSLATED)
+def test_each_language_keeps_a_glossary(lang):
+    """The fixed DIC terms of the language (subset, step, strain ...), one file each."""
+    glossary = LOCALE / lang / "glossary.md"
+    assert glossary.is_file(), f"no glossary {glossary}"
+    text = glossary.read_text(encoding="utf-8")
+    assert "subset" in text.lower() and len(text.splitlines()) >= 10, glossary
 
 
 def test_catalogue_headers_name_their_language():

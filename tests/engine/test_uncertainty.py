@@ -19,8 +19,10 @@ def test_predicted_uncertainty_matches_the_actual_error_and_survives_a_save(tmp_
         preds.append(np.concatenate([res.u_std[ok], res.v_std[ok]]))
     rms = lambda a: np.sqrt(np.mean(np.concatenate(a) ** 2))  # noqa: E731
     ratio = rms(errs) / rms(preds)
-    # a wrong model (e.g. noise of one image only, or no noise at all) is off by >= 1.4x
-    assert 0.75 < ratio < 1.35, ratio
+    # a wrong model (e.g. noise of one image only, or no noise at all) is off by >= 1.4x;
+    # the previous model (uncorrected residual, 2 x 2 matrix) was 1.2-1.3x low here, the
+    # model of dic.quality is within the 20 % of issue 12 (measured 0.96)
+    assert 0.8 < ratio < 1.2, ratio
     back = load_result(res.save(tmp_path / "r.npz"))
     np.testing.assert_array_equal(back.u_std, res.u_std)
     np.testing.assert_array_equal(back.v_std, res.v_std)

@@ -186,12 +186,34 @@ def test_widget_in_each_language_at_1280x720(make_napari_viewer, qtbot, tmp_path
     area = w.scroll_area
     assert area.widget().width() <= area.viewport().width()  # nothing cut at the right
     bad = _cut_off(w.native)
+    save_screenshot(viewer, tmp_path / f"widget_{code}_1280x720_top.png")
     area.ensureWidgetVisible(w.language.native)  # the selector in the screenshot
     qtbot.wait(100)
     shot = tmp_path / f"widget_{code}_1280x720.png"
     save_screenshot(viewer, shot)
     assert 10_000 < shot.stat().st_size < 800_000
     assert not bad, f"{code}: text cut off (screenshot {shot}):\n  " + "\n  ".join(bad)
+
+
+def test_the_check_sees_a_cut_off_label_and_button(qtbot):
+    from qtpy.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
+
+    root = QWidget()
+    qtbot.addWidget(root)
+    layout = QVBoxLayout(root)
+    label, button = QLabel("Verschiebungsvektoren anzeigen"), QPushButton("Parameter laden…")
+    fits = QLabel("ok")
+    for w in (label, button, fits):
+        layout.addWidget(w)
+    root.show()
+    root.resize(400, 200)
+    qtbot.wait(50)
+    assert _cut_off(root) == []
+    label.setFixedWidth(40)
+    button.setFixedWidth(30)
+    qtbot.wait(50)
+    bad = _cut_off(root)
+    assert len(bad) == 2 and "Verschiebung" in bad[0] and "Parameter" in bad[1]
 
 
 def test_language_selector_is_remembered(make_napari_viewer, qtbot, monkeypatch):
@@ -217,6 +239,26 @@ def test_language_selector_is_remembered(make_napari_viewer, qtbot, monkeypatch)
         assert i18n.current_language() == "fr"
     finally:
         i18n.set_language("en")
+
+
+def test_qt_locale_is_the_fallback_without_environment(qapp, monkeypatch):
+    """No LANGUAGE/LC_*/LANG (Windows, macOS): Qt's QLocale default decides."""
+    from qtpy.QtCore import QLocale
+
+    from napari_aldic._qt.language import ui_language
+
+    for var in (i18n.ENV_VAR, "LANGUAGE", "LC_ALL", "LC_MESSAGES", "LANG"):
+        monkeypatch.delenv(var, raising=False)
+    before = QLocale()
+    try:
+        QLocale.setDefault(QLocale("zh_HK"))
+        assert ui_language() == "zh_TW"
+        QLocale.setDefault(QLocale("pt_BR"))
+        assert ui_language() == "en"
+        monkeypatch.setenv("LANG", "es_MX.UTF-8")  # the environment comes first
+        assert ui_language() == "es"
+    finally:
+        QLocale.setDefault(before)
 
 
 def test_fonts_for_chinese_japanese_korean(qapp):

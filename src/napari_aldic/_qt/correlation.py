@@ -85,13 +85,12 @@ class CorrelationPanel(Panel):
                                       max=10000.0, step=0.5, enabled=False,
                                       tooltip=tr("Displacement waves shorter than ~2 pi x this "
                                               "length are damped (fixed smoothing only)."))
-        self.shape = ComboBox(label=tr("Subset shape"), value="affine",
-                              choices=[(tr("affine"), "affine"), (tr("quadratic"), "quadratic")],
-                              tooltip=tr("affine: subsets stretch, shear and rotate. quadratic: "
-                                         "they may also bend, which keeps displacement "
-                                         "detail finer than a subset (a little more noise, "
-                                         "slower). With AL-DIC it shapes the first local "
-                                         "step."))
+        self.shape_function = ComboBox(
+            label=tr("Subset shape"), value="affine",
+            choices=[(tr("affine"), "affine"), (tr("quadratic"), "quadratic")],
+            tooltip=tr("affine: subsets stretch, shear and rotate. quadratic: they may also "
+                       "bend, which keeps displacement detail finer than a subset (more "
+                       "noise, slower). With AL-DIC it shapes the first local step."))
         self.init = ComboBox(label=tr("Initial guess"), value="fft",
                              choices=[(tr("FFT cross-correlation"), "fft"),
                                       (tr("Seed points"), "seeds")],
@@ -99,8 +98,8 @@ class CorrelationPanel(Panel):
                                      "points of the seeds layer (large or uneven motion)."))
         self._setup_tracking_ui()
         self.extend([self.method, self.subset, self.step, self.target_noise, self.advise,
-                     self.search,
-                     self.refine, self.shape, self.smooth, self.smooth_px, self.init, self.reference,
+                     self.search, self.refine, self.shape_function,
+                     self.smooth, self.smooth_px, self.init, self.reference,
                      self.start, self.stop, self.stride])
 
     def _setup_tracking_ui(self) -> None:
@@ -118,8 +117,8 @@ class CorrelationPanel(Panel):
                               tooltip=tr("Analyse every n-th frame of the range."))
 
     def _setup_callbacks(self) -> None:
-        for w in (self.method, self.subset, self.step, self.search, self.refine, self.shape,
-                  self.init,
+        for w in (self.method, self.subset, self.step, self.search, self.refine,
+                  self.shape_function, self.init,
                   self.smooth, self.smooth_px, self.reference, self.start, self.stop,
                   self.stride):
             w.changed.connect(self.settings_changed.emit)
@@ -173,7 +172,7 @@ class CorrelationPanel(Panel):
             "step": int(self.step.value), "search": int(self.search.value),
             "refine": None if self.refine.value == "none" else self.refine.value,
             "smooth": self.smooth_value, "init": init or self.init.value, "seeds": seeds,
-            "shape_function": self.shape.value})
+            "shape_function": self.shape_function.value})
 
     def summary(self) -> str:
         """The settings in words (for the log)."""
@@ -197,7 +196,7 @@ class CorrelationPanel(Panel):
         put(plan, self.search, params.search, "search")
         put(plan, self.refine, params.refine or "none", "refinement")
         put(plan, self.init, params.init, tr("initial guess"))
-        put(plan, self.shape, params.shape_function, tr("subset shape"))
+        put(plan, self.shape_function, params.shape_function, tr("subset shape"))
         if params.smooth == "auto":
             put(plan, self.smooth, "auto", tr("AL-DIC smoothing"))
         elif params.smooth == 0:

@@ -46,7 +46,7 @@ __all__ = ["DICWidget", "SECTIONS"]
 CONTROLS = {
     "inputs": ("image", "roi_add", "roi_subtract", "roi_labels", "brush", "seeds"),
     "correlation": ("method", "subset", "step", "search", "refine", "smooth", "smooth_px",
-                    "init", "reference", "start", "stop", "stride"),
+                    "shape_function", "init", "reference", "start", "stop", "stride"),
     "strain_panel": ("strain_window", "strain_method", "strain_measure"),
     "units": ("pixel_size", "unit", "frame_interval", "time_unit"),
     "display": ("show_field", "vectors", "vector_length", "mesh", "deformed", "rigid"),

@@ -63,11 +63,31 @@ TEXTS = {
 }
 
 
+class _Formatter(argparse.HelpFormatter):
+    """argparse's help layout with the translated "usage:" heading."""
+
+    def add_usage(self, usage, actions, groups, prefix=None):
+        return super().add_usage(usage, actions, groups,
+                                 tr("usage:") + " " if prefix is None else prefix)
+
+
+def _translate_headings(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """argparse's own texts in the help (its titles and the -h line) through ``tr``."""
+    parser._positionals.title = tr("positional arguments")
+    parser._optionals.title = tr("options")
+    for action in parser._actions:
+        if action.option_strings == ["-h", "--help"]:
+            action.help = tr("show this help message and exit")
+    return parser
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``napari-aldic``."""
-    parser = argparse.ArgumentParser(
-        prog=PROG, description=tr("2-D digital image correlation (napari-aldic engine)."))
-    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    parser = _translate_headings(argparse.ArgumentParser(
+        prog=PROG, description=tr("2-D digital image correlation (napari-aldic engine)."),
+        formatter_class=_Formatter))
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}",
+                        help=tr("show the program's version number and exit"))
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     add_demo(sub)
     add_run(sub)
@@ -83,7 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _command(sub, name: str) -> argparse.ArgumentParser:
     """The parser of command ``name`` (texts from ``TEXTS``)."""
     help_line, description = TEXTS[name]
-    return sub.add_parser(name, help=tr(help_line), description=tr(description))
+    return _translate_headings(sub.add_parser(name, help=tr(help_line),
+                                              description=tr(description),
+                                              formatter_class=_Formatter))
 
 
 def add_demo(sub) -> None:

@@ -26,7 +26,14 @@ from ..core.params import DICParams
 from ..core.reasons import Reason
 from .icgn import icgn_solve
 from .init_guess import ncc_search_widening
-from .interpolation import SplineImage, choose_order, prefilter, reference_gradients
+from .interpolation import (
+    SplineImage,
+    choose_order,
+    prefilter,
+    reference_gradients,
+    steepest_descent_gradients,
+)
+from .reliability import subset_statistics
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
 from .reliability import Validity
@@ -48,13 +55,17 @@ ANCHOR_MIN = 4
 @dataclass
 class Images:
     """The pair as the kernels need it: reference values and spline
-    gradients, and the deformed image's B-spline coefficients."""
+    gradients, the deformed image's B-spline coefficients, and the
+    gradients of Local IC-GN's steepest-descent images (``jgx, jgy``:
+    :func:`~.interpolation.steepest_descent_gradients`; None: ``fgx, fgy``)."""
 
     f: np.ndarray
     g: np.ndarray
     fgx: np.ndarray
     fgy: np.ndarray
     g_spline: SplineImage
+    jgx: np.ndarray | None = None
+    jgy: np.ndarray | None = None
 
 
 def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
@@ -62,7 +73,8 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
     (``interpolation="auto"`` picks the order from the speckle size)."""
     order = choose_order(interpolation, f)
     fgx, fgy = reference_gradients(prefilter(f, order))
-    return Images(f, g, fgx, fgy, prefilter(g, order))
+    jgx, jgy = steepest_descent_gradients(f, order)
+    return Images(f, g, fgx, fgy, prefilter(g, order), jgx, jgy)
 
 
 class _State:
@@ -85,6 +97,7 @@ class _State:
         self.searched = np.zeros(n, bool)  # own NCC search done
         self.rotation_tried = False
         self._nbrs5 = None
+        self._stats_scratch = np.empty((n, 5))
         # diagnostics (in ``meta["timing"]``): matched anchors; nodes the
         # repair stage had to retry, and those it searched on their own
         self.counts = {"anchors": 0, "rescue_nodes": 0, "rescue_searches": 0}
@@ -101,10 +114,22 @@ class _State:
         with those nodes updated."""
         out = (self.p.copy(), self.zncc.copy(), self.iters.copy(), self.reason.copy())
         im, g, prm = self.im, self.grid, self.params
-        return icgn_solve(im.f, im.fgx, im.fgy, im.g_spline, g.x, g.y, p_init, active,
-                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
-                          out=out, stats=self.validity.stats.table,
-                          shape=prm.shape_function)
+        jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
+        res = icgn_solve(im.f, jgx, jgy, im.g_spline, g.x, g.y, p_init, active,
+                         self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
+                         out=out, stats=self._stats_scratch, shape=prm.shape_function)
+        self._fill_stats(active)
+        return res
+
+    def _fill_stats(self, active: np.ndarray) -> None:
+        """The validity tests' subset statistics of the ``active`` nodes, from
+        the unsmoothed gradients (the noise model's), once per node."""
+        table = self.validity.stats.table
+        todo = np.nonzero(active & np.isnan(table[:, 0]))[0]
+        if todo.size:
+            im, g, sub = self.im, self.grid, self.sub
+            table[todo] = subset_statistics(im.f, im.fgx, im.fgy, g.x[todo], g.y[todo],
+                                            sub.slot[todo], sub.masks, self.params.half).table
 
     def store(self, res, nodes: np.ndarray) -> None:
         rp, rz, ri, rr = res

@@ -58,39 +58,64 @@ _CHUNK = 4096  # nodes per batch of small matrix inversions
 
 
 class _BoxSums:
-    """Sums of an image over the square windows of half-width ``half``
-    centred on nodes, by summed-area tables (one O(image) pass per image)."""
+    """Weighted sums of an image over the square windows of half-width
+    ``half`` centred on nodes: ``Σ a x^p y^q`` (image-centred coordinates).
+
+    Separable: one cumulative sum along the rows per column weight ``x^p``
+    gives the column-window sums at the distinct node columns only (a
+    contiguous pass, the fast direction), and a cumulative sum down those few
+    columns per row weight ``y^q`` the window sums."""
 
     def __init__(self, shape, x, y, half: int):
         h, w = shape
-        self.y0 = np.clip(np.asarray(y, np.int64) - half, 0, h)
-        self.y1 = np.clip(np.asarray(y, np.int64) + half + 1, 0, h)
-        self.x0 = np.clip(np.asarray(x, np.int64) - half, 0, w)
-        self.x1 = np.clip(np.asarray(x, np.int64) + half + 1, 0, w)
+        self.cx, self.cy = (w - 1) / 2.0, (h - 1) / 2.0
+        cols, self.col_of = np.unique(np.asarray(x, np.int64), return_inverse=True)
+        self.c0 = np.clip(cols - half, 0, w)
+        self.c1 = np.clip(cols + half + 1, 0, w)
+        self.r0 = np.clip(np.asarray(y, np.int64) - half, 0, h)
+        self.r1 = np.clip(np.asarray(y, np.int64) + half + 1, 0, h)
+        self.xs = np.arange(w) - self.cx
+        self.ys = np.arange(h) - self.cy
+
+    def moments(self, a: np.ndarray, order: int) -> dict:
+        """``{(p, q): Σ a x^p y^q}`` per node window, ``p + q <= order``."""
+        out = {}
+        cs = np.zeros((a.shape[0], a.shape[1] + 1))
+        for p in range(order + 1):
+            np.cumsum(a * self.xs**p if p else a, axis=1, out=cs[:, 1:])
+            band = cs[:, self.c1] - cs[:, self.c0]  # (H, distinct columns)
+            cb = np.zeros((band.shape[0] + 1, band.shape[1]))
+            for q in range(order + 1 - p):
+                np.cumsum(band * self.ys[:, None] ** q if q else band, axis=0, out=cb[1:])
+                out[p, q] = cb[self.r1, self.col_of] - cb[self.r0, self.col_of]
+        return out
+
+    def ones_moments(self, order: int) -> dict:
+        """:meth:`moments` of an image of ones (no ROI), from 1-D sums."""
+        cy = np.zeros(self.ys.size + 1)
+        cx = np.zeros(self.xs.size + 1)
+        out = {}
+        for p in range(order + 1):
+            cx[1:] = np.cumsum(self.xs**p)
+            cols = (cx[self.c1] - cx[self.c0])[self.col_of]
+            for q in range(order + 1 - p):
+                cy[1:] = np.cumsum(self.ys**q)
+                out[p, q] = cols * (cy[self.r1] - cy[self.r0])
+        return out
 
     def __call__(self, a: np.ndarray) -> np.ndarray:
-        ii = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
-        np.cumsum(np.cumsum(a, axis=0, dtype=np.float64), axis=1, out=ii[1:, 1:])
-        return (ii[self.y1, self.x1] - ii[self.y0, self.x1] - ii[self.y1, self.x0]
-                + ii[self.y0, self.x0])
+        return self.moments(a, 0)[0, 0]
 
 
-def _centred_moments(box: _BoxSums, a: np.ndarray, x, y, order: int) -> dict:
-    """``{(p, q): Σ a (X - x)^p (Y - y)^q}`` over each node's window, p + q <= order.
+def _centred_moments(box: _BoxSums, a: np.ndarray | None, x, y, order: int) -> dict:
+    """``{(p, q): Σ a (X - x)^p (Y - y)^q}`` over each node's window, p + q <= order
+    (``a=None``: an image of ones).
 
     Raw moments of the image-centred coordinates are summed once per
     monomial and shifted to each node by the binomial expansion."""
-    ny, nx = a.shape
-    cx, cy = (nx - 1) / 2.0, (ny - 1) / 2.0
-    yy, xx = np.mgrid[0:ny, 0:nx]
-    xx = xx - cx
-    yy = yy - cy
-    raw = {}
-    for p in range(order + 1):
-        for q in range(order + 1 - p):
-            raw[p, q] = box(a * xx**p * yy**q) if (p or q) else box(a)
-    dx = np.asarray(x, float) - cx
-    dy = np.asarray(y, float) - cy
+    raw = box.ones_moments(order) if a is None else box.moments(a, order)
+    dx = np.asarray(x, float) - box.cx
+    dy = np.asarray(y, float) - box.cy
     out = {}
     for (p, q) in raw:
         m = np.zeros(dx.shape)
@@ -180,21 +205,23 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
     if shape_function not in SHAPE_TERMS:
         raise ValueError(f"shape_function must be one of {sorted(SHAPE_TERMS)}, "
                          f"got {shape_function!r}")
-    mask = np.ones(img.shape) if roi is None else np.asarray(roi, bool).astype(np.float64)
+    whole = roi is None or bool(np.all(roi))
+    mask = None if whole else np.asarray(roi, bool).astype(np.float64)
     if gradients is None:
         gx, gy, gain = _gradients(img, order)
     else:
         gx, gy = (np.asarray(a, np.float64) for a in gradients)
         gain = gradient_noise_gain(order)
-    gx = gx * mask
-    gy = gy * mask
+    if mask is not None:
+        gx = gx * mask
+        gy = gy * mask
     box = _BoxSums(img.shape, x, y, subset // 2)
     terms = SHAPE_TERMS[shape_function]
     deg = 2 * max(p + q for p, q in terms)
     mxx = _centred_moments(box, gx * gx, x, y, deg)
     mxy = _centred_moments(box, gx * gy, x, y, deg)
     myy = _centred_moments(box, gy * gy, x, y, deg)
-    mm = _centred_moments(box, mask, x, y, deg)
+    mm = _centred_moments(box, mask, x, y, deg)  # pixel counts and their moments
     k = len(terms)
     hess = np.zeros((mm[0, 0].size, 2 * k, 2 * k))
     hess[:, :k, :k] = _block(mxx, terms)
@@ -204,7 +231,8 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
     noise = np.zeros_like(hess)
     noise[:, :k, :k] = noise[:, k:, k:] = gain * _block(mm, terms)
     m = mm[0, 0]
-    s1, s2 = box(img * mask), box(img * img * mask)
+    masked = img if mask is None else img * mask
+    s1, s2 = box(masked), box(masked * img)
     with np.errstate(invalid="ignore", divide="ignore"):
         mig = box(np.hypot(gx, gy)) / m
         var_f = np.maximum(s2 / m - (s1 / m) ** 2, 0.0)

@@ -69,6 +69,8 @@ ADAPTIVE_WINDOW = 1.0
 # term of the risk) is estimated from the curvature smoothed over this
 # fraction of the subset half-width (as the warp's, admm.CURVATURE_SMOOTHING)
 BIAS_SMOOTHING = 0.5
+# with the warp, never smooth a node more than the affine-subset risk would
+WARP_LENGTH_CAP = True
 # fixed-point steps of that deconvolution (the warp's ADMM iterations run a few)
 DECONVOLUTION_STEPS = 3
 
@@ -212,7 +214,7 @@ class SmoothingChoice:
 def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
                      noise_var: np.ndarray, step: float, subset: int,
                      candidates=SMOOTH_CANDIDATES, curv_length: float | None = None,
-                     adaptive: bool = True, window: float = ADAPTIVE_WINDOW) -> SmoothingChoice:
+                     adaptive: bool = True, window: float | None = None) -> SmoothingChoice:
     """Smoothing length(s) (and use of the second-order warp) of least estimated risk.
 
     Parameters
@@ -230,7 +232,7 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
         from the smoothed local field minus its noise share).
     adaptive : also choose a length per node, from the risk averaged over a
         Gaussian window of ``window`` subset widths around it
-        (``node_smooth_px``): fine detail in one region no longer makes the
+        (default ``ADAPTIVE_WINDOW``; ``node_smooth_px``): fine detail in one region no longer makes the
         whole field smoother, nor smooth regions the detail.
 
     Returns
@@ -240,6 +242,7 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     keep = trusted & np.isfinite(noise_var).all(axis=1)
     if mesh.n_elements == 0 or keep.sum() < 16:
         return SmoothingChoice(0.0, curv_length is not None)
+    window = ADAPTIVE_WINDOW if window is None else window
     lengths = [float(c) * subset for c in candidates]
     plain, warp, gain_nodes = _node_risks(mesh, u, v, keep, noise_var, step, subset, lengths,
                                           curv_length)
@@ -258,7 +261,7 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
         # the warp is used everywhere or nowhere (its mean risk decides); the
         # length varies: each node takes the least risk over its window
         choice.node_smooth_px = _adaptive_lengths(mesh, plain, step, window * subset, lengths, i)
-        if choice.second_order:
+        if choice.second_order and WARP_LENGTH_CAP:
             # the warp's risk assumes its deconvolution works; where noise makes
             # the shrinkage fade it, it does not: never smooth more than the
             # affine-subset risk (which assumes no deconvolution) would

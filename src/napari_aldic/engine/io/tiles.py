@@ -63,7 +63,7 @@ class PixelSize:
         if name not in _UNITS or not (math.isfinite(value) and value > 0):
             return None
         metres = value * _UNITS[name]
-        if name in ("m", "cm") or metres < 1e-6:  # SEM tags are in metres
+        if name in ("m", "cm"):  # SEM tags are in metres: say nm or um
             name = "nm" if metres < 1e-6 else ("um" if metres < 1e-3 else "mm")
             value = metres / _UNITS[name]
         return cls(float(f"{value:.12g}"), name, source)

@@ -160,8 +160,8 @@ def compose_quadratic(p, d):
     d : (12,) float64
         ``H^-1 b``, minus the Gauss-Newton increment.
     """
-    a0, a1, a2, b0, b1, b2, a3, a4, a5, b3, b4, b5 = (
-        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11])
+    a1, a2, b1, b2, a3, a4, a5, b3, b4, b5 = (
+        p[1], p[2], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11])
     d0, d1, d2, e0, e1, e2, d3, d4, d5, e3, e4, e5 = (
         d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7], d[8], d[9], d[10], d[11])
     for c in range(2):

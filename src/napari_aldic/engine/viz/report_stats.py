@@ -101,7 +101,7 @@ def quality_rows(fr, units) -> list[list[str]]:
     stats = frame_statistics(fr, names, units)
     for n in names:
         if stats[n][4]:
-            label = f"{n} ({units.unit}, predicted)" if n.endswith("_std") else "SSSIG (GL²)"
+            label = f"{n} ({units.unit})" if n.endswith("_std") else "SSSIG (GL²)"
             rows.append([label] + [f"{v:.4g}" for v in stats[n][:4]] + [str(stats[n][4])])
     nf = fr.result.meta.get("noise_floor")
     if nf:

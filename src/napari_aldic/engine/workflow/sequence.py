@@ -39,6 +39,7 @@ from ..core.progress import Cancelled
 from ..core.reasons import Reason
 from ..core.results import DICResult, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
+from ..dic.roi_warp import carry_roi
 from ..io.stack import frame_numbers, open_stack
 from ..io.zarrstore import FieldStore
 from .cluster import run_parallel
@@ -100,8 +101,6 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
     miss = base.valid & ~np.all([np.isfinite(v) for v in vals.values()], axis=0)
     inside = ((xd >= inc.grid_xs[0]) & (xd <= inc.grid_xs[-1])
               & (yd >= inc.grid_ys[0]) & (yd <= inc.grid_ys[-1]))
-    gone = _subset_left(inc, xd, yd)
-    miss &= ~gone
     good = np.nonzero(inc.valid)[0]
     step = float(inc.params.step)
     if miss.any() and good.size:
@@ -120,13 +119,15 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
         idx = np.nonzero(miss)[0][hit]
         for n in names:
             vals[n][idx] = fill[n][hit]
-    ok = base.valid & np.all([np.isfinite(v) for v in vals.values()], axis=0)
-    out.u = np.where(ok, base.u + vals["u"], np.nan)
-    out.v = np.where(ok, base.v + vals["v"], np.nan)
     # F_0k = (I + H_rk(x)) (I + H_0r(X)) - I
     A = np.stack([[1 + vals["dudx"], vals["dudy"]], [vals["dvdx"], 1 + vals["dvdy"]]])
     B = np.stack([[1 + base.dudx, base.dudy], [base.dvdx, 1 + base.dvdy]])
     C = np.einsum("ijn,jkn->ikn", A, B)
+    uk, vk = base.u + vals["u"], base.v + vals["v"]
+    # as in accumulative tracking, a subset that left frame k is not measured
+    gone = _subset_left(inc, base.x, base.y, uk, vk, C - np.eye(2)[:, :, None])
+    ok = base.valid & np.all([np.isfinite(v) for v in vals.values()], axis=0) & ~gone
+    out.u, out.v = np.where(ok, uk, np.nan), np.where(ok, vk, np.nan)
     out.dudx, out.dudy = C[0, 0] - 1, C[0, 1]
     out.dvdx, out.dvdy = C[1, 0], C[1, 1] - 1
     out.zncc = vals["zncc"]
@@ -140,19 +141,28 @@ def _compose(base: DICResult, inc: DICResult) -> DICResult:
         # a trusted nearest node that could not be used (too far): its
         # material is not covered by the increment's lattice
         why = np.where(why == Reason.OK, Reason.NO_INITIAL_GUESS, why)
-        out.reason[dropped] = np.where(gone[dropped], Reason.OUT_OF_IMAGE, why)
+        # without an increment, judge by the subset's place in frame k-1
+        left = gone[dropped] | _subset_left(inc, xd[dropped], yd[dropped], 0.0, 0.0,
+                                             np.zeros((2, 2, 1)))
+        out.reason[dropped] = np.where(left, Reason.OUT_OF_IMAGE, why)
     out.meta = {**inc.meta}
     return out
 
 
-def _subset_left(inc: DICResult, xd: np.ndarray, yd: np.ndarray) -> np.ndarray:
-    """Whether the subset around each displaced point leaves ``inc``'s image
-    (or the point is not finite)."""
+def _subset_left(inc: DICResult, x, y, u, v, grad) -> np.ndarray:
+    """Whether a corner of the subset at ``(x, y)``, warped by ``u, v`` and
+    the displacement gradient ``grad`` (2, 2, n), leaves ``inc``'s image
+    (False where the warp is not known)."""
     rows, cols = inc.image_shape
     h = inc.params.half
+    out = np.zeros(np.shape(x), bool)
     with np.errstate(invalid="ignore"):
-        inside = (xd - h >= 0) & (xd + h <= cols - 1) & (yd - h >= 0) & (yd + h <= rows - 1)
-    return ~inside
+        for dx in (-h, h):
+            for dy in (-h, h):
+                xc = x + dx + u + grad[0, 0] * dx + grad[0, 1] * dy
+                yc = y + dy + v + grad[1, 0] * dx + grad[1, 1] * dy
+                out |= (xc < 0) | (xc > cols - 1) | (yc < 0) | (yc > rows - 1)
+    return out
 
 
 class TrackError(ValueError):
@@ -277,6 +287,7 @@ class _SequenceRun:
         self._pos = {k: i for i, k in enumerate(self.idx)}
         self._whole = None  # the one ROI array of a run without per-frame ROIs
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
+        self._carried: tuple = (None, None)  # (frame, frame 0's ROI carried onto it)
 
     # ------------------------------------------------------------ inputs
     def roi_for(self, k: int) -> np.ndarray:
@@ -288,6 +299,21 @@ class _SequenceRun:
                 self._whole = validate_roi(self.roi, shape)
             return self._whole
         return validate_roi(self.rois(k) if callable(self.rois) else self.rois[k], shape)
+
+    def roi_on(self, r: int) -> np.ndarray:
+        """ROI of reference frame ``r`` on its own image: the given per-frame
+        ROI, or frame 0's carried along the motion measured up to ``r``
+        (material near a notch has moved; frame 0's mask would cut subsets
+        where the notch was)."""
+        roi = self.roi_for(r)
+        if r == 0 or self.rois is not None:
+            return roi
+        if self._carried[0] != r:
+            base = self.results[self._pos[r]]
+            if base is _ON_DISK:
+                base = self.load_frame(self._pos[r])
+            self._carried = (r, carry_roi(roi, base))
+        return self._carried[1]
 
     def _digest(self, mask: np.ndarray) -> str:
         got = self._roi_refs.get(id(mask))
@@ -474,7 +500,7 @@ class _SequenceRun:
             try:  # cancel also stops promptly inside a frame
                 if r != ref_k:
                     ref_k, ref_img, prev_inc = r, self.src[r], None
-                inc = correlate(ref_img, self.src[k], roi=self.roi_for(r), params=self.params,
+                inc = correlate(ref_img, self.src[k], roi=self.roi_on(r), params=self.params,
                                 guess=prev_inc, refine=self.refine, cancel=cancel,
                                 solver_cache=solvers)
             except Cancelled:

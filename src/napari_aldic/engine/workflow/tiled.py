@@ -64,10 +64,14 @@ DEFAULT_TILE = 2048
 NODE_HALO = 4
 #: pixels the B-spline prefilter needs beyond the sampled area
 PREFILTER_MARGIN = 48
-#: the per-node arrays of a result written block by block
+#: the per-node arrays of a result written block by block (optional
+#: DICResult fields that a block may leave None are NaN)
 _FIELDS = {"u": np.float64, "v": np.float64, "dudx": np.float64, "dudy": np.float64,
-           "dvdx": np.float64, "dvdy": np.float64, "zncc": np.float64, "u_std": np.float64,
-           "v_std": np.float64, "reason": np.int8, "iterations": np.int32, "present": bool}
+           "dvdx": np.float64, "dvdy": np.float64, "zncc": np.float64,
+           "reason": np.int8, "iterations": np.int32, "present": bool}
+_OPTIONAL = tuple(k for k in ("u_std", "v_std", "sssig", "mig")
+                  if k in DICResult.__dataclass_fields__)
+_FIELDS.update({k: np.float64 for k in _OPTIONAL})
 
 
 def needs_tiling(shape, threshold: int = AUTO_TILE_PIXELS) -> bool:
@@ -168,7 +172,8 @@ def _block(ref, dfm, roi, plan: _Plan, bounds, params: DICParams, guess):
     ix = (res.x.astype(np.int64) + c0 - plan.xs[0]) // plan.step
     iy = (res.y.astype(np.int64) + r0 - plan.ys[0]) // plan.step
     own = (ix >= ix0) & (ix < ix1) & (iy >= iy0) & (iy < iy1)
-    fields = {k: getattr(res, k)[own] for k in _FIELDS if k != "present"}
+    fields = {k: (np.full(int(own.sum()), np.nan) if getattr(res, k) is None
+                  else getattr(res, k)[own]) for k in _FIELDS if k != "present"}
     return iy[own], ix[own], fields, res.meta
 
 
@@ -182,9 +187,8 @@ def _failed_block(plan: _Plan, bounds, band, r0, c0):
     gy, gx = gy[inside], gx[inside]
     n = gy.size
     fields = {k: np.zeros(n, dt) for k, dt in _FIELDS.items() if k != "present"}
-    fields["zncc"][:] = np.nan
-    fields["u_std"][:] = np.nan
-    fields["v_std"][:] = np.nan
+    for k in ("zncc",) + _OPTIONAL:
+        fields[k][:] = np.nan
     fields["reason"][:] = Reason.NO_TEXTURE
     return gy, gx, fields, {}
 

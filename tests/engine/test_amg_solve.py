@@ -1,0 +1,81 @@
+"""The AL-DIC global step on large meshes: AMG-preconditioned CG.
+
+The threshold that switches from the SuperLU factor to AMG-CG is lowered so
+that a small mesh (fast) takes the large-mesh path.
+"""
+
+import numpy as np
+import pytest
+
+from napari_aldic.engine import correlate, synthetic as S
+from napari_aldic.engine.dic import global_solve
+from napari_aldic.engine.dic.global_solve import GlobalSolver, Q4Mesh, solver_method
+
+
+def _lattice(n: int, step: float = 16.0) -> Q4Mesh:
+    iy, ix = np.mgrid[0:n, 0:n]
+    idx = iy * n + ix
+    e = np.column_stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(),
+                         idx[1:, 1:].ravel(), idx[1:, :-1].ravel()])
+    return Q4Mesh(ix.ravel() * step, iy.ravel() * step, e.astype(np.int64))
+
+
+def _admm_like_solves(solver, mesh, rng):
+    N = mesh.n_nodes
+    u = 0.4 * np.sin(mesh.x / 300.0) + 0.02 * rng.standard_normal(N)
+    v = 0.2 * np.cos(mesh.y / 250.0) + 0.02 * rng.standard_normal(N)
+    F = solver.gradients(u, v) + 1e-3 * rng.standard_normal((N, 4))
+    W = 1e-4 * rng.standard_normal((N, 4))
+    z = np.zeros(N)
+    return [solver.solve(F, W, u + 0.01 * k, v, z, z) for k in range(3)]
+
+
+@pytest.mark.parametrize("adaptive", [False, True])
+def test_amg_cg_equals_the_direct_solve(monkeypatch, adaptive):
+    monkeypatch.setattr(global_solve, "DIRECT_MAX_UNKNOWNS", 1000)
+    mesh = _lattice(70)  # 4,900 unknowns per component: above the lowered threshold
+    rng = np.random.default_rng(1)
+    trusted = rng.random(mesh.n_nodes) > 0.03
+    kappa = (rng.choice([0.0, 4.0, 8.0], mesh.n_nodes) ** 4 if adaptive else 8.0**4)
+    kw = dict(beta=0.3, mu=1.0, weights=trusted, curvature=kappa)
+    direct = GlobalSolver(mesh, method="direct", **kw)
+    auto = GlobalSolver(mesh, **kw)
+    assert direct.method == "direct" and auto.method == "amg"
+    built = []
+    import pyamg
+
+    real = pyamg.smoothed_aggregation_solver
+    monkeypatch.setattr(pyamg, "smoothed_aggregation_solver",
+                        lambda *a, **k: built.append(1) or real(*a, **k))
+    amg = GlobalSolver(mesh, method="amg", **kw)
+    a = _admm_like_solves(direct, mesh, np.random.default_rng(2))
+    b = _admm_like_solves(amg, mesh, np.random.default_rng(2))
+    for (ua, va), (ub, vb) in zip(a, b):
+        scale = np.abs(ua).max()
+        assert np.abs(ua - ub).max() < 1e-5 * scale
+        assert np.abs(va - vb).max() < 1e-5 * scale
+    # one hierarchy for all solves with this matrix, and few CG iterations
+    assert built == [1]
+    its = amg.system.iterations
+    assert len(its) == 6 and max(its) < 60, its
+    assert amg.system.factor_nnz == 0 and direct.system.factor_nnz > mesh.n_nodes
+
+
+def test_solver_choice_by_size_and_bad_names():
+    assert solver_method(10, "auto") == "direct"
+    assert solver_method(global_solve.DIRECT_MAX_UNKNOWNS + 1) == "amg"
+    assert solver_method(10, "jacobi") == "jacobi"
+    with pytest.raises(ValueError, match="solver method 'lu'"):
+        solver_method(10, "lu")
+
+
+def test_aldic_through_the_amg_path_matches_the_direct_path(monkeypatch):
+    field = S.Sinusoid(0.4, 0.3, wavelength=200.0)
+    ref, dfm = S.speckle_pair((160, 160), field, noise=4.0, seed=4, n_quad=3)
+    direct = correlate(ref, dfm, subset=21, step=6, method="aldic")
+    monkeypatch.setattr(global_solve, "DIRECT_MAX_UNKNOWNS", 100)
+    amg = correlate(ref, dfm, subset=21, step=6, method="aldic")
+    both = direct.valid & amg.valid
+    assert both.mean() > 0.95
+    assert np.abs(direct.u - amg.u)[both].max() < 1e-3
+    assert np.abs(direct.v - amg.v)[both].max() < 1e-3
