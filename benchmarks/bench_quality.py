@@ -97,16 +97,26 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--cost", action="store_true", help="only the cost line")
+    ap.add_argument("--advice", action="store_true", help="only the advice table")
     a = ap.parse_args()
     n = 10 if a.quick else 30
     if a.cost:
         t_adv, t_q, t_tot = cost()
         print(f"advise {t_adv:.2f} CPU s; quality {t_q:.3f} s of {t_tot:.3f} s")
         return
+    if not a.advice:
+        uncertainty_table(n, a.quick)
+    advice_table()
+    t_adv, t_q, t_tot = cost()
+    print(f"\nadvise_subset on 1024²: {t_adv:.2f} CPU s; correlate 1024² (subset 31, step 8, "
+          f"one thread): quality fields {t_q:.3f} s of {t_tot:.3f} s ({100 * t_q / t_tot:.0f} %)")
+
+
+def uncertainty_table(n: int, quick: bool) -> None:
     print("| method | shift (px) | noise (GL) | subset | actual std (px) | new/actual | "
           "old/actual | u_std / actual global | nodes |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    shifts = [(2.3, -1.4)] if a.quick else [(2.3, -1.4), (2.5, -1.5), (2.0, -1.0)]
+    shifts = [(2.3, -1.4)] if quick else [(2.3, -1.4), (2.5, -1.5), (2.0, -1.0)]
     for method in ("local", "aldic"):
         for shift in (shifts if method == "local" else shifts[:1]):
             for noise in (2.0, 5.0, 10.0):
@@ -116,6 +126,9 @@ def main():
                           f"{r['new']:.3f} | {r['old']:.3f} | {r['new_vs_global']:.3f} | "
                           f"{r['nodes']} |", flush=True)
     print()
+
+
+def advice_table() -> None:
     print("| noise (GL) | target (px) | advised subset | predicted median (px) | "
           "measured std (px) | measured/target |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -127,9 +140,6 @@ def main():
                 continue
             print(f"| {noise:g} | {target:g} | {r['subset']} | {r['predicted_median_px']:.4f} | "
                   f"{r['measured_px']:.4f} | {r['measured_px'] / target:.2f} |", flush=True)
-    t_adv, t_q, t_tot = cost()
-    print(f"\nadvise_subset on 1024²: {t_adv:.2f} CPU s; correlate 1024² (subset 31, step 8, "
-          f"one thread): quality fields {t_q:.3f} s of {t_tot:.3f} s ({100 * t_q / t_tot:.0f} %)")
 
 
 if __name__ == "__main__":

@@ -148,3 +148,30 @@ def test_noise_floor_of_a_static_pair_removes_drift_and_measures_the_scatter():
     predicted = np.median(res.u_std[res.valid])
     assert noisy["u_std_px"] == pytest.approx(predicted, rel=0.3)
     assert noisy["exx_std"] > 5 * nf["exx_std"]
+
+
+def test_filter_gains_are_the_noise_statistics_of_the_gradients():
+    from napari_aldic.engine.dic.quality import filter_gains
+
+    rng = np.random.default_rng(3)
+    noise = rng.normal(size=(512, 512))
+    sigma = 0.6
+    d = reference_gradients(prefilter(noise, 3))[0].astype(float)[8:-8, 8:-8]
+    smooth = ndimage.gaussian_filter(noise, sigma, mode="reflect")
+    dj = reference_gradients(prefilter(smooth, 3))[0].astype(float)[8:-8, 8:-8]
+    g, g_j, c = filter_gains(sigma, 3)
+    assert g == pytest.approx(d.var(), rel=0.02)
+    assert g_j == pytest.approx(dj.var(), rel=0.03)
+    assert c == pytest.approx(np.mean(d * dj), rel=0.03)
+    assert g_j < 0.5 * g  # smoothing removes most of the gradient noise
+
+
+def test_smoothed_jacobian_of_zero_width_is_the_plain_model():
+    img, _ = S.speckle_pair((96, 96), S.Translation(0, 0), noise=3.0, seed=6)
+    x = y = np.array([30, 48, 60])
+    plain = speckle_quality(img, x, y, 21)
+    gx, gy = reference_gradients(prefilter(img.astype(float), 3))
+    same = speckle_quality(img, x, y, 21, jacobian=(gx, gy, 0.0))
+    # the same up to the gain's two evaluations (impulse response vs. spectrum)
+    np.testing.assert_allclose(static_uncertainty(same, 3.0), static_uncertainty(plain, 3.0),
+                               rtol=1e-4)

@@ -22,14 +22,24 @@ from napari_aldic.engine import (
 from napari_aldic.engine.io import open_image, open_lazy, pixel_size_of
 from napari_aldic.engine.workflow.tiled import coarse_guess
 
-FIELD = S.Affine(G=((0.004, 0.001), (-0.002, 0.003)), center=(300.0, 300.0), t=(2.3, -1.6))
+FIELD = S.Affine(G=((0.004, 0.001), (-0.002, 0.003)), center=(256.0, 256.0), t=(2.3, -1.6))
 
 
 def _pair(n: int):
     return S.speckle_pair((n, n), FIELD, noise=1.0, n_quad=1, seed=5)
 
 
-def _compare_with_untiled(ref, dfm, step: int, tile: int):
+def _pin_speckle_scale(monkeypatch, ref):
+    """Fix the engine's per-image choice of the Jacobian smoothing (from the
+    speckle size of the image it is given) at the whole pair's value, as an
+    untiled run sees it: each block would otherwise measure its own."""
+    from napari_aldic.engine.dic import interpolation
+
+    scale = interpolation.speckle_scale(np.asarray(ref, np.float64))
+    monkeypatch.setattr(interpolation, "speckle_scale", lambda image, max_size=512: scale)
+
+
+def _compare_with_untiled(ref, dfm, step: int, tile: int, exact: bool):
     """Tiled vs the same analysis untiled (same shared guess), and vs plain correlate."""
     tiled = correlate_tiled(ref, dfm, step=step, tile_size=tile, workers=2, search=10)
     assert tiled.meta["tiled"]["blocks"] >= 4
@@ -37,10 +47,15 @@ def _compare_with_untiled(ref, dfm, step: int, tile: int):
     whole = correlate(ref, dfm, params=tiled.params, guess=guess)
     assert np.array_equal(tiled.x, whole.x) and np.array_equal(tiled.y, whole.y)
     assert np.array_equal(tiled.reason, whole.reason)
+    # with every per-image choice shared, blocks reproduce the whole image's
+    # computation; without, the Jacobian smoothing each block picks moves the
+    # IC-GN optimum by far less than its 1e-3 px tolerance
+    tol = 1e-6 if exact else 3e-4
     for name in ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc"):
         a, b = getattr(tiled, name), getattr(whole, name)
-        assert np.nanmax(np.abs(a - b)) < 1e-6, name
-    assert np.array_equal(tiled.iterations, whole.iterations)
+        assert np.nanmax(np.abs(a - b)) < tol, name
+    if exact:
+        assert np.array_equal(tiled.iterations, whole.iterations)
     # plain correlate starts IC-GN elsewhere: the same nodes converge to the
     # same match within the IC-GN tolerance
     plain = correlate(ref, dfm, step=step, search=10, search_max=tiled.params.search_max)
@@ -53,19 +68,23 @@ def _compare_with_untiled(ref, dfm, step: int, tile: int):
     assert np.max(np.hypot(tiled.u - tu, tiled.v - tv)[ok]) < 0.05
 
 
-def test_tiled_equals_untiled_small():
-    ref, dfm = _pair(768)
-    _compare_with_untiled(ref, dfm, step=16, tile=256)
+def test_tiled_equals_untiled_small(monkeypatch):
+    ref, dfm = _pair(512)
+    _compare_with_untiled(ref, dfm, step=16, tile=160, exact=False)
+    _pin_speckle_scale(monkeypatch, ref)
+    _compare_with_untiled(ref, dfm, step=16, tile=160, exact=True)
 
 
 @pytest.mark.slow
-def test_tiled_equals_untiled_2048():
+def test_tiled_equals_untiled_2048(monkeypatch):
     ref, dfm = _pair(2048)
-    _compare_with_untiled(ref, dfm, step=32, tile=512)
+    _pin_speckle_scale(monkeypatch, ref)
+    _compare_with_untiled(ref, dfm, step=32, tile=512, exact=True)
 
 
-def test_tiled_from_files_with_roi_and_memmap(tmp_path):
+def test_tiled_from_files_with_roi_and_memmap(tmp_path, monkeypatch):
     ref, dfm = _pair(512)
+    _pin_speckle_scale(monkeypatch, ref)
     tifffile.imwrite(tmp_path / "r.tif", ref, tile=(128, 128), bigtiff=True)
     tifffile.imwrite(tmp_path / "d.tif", dfm, tile=(128, 128), bigtiff=True)
     roi = np.ones(ref.shape, bool)
@@ -186,7 +205,7 @@ def test_pixel_size_from_tiff_metadata(tmp_path):
     got = {name: pixel_size_of(tmp_path / f"{name}.tif") for name in
            ("cm", "ij", "ome", "dpi", "none")}
     assert (got["cm"].value, got["cm"].unit) == (5.0, "um")  # 1/2000 cm
-    assert (got["ij"].value, got["ij"].unit, got["ij"].source) == (50.0, "nm", "ImageJ")
+    assert (got["ij"].value, got["ij"].unit, got["ij"].source) == (0.05, "um", "ImageJ")
     assert (got["ome"].value, got["ome"].unit, got["ome"].source) == (3.5, "nm", "OME-XML")
     assert got["dpi"] is None and got["none"] is None
 

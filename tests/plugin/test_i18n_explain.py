@@ -10,6 +10,7 @@ from napari_aldic._qt.explain import (
     REASON_TEXTS,
     explain_error,
     reason_text,
+    result_summary,
     with_explanation,
 )
 from napari_aldic.engine import Reason
@@ -47,3 +48,16 @@ def test_no_explanation_in_english_or_for_unknown_errors():
     assert with_explanation(engine) == engine
     assert explain_error("something new went wrong") is None
     assert with_explanation("something new went wrong") == "something new went wrong"
+
+
+def test_result_summary_translated_and_complete(pseudo, export_sequence):
+    """The log's summary of a frame: the same facts as the engine's English summary."""
+    res = export_sequence[2]
+    text = result_summary(res)
+    assert text.count("\n") == res.summary().count("\n")
+    first = text.splitlines()[0]
+    assert first == pseudo_translate(
+        "{n} nodes ({valid} valid), subset {subset} px, step {step} px, method "
+        "{method}").format(n=len(res), valid=res.n_valid, subset=res.params.subset,
+                           step=res.params.step, method=res.params.method)
+    assert f"{res.u[res.valid].mean():+.4f}" in text

@@ -187,6 +187,15 @@ def test_widget_in_each_language_at_1280x720(make_napari_viewer, qtbot, tmp_path
     assert area.widget().width() <= area.viewport().width()  # nothing cut at the right
     bad = _cut_off(w.native)
     save_screenshot(viewer, tmp_path / f"widget_{code}_1280x720_top.png")
+    dock = ProbePlotDock(viewer)  # the probes dock in a window of its own width, 700 px high
+    qtbot.addWidget(dock)
+    dock.resize(dock.sizeHint().width(), 700)
+    dock.show()
+    dock.recompute()  # its status line and the plot's text
+    dock.canvas.draw()
+    qtbot.wait(100)
+    bad += _cut_off(dock)
+    dock.grab().save(str(tmp_path / f"probes_{code}.png"))
     area.ensureWidgetVisible(w.language.native)  # the selector in the screenshot
     qtbot.wait(100)
     shot = tmp_path / f"widget_{code}_1280x720.png"
@@ -269,3 +278,14 @@ def test_fonts_for_chinese_japanese_korean(qapp):
                                  "Korean") if not QFontDatabase.families(getattr(ws, name))]
     assert not missing, (f"no font for {missing}: install a CJK font (Debian: fonts-noto-cjk, "
                          "see docs/languages.md)")
+    # matplotlib (the probes dock's plot) is given the Noto CJK font of each language
+    from napari_aldic._qt.language import plot_fonts
+
+    try:
+        for code in ("zh_CN", "zh_TW", "ja", "ko"):
+            i18n.set_language(code)
+            assert "CJK" in plot_fonts().get("font.family", ["", ""])[1], code
+        i18n.set_language("de")
+        assert plot_fonts() == {}
+    finally:
+        i18n.set_language("en")

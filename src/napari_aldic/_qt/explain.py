@@ -8,10 +8,13 @@ kinds of error a run commonly meets (matched by a phrase of the English text).
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..engine import Reason
 from ..i18n import tr, tr_noop
 
-__all__ = ["reason_text", "explain_error", "with_explanation", "REASON_TEXTS", "ERROR_HINTS"]
+__all__ = ["reason_text", "explain_error", "with_explanation", "result_summary",
+           "REASON_TEXTS", "ERROR_HINTS"]
 
 #: reason code -> what it means (translated where shown); see engine.Reason
 REASON_TEXTS = {
@@ -73,3 +76,31 @@ def with_explanation(message: str) -> str:
     if hint is None or current_language() == "en":
         return message
     return f"{message} ({hint})"
+
+
+def result_summary(result) -> str:
+    """The log's summary of a frame's DICResult, translated (the engine's own
+    ``DICResult.summary()`` stays English); the AL-DIC line is the engine's."""
+    p, valid = result.params, np.asarray(result.valid, bool)
+    lines = [tr("{n} nodes ({valid} valid), subset {subset} px, step {step} px, method "
+                "{method}").format(n=len(result), valid=result.n_valid, subset=p.subset,
+                                   step=p.step, method=p.method)]
+    if valid.any():
+        u, v = np.asarray(result.u)[valid], np.asarray(result.v)[valid]
+        lines.append(tr("u: mean {u_mean:+.4f} px [{u_min:+.3f}, {u_max:+.3f}]; v: mean "
+                        "{v_mean:+.4f} px [{v_min:+.3f}, {v_max:+.3f}]; median ZNCC "
+                        "{zncc:.4f}").format(
+            u_mean=u.mean(), u_min=u.min(), u_max=u.max(), v_mean=v.mean(), v_min=v.min(),
+            v_max=v.max(), zncc=float(np.median(np.asarray(result.zncc)[valid]))))
+    aldic = result.aldic_summary()
+    if aldic:
+        lines.append(aldic)
+    total = result.meta.get("timing", {}).get("total")
+    if total is not None:
+        lines.append(tr("time {seconds:.3f} s ({rate:,.0f} POI/s)").format(
+            seconds=total, rate=len(result) / max(total, 1e-9)))
+    codes, counts = np.unique(np.asarray(result.reason), return_counts=True)
+    flagged = [f"{reason_text(c)}: {k}" for c, k in zip(codes, counts) if int(c) != 0]
+    if flagged:
+        lines.append(tr("flagged: {reasons}").format(reasons=", ".join(flagged)))
+    return "\n".join(lines)

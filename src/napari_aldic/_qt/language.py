@@ -16,6 +16,7 @@ from magicgui.widgets import ComboBox, Container, Label
 from ..i18n import (
     ENV_VAR,
     available_languages,
+    current_language,
     language_from_environment,
     resolve_language,
     set_language,
@@ -23,10 +24,13 @@ from ..i18n import (
 )
 from .prefs import read_language, write_language
 
-__all__ = ["ui_language", "apply_ui_language", "LanguageSelector", "SYSTEM", "combo_of"]
+__all__ = ["ui_language", "apply_ui_language", "LanguageSelector", "SYSTEM", "combo_of",
+           "plot_fonts"]
 
 #: the selector's value for "follow the system"
 SYSTEM = "system"
+#: the Noto CJK family (fonts-noto-cjk) that matplotlib needs for each CJK language
+_CJK_FAMILIES = {"zh_CN": "SC", "zh_TW": "TC", "ja": "JP", "ko": "KR"}
 
 
 def _qt_locale_name() -> str | None:
@@ -65,6 +69,20 @@ def combo_of(items):
     return combo
 
 
+def plot_fonts() -> dict:
+    """matplotlib settings for plots in the widget's language: a CJK font after the
+    default one (matplotlib, unlike Qt, does not look for one itself); ``{}`` when
+    the language needs none or no Noto CJK font is installed."""
+    suffix = _CJK_FAMILIES.get(current_language())
+    if suffix is None:
+        return {}
+    from matplotlib import font_manager
+
+    names = {f.name for f in font_manager.fontManager.ttflist}
+    found = [n for n in (f"Noto Sans CJK {suffix}", f"Noto Serif CJK {suffix}") if n in names]
+    return {"font.family": ["DejaVu Sans", found[0]]} if found else {}
+
+
 class LanguageSelector(Container):
     """A label and a combo box of the languages (their own names); the choice is
     remembered and applies when the widget is opened again."""
@@ -84,6 +102,10 @@ class LanguageSelector(Container):
         self.combo.changed.connect(self._on_changed)
 
     def _on_changed(self, code: str) -> None:
+        from napari.utils.notifications import show_info
+
         write_language(None if code == SYSTEM else code)
-        self.combo.tooltip = tr("Saved: the new language applies when the widget is opened "
-                                "again.")
+        done = tr("napari-aldic: language saved; it applies when the widget is opened again "
+                  "(close it and open it from the Plugins menu).")
+        self.combo.tooltip = done
+        show_info(done)

@@ -39,7 +39,7 @@ from ..engine.probes import (
     read_load_csv,
 )
 from ..i18n import tr, tr_noop
-from .language import apply_ui_language, combo_of
+from .language import apply_ui_language, combo_of, plot_fonts
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -307,7 +307,7 @@ class ProbePlotDock(QWidget):
         """Draw the curves (and the stress-strain curve) with the current frame marked."""
         import matplotlib
 
-        with matplotlib.rc_context(DOCK_STYLE):  # a dock is small: small text
+        with matplotlib.rc_context({**DOCK_STYLE, **plot_fonts()}):  # small text; CJK
             self._draw()
         self.canvas.draw_idle()
 

@@ -26,7 +26,7 @@ from psygnal import Signal
 from .._analysis import Analysis, Job, run_in_thread
 from ..i18n import ntr, tr, tr_noop
 from .controls import Panel
-from .explain import with_explanation
+from .explain import result_summary, with_explanation
 
 __all__ = ["RunPanel", "format_seconds", "PREPARING"]
 
@@ -247,7 +247,7 @@ class RunPanel(Panel):
                 done=done, total=total, time=took)
         last = next((r for r in reversed(analysis.results) if r is not None), None)
         if last is not None and done > 0:
-            self.write_log(last.summary())
+            self.write_log(result_summary(last))
         self.eta.value = tr("{status}; showing the results ...").format(status=final)
         try:
             steps = self.show_results(analysis, prepared) if self.show_results else None

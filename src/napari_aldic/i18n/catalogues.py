@@ -3,13 +3,15 @@
 The ``.po`` files are the sources. A wheel carries the compiled ``.mo`` beside
 them (built by ``hatch_build.py``); in a source checkout or an editable install
 a ``.mo`` that is missing or older than its ``.po`` is compiled with Babel at
-first use into the user's cache folder (written atomically; in memory when no
+first use into the user's cache folder, named by a hash of the ``.po`` (so that
+two checkouts never share a stale file; written atomically; in memory when no
 folder can be written).
 """
 
 from __future__ import annotations
 
 import gettext
+import hashlib
 import io
 import os
 import tempfile
@@ -82,12 +84,16 @@ def _mo_bytes(lang: str) -> bytes | None:
         return built.read_bytes()
     if not po.is_file():
         return None
-    cached = cache_dir() / lang / "LC_MESSAGES" / f"{DOMAIN}.mo"
-    if _fresh(cached, po):
+    digest = hashlib.sha256(po.read_bytes()).hexdigest()[:16]
+    cached = cache_dir() / lang / "LC_MESSAGES" / f"{DOMAIN}-{digest}.mo"
+    if cached.is_file():
         return cached.read_bytes()
     data = compile_catalogue(po)
     try:
         _write_atomic(cached, data)
+        for old in cached.parent.glob(f"{DOMAIN}-*.mo"):  # earlier versions of the .po
+            if old != cached:
+                old.unlink(missing_ok=True)
     except OSError:
         pass  # a read-only home: the catalogue is used from memory
     return data

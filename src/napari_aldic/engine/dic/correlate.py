@@ -283,8 +283,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
         cached = solver_cache.get(key)
         timing["admm_factor_reused"] = float(cached is not None)
     timing["smoothing_choice"] = timing.get("smoothing_choice", 0.0) + table.pop("seconds")
+    jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)  # method.md 5.1
     state, solver = run_admm(
-        im.f, im.fgx, im.fgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
+        im.f, jgx, jgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
         mesh, sol.u, sol.v, sol.grad, trusted, trusted,
         mu=params.mu, beta=params.beta, step=params.step,
         smooth=smooth, second_order=second_order, noise_var=noise_var,
@@ -393,7 +394,10 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          params.subset, zncc=sol.zncc,
                          u=sol.u_local if local else sol.u, v=sol.v_local if local else sol.v,
                          grad=sol.grad,
-                         shape_function=getattr(params, "shape_function", "affine"))
+                         shape_function=getattr(params, "shape_function", "affine"),
+                         # Local IC-GN matched with smoothed steepest-descent images;
+                         # AL-DIC's last local step with the plain gradients
+                         jacobian=None if local or im.jgx is None else (im.jgx, im.jgy))
     timing["quality"] = time.perf_counter() - t
     return out
 

@@ -50,10 +50,11 @@ __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
            "DIRECT_MAX_UNKNOWNS"]
 
 UNTRUSTED_WEIGHT = 1e-6
-# above this many unknowns the SuperLU factor (fill grows like n log n) needs
-# gigabytes and factorising takes longer than an AMG-preconditioned CG solve:
-# the crossover measured by benchmarks/bench_smoothing.py (RESULTS.md)
-DIRECT_MAX_UNKNOWNS = 150_000
+# up to this many unknowns the SuperLU factor is used: measured (RESULTS.md,
+# benchmarks/bench_smoothing.py solver) it beats AMG-CG in time up to at least
+# 200k unknowns, but its memory grows like n log n (~130 n log2(n) bytes:
+# 250 MB at 113k, 480 MB at 200k); this bound keeps it near 600 MB
+DIRECT_MAX_UNKNOWNS = 250_000
 SOLVER_METHODS = ("auto", "direct", "amg", "jacobi")
 
 

@@ -3,8 +3,10 @@
 Stages (see ``solve_local``):
 
 1. initial guess -- from a previous result (``guess``), from seed points
-   (wave propagation), or from FFT cross-correlation at coarse nodes whose
-   solutions then start every other node; where the plain search fails at
+   (wave propagation), or from FFT cross-correlation at coarse nodes (each
+   searched around the motion predicted from a few widely searched anchors,
+   so large motion needs no wider search) whose solutions then start every
+   other node; where the plain search fails at
    many nodes (large rotations), rotated subsets are searched for at a few;
 2. IC-GN at every usable node;
 3. repair -- nodes that failed, match poorly or fail the median test are
@@ -33,10 +35,9 @@ from .interpolation import (
     reference_gradients,
     steepest_descent_gradients,
 )
-from .reliability import subset_statistics
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
-from .reliability import Validity
+from .reliability import Validity, subset_statistics
 from .rotation import rotated_search, spread_nodes
 from .subsets import SubsetMasks
 

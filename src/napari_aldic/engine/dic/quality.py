@@ -40,7 +40,14 @@ from math import comb
 import numpy as np
 from scipy import ndimage
 
-from .interpolation import prefilter, reference_gradients
+from .interpolation import (
+    JACOBIAN_SMOOTHING,
+    JACOBIAN_SMOOTHING_MAX,
+    prefilter,
+    reference_gradients,
+    speckle_scale,
+    steepest_descent_gradients,
+)
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
 
@@ -154,8 +161,12 @@ class SpeckleQuality:
     var_f : (n,) float
         Grey-level variance of the subset.
     hessian, noise : (n, 2k, 2k) float
-        Gauss-Newton matrix of the shape function and its expected noise part
-        per unit noise variance (``E / σ²``); internal to the uncertainty.
+        ``Σ J Jᵀ`` of the steepest-descent images ``J`` of the shape function
+        and its expected noise part per unit noise variance (``E / σ²``).
+    cross, cross_noise : (n, 2k, 2k) float or None
+        ``Σ J ∇fᵀ`` (``J`` against the plain spline gradients) and its noise
+        part per unit variance, when ``J`` is built from smoothed gradients;
+        None: ``J`` is the plain gradient (``cross = hessian``).
     """
 
     mig: np.ndarray
@@ -165,6 +176,8 @@ class SpeckleQuality:
     var_f: np.ndarray
     hessian: np.ndarray = field(repr=False)
     noise: np.ndarray = field(repr=False)
+    cross: np.ndarray | None = field(default=None, repr=False)
+    cross_noise: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def sssig(self) -> np.ndarray:
@@ -177,8 +190,42 @@ def _gradients(image: np.ndarray, order: int):
     return gx.astype(np.float64), gy.astype(np.float64), gradient_noise_gain(order)
 
 
+@functools.lru_cache(maxsize=16)
+def filter_gains(sigma: float, order: int) -> tuple[float, float, float]:
+    """Noise gains of the x-derivatives of unit white noise: ``(g, g_J, c)`` =
+    variance of the spline gradient, variance of the gradient after Gaussian
+    smoothing of standard deviation ``sigma`` px (the steepest-descent images),
+    and their covariance; from the impulse responses of the same filters."""
+    n = 65
+    delta = np.zeros((n, n))
+    delta[n // 2, n // 2] = 1.0
+    d = reference_gradients(prefilter(delta, order))[0].astype(np.float64)
+    if sigma > 0:
+        smooth = ndimage.gaussian_filter(delta, sigma, mode="reflect")
+        dj = reference_gradients(prefilter(smooth, order))[0].astype(np.float64)
+    else:
+        dj = d
+    return float(np.sum(d * d)), float(np.sum(dj * dj)), float(np.sum(d * dj))
+
+
+def _matrix(box, x, y, deg, terms, ax, ay, bx, by) -> np.ndarray:
+    """(n, 2k, 2k) ``Σ a bᵀ`` with ``a = (ax t, ay t)``, ``b = (bx t, by t)``."""
+    k = len(terms)
+    blocks = {}
+    for i, ai in enumerate((ax, ay)):
+        for j, bj in enumerate((bx, by)):
+            if (j, i) in blocks and ax is bx and ay is by:
+                blocks[i, j] = blocks[j, i].transpose(0, 2, 1)
+                continue
+            blocks[i, j] = _block(_centred_moments(box, ai * bj, x, y, deg), terms)
+    out = np.empty((blocks[0, 0].shape[0], 2 * k, 2 * k))
+    for (i, j), b in blocks.items():
+        out[:, i * k:(i + 1) * k, j * k:(j + 1) * k] = b
+    return out
+
+
 def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str = "affine",
-                    order: int = 3, gradients=None) -> SpeckleQuality:
+                    order: int = 3, gradients=None, jacobian=None) -> SpeckleQuality:
     """MIG, SSSIG and the Gauss-Newton matrix of the subsets centred at ``(x, y)``.
 
     Parameters
@@ -196,6 +243,10 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
         B-spline order of the gradients (as the correlation uses).
     gradients : (gx, gy), optional
         The spline gradients of ``image`` of that order when already known.
+    jacobian : (jx, jy, sigma), optional
+        Gradients of the IC-GN steepest-descent images when they differ from
+        ``gradients``: those of ``image`` smoothed by a Gaussian of standard
+        deviation ``sigma`` px.
     """
     img = np.asarray(image, np.float64)
     if img.ndim != 2:
@@ -218,50 +269,64 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
     box = _BoxSums(img.shape, x, y, subset // 2)
     terms = SHAPE_TERMS[shape_function]
     deg = 2 * max(p + q for p, q in terms)
-    mxx = _centred_moments(box, gx * gx, x, y, deg)
-    mxy = _centred_moments(box, gx * gy, x, y, deg)
-    myy = _centred_moments(box, gy * gy, x, y, deg)
     mm = _centred_moments(box, mask, x, y, deg)  # pixel counts and their moments
     k = len(terms)
-    hess = np.zeros((mm[0, 0].size, 2 * k, 2 * k))
-    hess[:, :k, :k] = _block(mxx, terms)
-    hess[:, :k, k:] = _block(mxy, terms)
-    hess[:, k:, :k] = hess[:, :k, k:].transpose(0, 2, 1)
-    hess[:, k:, k:] = _block(myy, terms)
-    noise = np.zeros_like(hess)
-    noise[:, :k, :k] = noise[:, k:, k:] = gain * _block(mm, terms)
+    unit = np.zeros((mm[0, 0].size, 2 * k, 2 * k))
+    unit[:, :k, :k] = unit[:, k:, k:] = _block(mm, terms)
+    cross = cross_noise = None
+    if jacobian is None:
+        hess = _matrix(box, x, y, deg, terms, gx, gy, gx, gy)
+        noise = gain * unit
+    else:
+        jx, jy = (np.asarray(a, np.float64) * (1.0 if mask is None else mask)
+                  for a in jacobian[:2])
+        _, gain_j, gain_c = filter_gains(float(jacobian[2]), order)
+        hess = _matrix(box, x, y, deg, terms, jx, jy, jx, jy)
+        noise = gain_j * unit
+        cross = _matrix(box, x, y, deg, terms, jx, jy, gx, gy)
+        cross_noise = gain_c * unit
     m = mm[0, 0]
     masked = img if mask is None else img * mask
     s1, s2 = box(masked), box(masked * img)
     with np.errstate(invalid="ignore", divide="ignore"):
         mig = box(np.hypot(gx, gy)) / m
         var_f = np.maximum(s2 / m - (s1 / m) ** 2, 0.0)
-    return SpeckleQuality(mig, mxx[0, 0], myy[0, 0], m, var_f, hess, noise)
+    return SpeckleQuality(mig, box(gx * gx), box(gy * gy), m, var_f, hess, noise, cross,
+                          cross_noise)
+
+
+def _noise_scale(m: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Per node, the fraction (<= 1) of the expected noise part ``e`` taken
+    out of ``m``: never more than ``1 - _MIN_SPECKLE_FRACTION`` of a diagonal."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.diagonal(m, axis1=1, axis2=2) / np.diagonal(e, axis1=1, axis2=2)
+        lim = np.min(np.where(np.isfinite(ratio) & (ratio > 0), ratio, np.inf), axis=1)
+    return np.clip(np.nan_to_num((1 - _MIN_SPECKLE_FRACTION) * lim, nan=0.0), 0.0, 1.0)
 
 
 def _covariance_diag(q: SpeckleQuality, var_e: np.ndarray) -> np.ndarray:
-    """``diag(2 var_e S⁻¹ H S⁻¹)`` at the u and v entries, ``(n, 2)`` px²."""
+    """``diag(2 var_e M⁻¹ (A - E_J / 2) M⁻ᵀ)`` at the u and v entries, ``(n, 2)``
+    px²: ``A = Σ J Jᵀ`` with noise part ``E_J``, ``M = Σ J ∇fᵀ`` less its noise
+    part (for plain gradients ``M = S = H - E`` and the middle is ``S + E/2``)."""
     k = q.hessian.shape[1] // 2
     out = np.full((q.m.size, 2), np.nan)
     for s in range(0, q.m.size, _CHUNK):
         sl = slice(s, s + _CHUNK)
-        h = q.hessian[sl]
-        e = q.noise[sl] * var_e[sl, None, None]
-        # the noise part may not take more than (1 - min fraction) of any diagonal
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = np.diagonal(h, axis1=1, axis2=2) / np.diagonal(e, axis1=1, axis2=2)
-            lim = np.min(np.where(np.isfinite(ratio), ratio, np.inf), axis=1)
-        t = np.clip(np.nan_to_num((1 - _MIN_SPECKLE_FRACTION) * lim, nan=0.0), 0.0, 1.0)
-        spk = h - t[:, None, None] * e
+        var = var_e[sl, None, None]
+        a, ea = q.hessian[sl], q.noise[sl] * var
+        cm, em = (a, ea) if q.cross is None else (q.cross[sl], q.cross_noise[sl] * var)
+        t = _noise_scale(cm, em)[:, None, None]
+        spk = cm - t * em
+        # the reference's gradient noise is anti-correlated with its own noise at
+        # the neighbouring pixels: it adds E_J / 2, not E_J, to the data term
+        mid = a - 0.5 * t * ea
         ok = np.isfinite(spk).all(axis=(1, 2)) & (q.m[sl] > 2 * k) & np.isfinite(var_e[sl])
         ok &= np.linalg.det(np.where(ok[:, None, None], spk, np.eye(2 * k))) > 0
         idx = np.flatnonzero(ok)
         if idx.size == 0:
             continue
         inv = np.linalg.inv(spk[idx])
-        # the reference's gradient noise is anti-correlated with its own noise at
-        # the neighbouring pixels: it adds E / 2, not E, to the data term
-        cov = inv @ (spk[idx] + 0.5 * t[idx, None, None] * e[idx]) @ inv
+        cov = inv @ mid[idx] @ inv.transpose(0, 2, 1)
         out[s + idx, 0] = 2.0 * var_e[sl][idx] * cov[:, 0, 0]
         out[s + idx, 1] = 2.0 * var_e[sl][idx] * cov[:, k, k]
     return out
@@ -326,16 +391,27 @@ def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
     return np.sqrt(_covariance_diag(q, var))
 
 
+def jacobian_sigma(f: np.ndarray) -> float:
+    """The Gaussian smoothing (px) behind Local IC-GN's steepest-descent images
+    (:func:`~napari_aldic.engine.dic.interpolation.steepest_descent_gradients`)."""
+    return min(JACOBIAN_SMOOTHING * speckle_scale(f), JACOBIAN_SMOOTHING_MAX)
+
+
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
-                   shape_function: str = "affine") -> dict:
+                   shape_function: str = "affine", jacobian=None) -> dict:
     """The quality fields ``correlate`` stores with a result: ``sssig``,
     ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
     subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
-    the reference alone: no uncertainty)."""
+    the reference alone: no uncertainty). ``jacobian``: ``(jx, jy)``, the
+    gradients of the steepest-descent images when they are smoothed ones."""
     xi = np.rint(np.asarray(x, float)).astype(np.int64)
     yi = np.rint(np.asarray(y, float)).astype(np.int64)
+    if jacobian is not None and zncc is not None:
+        jacobian = (*jacobian, jacobian_sigma(f))
+    else:
+        jacobian = None
     q = speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function, order=order,
-                        gradients=gradients)
+                        gradients=gradients, jacobian=jacobian)
     out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)
@@ -434,6 +510,8 @@ def advise_subset(image, roi=None, target_noise: float = 0.01, *, step: int | No
     img, mask = _advice_window(img, mask)
     step = int(step) if step else max(8, widths[0] // 2)
     gx, gy, _ = _gradients(img, 3)
+    # as Local IC-GN matches: smoothed steepest-descent images
+    jac = (*steepest_descent_gradients(img, 3), jacobian_sigma(img))
     rows, best = [], None
     for s in widths:
         if s > min(img.shape):
@@ -442,7 +520,7 @@ def advise_subset(image, roi=None, target_noise: float = 0.01, *, step: int | No
         if grid.n == 0:
             continue
         q = speckle_quality(img, grid.x, grid.y, s, mask, shape_function=shape_function,
-                            gradients=(gx, gy))
+                            gradients=(gx, gy), jacobian=jac)
         worst = np.max(static_uncertainty(q, sigma), axis=1)
         worst = worst[np.isfinite(worst)]
         if worst.size == 0:

@@ -84,8 +84,12 @@ def quadratic_jacobian(dx, dy, gx, gy, J):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, H, sj, bf, J):
+def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf):
     """Gauss-Newton Hessian and sums of the reference subset (quadratic warp).
+
+    The steepest-descent images of the ``m`` pixels fill the rows of ``Jm``;
+    ``H = Jm^T Jm`` is then one matrix product (BLAS), faster than
+    accumulating the 78 products of every pixel one by one.
 
     Parameters
     ----------
@@ -95,28 +99,27 @@ def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, H, sj, bf, J):
         Subset pixels.
     fm : float
         Mean of the reference subset.
-    H : (12, 12) float64
-        Receives ``sum J J^T``.
+    Jm : (>= m, 12) float64
+        Work array: receives the steepest-descent image of each pixel.
     sj, bf : (12,) float64
         Receive ``sum J`` and ``sum J (f - fm)``.
-    J : (12,) float64
-        Work array.
+
+    Returns
+    -------
+    (12, 12) float64
+        ``H = sum J J^T``.
     """
-    H[:, :] = 0.0
     sj[:] = 0.0
     bf[:] = 0.0
     for q in range(m):
-        quadratic_jacobian(dxs[q], dys[q], gx[q], gy[q], J)
+        row = Jm[q]
+        quadratic_jacobian(dxs[q], dys[q], gx[q], gy[q], row)
         fv = fs[q] - fm
         for i in range(NPAR):
-            ji = J[i]
-            sj[i] += ji
-            bf[i] += ji * fv
-            for j in range(i + 1):
-                H[i, j] += ji * J[j]
-    for i in range(NPAR):
-        for j in range(i + 1, NPAR):
-            H[i, j] = H[j, i]
+            sj[i] += row[i]
+            bf[i] += row[i] * fv
+    J = Jm[:m]
+    return np.dot(J.T, J)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -290,7 +293,7 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
         qx = np.empty(npx)
         qy = np.empty(npx)
-        H = np.empty((NPAR, NPAR))
+        Jm = np.empty((npx, NPAR))
         L = np.zeros((NPAR, NPAR))
         sj = np.empty(NPAR)
         bf = np.empty(NPAR)
@@ -302,7 +305,7 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
-            quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, H, sj, bf, b)
+            H = quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf)
             stats_out[k, 0] = m
             stats_out[k, 1] = df2 / m
             stats_out[k, 2] = H[0, 0]

@@ -312,7 +312,7 @@ class _SequenceRun:
             base = self.results[self._pos[r]]
             if base is _ON_DISK:
                 base = self.load_frame(self._pos[r])
-            self._carried = (r, carry_roi(roi, base))
+            self._carried = (r, roi if base is None else carry_roi(roi, base))
         return self._carried[1]
 
     def _digest(self, mask: np.ndarray) -> str:
