@@ -30,6 +30,8 @@ maximum resident set), wall time, RMS and largest error against the field.
 ``--size``² pair (tiled BigTIFF, 1.6 GB each at 40,000²), and the error of a
 2048² pair of the same generator correlated in memory, for comparison. The
 pairs are written to ``--data`` and deleted afterwards unless ``--keep``.
+``corner``: the ``--size``² pair tiled with a 4096² ROI in its far corner (the
+largest motion): every block is visited, only the ROI's are correlated.
 """
 
 from __future__ import annotations
@@ -143,7 +145,7 @@ def cluster(frames: int, size: int, workers: int, step: int = 16,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("part", choices=["cluster", "memory", "tiled"])
+    ap.add_argument("part", choices=["cluster", "memory", "tiled", "corner"])
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--workers", type=int, default=2)
@@ -158,9 +160,9 @@ def main() -> None:
         print(json.dumps(cluster(args.frames, args.size, args.workers, args.step,
                                  args.in_memory), indent=1))
     else:
-        from scale_tiles import memory_rows, tiled_cli
+        from scale_tiles import corner, memory_rows, tiled_cli
 
-        run = memory_rows if args.part == "memory" else tiled_cli
+        run = {"memory": memory_rows, "tiled": tiled_cli, "corner": corner}[args.part]
         print(json.dumps(run(args.size, args.step, args.data, args.keep, args.workers),
                          indent=1))
 

@@ -91,3 +91,33 @@ def tiled_cli(size: int, step: int, data: Path, keep: bool, workers: int) -> dic
     if not keep:
         small[0].unlink(), small[1].unlink()
     return row
+
+
+_CORNER = """
+import json, resource, sys, time
+sys.path.insert(0, {here!r})
+import bigpair, zarr
+from napari_aldic.engine import correlate_tiled
+n, c = {size}, {corner}
+roi = zarr.create_array(store={{}}, shape=(n, n), chunks=(2048, 2048), dtype=bool,
+                        fill_value=False)
+roi[n - c:n, n - c:n] = True
+t = time.perf_counter()
+res = correlate_tiled({ref!r}, {dfm!r}, roi=roi, step={step}, workers={workers})
+print("RESULT", json.dumps(dict(bigpair.errors(res), seconds=time.perf_counter() - t,
+                                blocks=res.meta["tiled"]["blocks"])))
+"""
+
+
+def corner(size: int, step: int, data: Path, keep: bool, workers: int,
+           corner_px: int = 4096) -> dict:
+    """A ``corner_px``² ROI in the far corner (largest motion) of a ``size``²
+    pair, tiled: every block is visited, those of the ROI correlated."""
+    ref, dfm = bigpair.write_pair(data, size)
+    code = _CORNER.format(here=str(HERE), size=size, corner=corner_px, ref=str(ref),
+                          dfm=str(dfm), step=step, workers=workers)
+    out = _measured([sys.executable, "-c", code])
+    line = next(ln for ln in out.pop("stdout").splitlines() if ln.startswith("RESULT"))
+    if not keep:
+        ref.unlink(), dfm.unlink()
+    return {"size": size, "corner": corner_px, **out, **json.loads(line.split(" ", 1)[1])}

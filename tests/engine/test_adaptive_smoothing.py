@@ -131,3 +131,20 @@ def test_window_mean_is_a_normalised_average():
     inner = (mesh.x > 40) & (mesh.x < 110)
     np.testing.assert_allclose(out[inner, 1], mesh.x[inner], atol=1e-6)  # linear: kept
     assert np.all(np.isnan(window_mean(mesh, np.full((mesh.n_nodes, 1), np.nan), 8, 8.0)))
+
+
+def test_very_large_meshes_fall_back_to_one_length_from_a_window(monkeypatch):
+    from napari_aldic.engine.dic import regularise
+
+    roi = np.ones((200, 400), bool)
+    mesh = uniform_mesh(make_grid(roi, 21, 8), roi)
+    rng = np.random.default_rng(3)
+    var = np.full((mesh.n_nodes, 2), 0.02**2)
+    u, v = (0.02 * rng.standard_normal(mesh.n_nodes) for _ in range(2))
+    full = choose_smoothing(mesh, u, v, np.ones(mesh.n_nodes, bool), var, 8, 21)
+    monkeypatch.setattr(regularise, "ADAPTIVE_MAX_NODES", 100)
+    monkeypatch.setattr(regularise, "WINDOW_NODES", 600)
+    small = choose_smoothing(mesh, u, v, np.ones(mesh.n_nodes, bool), var, 8, 21)
+    assert full.node_smooth_px is not None and small.node_smooth_px is None
+    # pure noise: both pick (nearly) the longest length
+    assert small.smooth_px >= 0.35 * 21 and full.smooth_px >= 0.35 * 21

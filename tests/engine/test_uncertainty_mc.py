@@ -12,7 +12,10 @@ from napari_aldic.engine import correlate, synthetic as S
 SHIFT = (2.3, -1.4)  # sub-pixel parts where interpolation changes the residual
 
 
-def _monte_carlo(noise, subset, method="local", n=12, size=128, step=12):
+def _monte_carlo(noise, subset, method="local", n=12, size=128, step=12, field="local"):
+    """Median over nodes of predicted / actual std of (u, v): ``field="local"``
+    compares with the subset displacements (``u_local`` for AL-DIC),
+    ``"global"`` with AL-DIC's smoothed ``u``, ``v``."""
     ref0, dfm0 = S.speckle_pair((size, size), S.Translation(*SHIFT), seed=3, bit_depth=None)
     rng = np.random.default_rng(int(noise * 10) + subset)
     disp, pred = [], []
@@ -21,7 +24,7 @@ def _monte_carlo(noise, subset, method="local", n=12, size=128, step=12):
         dfm = dfm0 + rng.normal(0.0, noise, ref0.shape)
         res = correlate(ref, dfm, subset=subset, step=step, method=method,
                         max_uncertainty=None, interpolation="cubic")
-        local = res.u_local is not None
+        local = res.u_local is not None and field == "local"
         disp.append(np.stack([res.u_local if local else res.u,
                               res.v_local if local else res.v]))
         pred.append(np.stack([res.u_std, res.v_std]))
@@ -42,9 +45,11 @@ def test_local_uncertainty_agrees_with_monte_carlo(noise, subset):
     assert np.all((ratio > 0.8) & (ratio < 1.2)), ratio
 
 
-def test_aldic_local_uncertainty_agrees_with_monte_carlo():
-    """AL-DIC stores the uncertainty of its subset displacements u_local."""
-    ratio, _ = _monte_carlo(5.0, 21, method="aldic", n=10)
+def test_aldic_uncertainty_describes_the_smoothed_field():
+    """AL-DIC's u_std, v_std are those of the smoothed u, v (the scatter of u
+    is about half that of u_local here: the subset model alone was 2-3 x)."""
+    ratio, nodes = _monte_carlo(5.0, 21, method="aldic", n=12, step=8, field="global")
+    assert nodes >= 100
     assert np.all((ratio > 0.8) & (ratio < 1.2)), ratio
 
 
@@ -53,4 +58,13 @@ def test_aldic_local_uncertainty_agrees_with_monte_carlo():
 @pytest.mark.parametrize("subset", [21, 31])
 def test_local_uncertainty_monte_carlo_grid(noise, subset):
     ratio, _ = _monte_carlo(noise, subset, n=30, size=160, step=10)
+    assert np.all((ratio > 0.8) & (ratio < 1.2)), ratio
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("noise", [2.0, 10.0])
+@pytest.mark.parametrize("subset", [21, 31])
+def test_aldic_uncertainty_monte_carlo_grid(noise, subset):
+    ratio, _ = _monte_carlo(noise, subset, method="aldic", n=24, size=192, step=8,
+                            field="global")
     assert np.all((ratio > 0.8) & (ratio < 1.2)), ratio

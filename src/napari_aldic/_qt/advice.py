@@ -16,11 +16,11 @@ __all__ = ["start_advice", "advice_lines"]
 def advice_lines(adv) -> list[str]:
     """The advice as log lines (translated)."""
     lines = [tr("subset advice: image noise {noise:.2f} grey levels, target {target:g} px "
-                "at {percent:.0f} % of the nodes").format(
+                "(nodes to meet it: {percent:.0f} %)").format(
         noise=adv.noise, target=adv.target, percent=100 * adv.coverage)]
     for r in adv.rows:
-        lines.append(tr("  subset {subset} px: median {median:.4f} px, {fraction:.0f} % of "
-                        "nodes meet the target").format(
+        lines.append(tr("  subset {subset} px: median {median:.4f} px, nodes meeting the "
+                        "target: {fraction:.0f} %").format(
             subset=r["subset"], median=r["median_std_px"], fraction=100 * r["fraction"]))
     if adv.recommended is None:
         lines.append(tr("no tried subset reaches the target: a better speckle pattern, less "

@@ -28,11 +28,12 @@ def advise_command(args) -> None:
     subsets = args.subsets or None
     adv = advise_subset(img, roi, args.target_noise, step=args.step, subsets=subsets,
                         noise=args.noise, coverage=args.coverage)
-    print(tr("image noise {noise:.2f} grey levels ({how}); target {target:g} px at "
-             "{percent:.0f} % of the nodes").format(
+    print(tr("image noise {noise:.2f} grey levels ({how}); target {target:g} px "
+             "(nodes to meet it: {percent:.0f} %)").format(
         noise=adv.noise, how=tr("given") if args.noise is not None else tr("estimated"),
         target=adv.target, percent=100 * adv.coverage))
-    print(tr("{subset:>7} {median:>13} {p90:>13} {fraction:>15}").format(
+    # a pure layout string (column widths of the rows below): not for translation
+    print("{subset:>7} {median:>13} {p90:>13} {fraction:>15}".format(
         subset=tr("subset"), median=tr("median (px)"), p90=tr("90th pct (px)"),
         fraction=tr("meeting target")))
     for r in adv.rows:

@@ -23,6 +23,7 @@ from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .quality import result_quality
+from .uncertainty_aldic import ADMMLinearisation
 from .regularise import choose_smoothing, gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .subsets import SubsetMasks, split_subsets
@@ -217,6 +218,7 @@ class _Solution:
     regularisation: dict | None = None
     std: np.ndarray | None = None  # (n, 2) standard uncertainty of the local u, v (px)
     validity: dict | None = None  # noise levels behind the validity tests
+    admm: ADMMLinearisation | None = None  # AL-DIC: for the uncertainty of u, v
 
 
 def reference_result(image, roi=None, params: DICParams | None = None,
@@ -304,7 +306,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
                      sol.u, sol.v, state.history, _smoothing_record(table, smooth),
-                     sol.std, validity.summary(zncc_local, reason == Reason.OK))
+                     sol.std, validity.summary(zncc_local, reason == Reason.OK),
+                     ADMMLinearisation(solver, len(state.history), params.mu,
+                                       trusted & (state.reason == Reason.OK)))
 
 
 def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth) -> str:
@@ -387,7 +391,7 @@ def _regularisation(validity: Validity, mesh: Q4Mesh, sol: _Solution,
 def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams,
              timing: dict) -> dict:
     """Speckle quality (SSSIG, MIG) and the standard uncertainty of the
-    subset displacements (``dic.quality``; for AL-DIC: of ``u_local``)."""
+    displacements (``dic.quality``; for AL-DIC: of the smoothed ``u``, ``v``)."""
     t = time.perf_counter()
     local = sol.u_local is not None
     out = result_quality(im.f, (im.fgx, im.fgy), im.g_spline.order, mask, grid.x, grid.y,
@@ -395,9 +399,10 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          u=sol.u_local if local else sol.u, v=sol.v_local if local else sol.v,
                          grad=sol.grad,
                          shape_function=getattr(params, "shape_function", "affine"),
-                         # Local IC-GN matched with smoothed steepest-descent images;
-                         # AL-DIC's last local step with the plain gradients
-                         jacobian=None if local or im.jgx is None else (im.jgx, im.jgy))
+                         # the steepest-descent images IC-GN (and AL-DIC's local
+                         # step) matched with, when smoothed
+                         jacobian=None if im.jgx is None else (im.jgx, im.jgy),
+                         aldic=sol.admm)
     timing["quality"] = time.perf_counter() - t
     return out
 

@@ -50,6 +50,7 @@ from .interpolation import (
 )
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
+from .uncertainty_aldic import aldic_gain
 
 __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
            "SubsetAdvice", "advise_subset", "interpolated_noise_factor", "SHAPE_TERMS"]
@@ -391,6 +392,29 @@ def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
     return np.sqrt(_covariance_diag(q, var))
 
 
+def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "affine"):
+    """A callable ``rng -> (n, 2k)``: for a fresh unit white noise image ``n``,
+    ``Σ_subset J t n`` per node (the right-hand side of the subset's
+    Gauss-Newton step with the noise as residual; ``J = (jx, jy)``)."""
+    jx, jy = np.asarray(jx, np.float64), np.asarray(jy, np.float64)
+    mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
+    terms = SHAPE_TERMS[shape_function]
+    deg = max(p + q for p, q in terms)
+    box = _BoxSums(jx.shape, x, y, subset // 2)
+
+    def project(rng) -> np.ndarray:
+        noise = rng.standard_normal(jx.shape, dtype=np.float32)
+        if mask is not None:
+            noise[~mask] = 0.0
+        cols = []
+        for a in (jx * noise, jy * noise):
+            mom = _centred_moments(box, a, x, y, deg)
+            cols += [mom[t] for t in terms]
+        return np.column_stack(cols)
+
+    return project
+
+
 def jacobian_sigma(f: np.ndarray) -> float:
     """The Gaussian smoothing (px) behind Local IC-GN's steepest-descent images
     (:func:`~napari_aldic.engine.dic.interpolation.steepest_descent_gradients`)."""
@@ -398,14 +422,18 @@ def jacobian_sigma(f: np.ndarray) -> float:
 
 
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
-                   shape_function: str = "affine", jacobian=None) -> dict:
+                   shape_function: str = "affine", jacobian=None, aldic=None) -> dict:
     """The quality fields ``correlate`` stores with a result: ``sssig``,
     ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
     subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
     the reference alone: no uncertainty). ``jacobian``: ``(jx, jy)``, the
-    gradients of the steepest-descent images when they are smoothed ones."""
+    gradients of the steepest-descent images when they are smoothed ones.
+    ``aldic``: an :class:`~.uncertainty_aldic.ADMMLinearisation` of the run
+    when ``u``, ``v`` are AL-DIC's local estimates: ``u_std``, ``v_std`` then
+    describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`)."""
     xi = np.rint(np.asarray(x, float)).astype(np.int64)
     yi = np.rint(np.asarray(y, float)).astype(np.int64)
+    sd_images = jacobian if jacobian is not None else gradients
     if jacobian is not None and zncc is not None:
         jacobian = (*jacobian, jacobian_sigma(f))
     else:
@@ -415,6 +443,9 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)
+        if aldic is not None:
+            project = noise_projector(*sd_images, xi, yi, subset, roi, shape_function)
+            s = s * aldic_gain(q, project, aldic)
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
 

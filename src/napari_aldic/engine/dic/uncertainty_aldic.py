@@ -1,0 +1,170 @@
+"""Standard uncertainty of AL-DIC's smoothed field ``u``, ``v`` by linear
+noise propagation through the ADMM iterations (random probing).
+
+To first order the image noise ``n`` (reference minus warped deformed
+image, white) moves every quantity of an AL-DIC run linearly:
+
+* the Local DIC start of node i by ``δp_i = M_i⁻¹ Σ_subset J_i t n`` (the
+  shape-function Gauss-Newton step with the noise as residual; ``M = Σ J ∇fᵀ``,
+  ``t`` the shape monomials); neighbouring subsets share pixels, so their
+  errors are correlated exactly as in the real run;
+* each ADMM local step (translation, gradient fixed, penalty ``pen_i``) by
+  ``(C_i + pen_i I) δu_i = b_i + pen_i δt_i`` with ``C_i`` the translation
+  block of ``M_i``, ``b_i = Σ J_i n`` and ``δt`` the perturbed penalty target;
+* each global step and dual update exactly as the solver does them (they
+  are linear; the solver's matrix, weights and smoothing are frozen at the
+  run's values), for the same number of ADMM iterations.
+
+Drawing ``K`` unit-variance noise images and pushing each through these
+maps gives per node the std of the smoothed field and of the Local DIC
+start under the same noise; their ratio (the smoothing gain, noise level
+free) scales the Local model's standard uncertainty (``dic.quality``),
+which already carries the node's own noise level, the interpolation and the
+gradient-noise corrections. Left out: the coupling of a gradient error into
+the translation of the local step and the second-order warp's curvature
+feedback (both second order in a nearly uniform field).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ADMMLinearisation", "aldic_gain"]
+
+
+@dataclass
+class ADMMLinearisation:
+    """What the propagation needs of a finished AL-DIC run.
+
+    Attributes
+    ----------
+    solver : GlobalSolver
+        The run's global solver (matrix, weights and smoothing frozen).
+    iterations : int
+        ADMM iterations run.
+    mu : float
+        Dimensionless local penalty.
+    active : (n,) bool
+        Nodes whose local step took part.
+    probes : int
+        Noise images drawn (the relative sampling error of a node's gain is
+        about ``1/sqrt(2 probes)``).
+    seed : int
+    """
+
+    solver: object
+    iterations: int
+    mu: float
+    active: np.ndarray
+    probes: int = 16
+    seed: int = 0
+
+
+def _local_maps(q, k: int):
+    """Per node the matrices of the Local DIC step (``M``, (n, 2k, 2k)) and
+    of the penalised translation step (``C``, (n, 2, 2)), and the penalty
+    stiffness ``pen / mu`` = ``tr(Σ J Jᵀ) / 2`` of the translation block."""
+    m = q.hessian if q.cross is None else q.cross
+    idx = [0, k]
+    c = m[:, idx][:, :, idx]
+    h = q.hessian
+    pen = 0.5 * (h[:, 0, 0] + h[:, k, k])
+    ok = np.isfinite(m).all(axis=(1, 2)) & (q.m > 2 * k)
+    ok &= np.linalg.det(np.where(ok[:, None, None], m, np.eye(2 * k))) > 0
+    return m, c, pen, ok
+
+
+class _BatchSolver:
+    """:meth:`GlobalSolver.solve` and ``gradients`` for many right-hand sides
+    at once (columns: noise images) with the run's matrix; the formula of the
+    right-hand side is the solver's (``test_uncertainty_aldic`` checks that
+    they agree). A conjugate-gradient solver gets its own copy of the system,
+    so the run's warm start (kept for the next frame) is left alone."""
+
+    def __init__(self, solver):
+        from .global_solve import SPDSolver
+
+        self.s = solver
+        self.system = (solver.system if solver.system.method == "direct"
+                       else SPDSolver(solver.A, solver.system.method, rtol=1e-4))
+
+    def gradients(self, uh, vh):
+        s = self.s
+        return np.stack([s.Gx @ uh, s.Gy @ uh, s.Gx @ vh, s.Gy @ vh], axis=1)
+
+    def solve(self, F, W, u, v, vu, vv):
+        s = self.s
+        R = (F - W) * s.wg[:, None, None]
+        mw = (s.mu * s.w)[:, None]
+        rhs_u = s.beta * (s.Gx.T @ R[:, 0] + s.Gy.T @ R[:, 1]) + mw * (u - vu)
+        rhs_v = s.beta * (s.Gx.T @ R[:, 2] + s.Gy.T @ R[:, 3]) + mw * (v - vv)
+        k = u.shape[1]
+        rhs = s.T.T @ np.concatenate([rhs_u, rhs_v], axis=1)
+        guess = np.concatenate([u - vu, v - vv], axis=1)[s.free]
+        full = s.T @ self.system.solve(rhs, guess)
+        return full[:, :k], full[:, k:]
+
+
+def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,
+               pen: np.ndarray, k: int):
+    """The linearised ADMM run for a batch of noise images (last axis): start
+    ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
+    the global ``û``, ``v̂`` (n, K) each."""
+    solver = _BatchSolver(lin.solver)
+    u, v = dp0[:, 0].copy(), dp0[:, k].copy()
+    g0 = dp0[:, [1, 2, k + 1, k + 2]]
+    W = np.zeros_like(g0)
+    vu, vv = np.zeros_like(u), np.zeros_like(u)
+    uh, vh = solver.solve(g0, W, u, v, vu, vv)
+    act = lin.active[:, None]
+    out = ~lin.solver.covered
+    for _ in range(lin.iterations):
+        F = solver.gradients(uh, vh)
+        F[out] = g0[out]
+        r = b_t + pen[:, None, None] * np.stack([uh + vu, vh + vv], axis=1)
+        uv = np.einsum("nij,njk->nik", cinv, r)
+        u = np.where(act, uv[:, 0], u)
+        v = np.where(act, uv[:, 1], v)
+        uh, vh = solver.solve(F, W, u, v, vu, vv)
+        W += solver.gradients(uh, vh) - F
+        vu += uh - u
+        vv += vh - v
+    return uh, vh
+
+
+def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
+    """Per node the ratio (n, 2) of the std of AL-DIC's ``u``, ``v`` to that
+    of the Local DIC subset estimate under the same white image noise.
+
+    Parameters
+    ----------
+    q : SpeckleQuality
+        Of the nodes, with the run's steepest-descent images.
+    project : callable(rng) -> (n, 2k)
+        ``Σ_subset J t n`` per node for a fresh unit white noise image ``n``
+        drawn from ``rng`` (``dic.quality.noise_projector``).
+    lin : ADMMLinearisation
+    """
+    k = q.hessian.shape[1] // 2
+    m, c, pen, ok = _local_maps(q, k)
+    minv = np.zeros_like(m)
+    minv[ok] = np.linalg.inv(m[ok])
+    pen = lin.mu * np.where(ok, pen, 0.0)
+    cp = c + pen[:, None, None] * np.eye(2)
+    good = ok & (np.linalg.det(np.where(ok[:, None, None], cp, np.eye(2))) > 0)
+    cinv = np.zeros_like(cp)
+    cinv[good] = np.linalg.inv(cp[good])
+    active = lin.active & good
+    lin = ADMMLinearisation(lin.solver, lin.iterations, lin.mu, active, lin.probes, lin.seed)
+    rng = np.random.default_rng(lin.seed)
+    b = np.stack([project(rng) for _ in range(lin.probes)], axis=2)
+    b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
+    dp0 = np.einsum("nij,njk->nik", minv, b)
+    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k)
+    s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
+    s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gain = np.sqrt(s_glob / s_loc)
+    return np.where(ok[:, None] & np.isfinite(gain), gain, np.nan)
