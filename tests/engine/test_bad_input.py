@@ -161,8 +161,8 @@ for _name, (_text, _pattern) in PARAM_FILES.items():
 
 
 # =================================================================== NaN / inf everywhere
-INT_FIELDS = ("subset", "step", "search", "search_max", "init_spacing", "max_iter",
-              "admm_max_iter", "n_threads")
+INT_FIELDS = ("subset", "step", "search", "search_max", "init_spacing", "anchor_spacing",
+              "max_iter", "admm_max_iter", "n_threads")
 FLOAT_FIELDS = ("tol", "zncc_min", "zncc_rel", "min_component", "mu", "beta", "smooth",
                 "admm_tol")
 

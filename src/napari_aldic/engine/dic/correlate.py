@@ -23,10 +23,10 @@ from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .quality import result_quality
-from .uncertainty_aldic import ADMMLinearisation
 from .regularise import choose_smoothing, gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .subsets import SubsetMasks, split_subsets
+from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
 

@@ -254,7 +254,7 @@ def choose_smoothing(mesh: Q4Mesh, u: np.ndarray, v: np.ndarray, trusted: np.nda
     keep = trusted & np.isfinite(noise_var).all(axis=1)
     if mesh.n_elements == 0 or keep.sum() < 16:
         return SmoothingChoice(0.0, curv_length is not None)
-    if mesh.n_nodes > ADAPTIVE_MAX_NODES:
+    if adaptive and mesh.n_nodes > ADAPTIVE_MAX_NODES:
         # six trial smoothers on the whole mesh would cost more than the ADMM
         # itself: one length, from a central window (the former behaviour)
         sub, u, v, trusted, noise_var = _central_window(mesh, u, v, trusted, noise_var)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ADMMLinearisation", "aldic_gain"]
+__all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain"]
 
 
 @dataclass
@@ -60,6 +60,55 @@ class ADMMLinearisation:
     active: np.ndarray
     probes: int = 16
     seed: int = 0
+    curvature: CurvatureFeedback | None = None
+
+
+@dataclass
+class CurvatureFeedback:
+    """The second-order warp's feedback, linearised at the run's field.
+
+    Attributes
+    ----------
+    estimator : callable(uh, vh) -> (n, 6)
+        The smoothed second derivatives the local step bends subsets by.
+    factor : (n, 6) float
+        Derivative of the curvature shrinkage at the run's curvature (0 where
+        the warp is off: subsets cut by the ROI edge).
+    """
+
+    estimator: object
+    factor: np.ndarray
+
+
+def linearise_admm(solver, iterations: int, mu: float, active, *, second_order: bool = False,
+                   uh=None, vh=None, length: float = 0.0, data=None, noise_var=None,
+                   gains=None) -> ADMMLinearisation:
+    """:class:`ADMMLinearisation` of a finished run; with ``second_order`` the
+    curvature feedback (``length``: the curvature smoother's, ``data``: nodes
+    it fits, ``noise_var`` (n, 2) and ``gains`` (g_xx, g_xy, scalars or per
+    node) as the run's shrinkage used them) linearised at ``uh``, ``vh``."""
+    if not second_order:
+        return ADMMLinearisation(solver, iterations, mu, active)
+    from .global_solve import CurvatureEstimator
+
+    est = CurvatureEstimator(solver.mesh, length, data, solver.T, solver.free)
+    c0 = est(uh, vh)
+    factor = np.ones_like(c0)
+    if noise_var is not None and gains is not None:
+        var = np.array(noise_var, dtype=float)
+        for c in range(2):
+            bad = ~np.isfinite(var[:, c])
+            var[bad, c] = np.nanmedian(var[:, c]) if (~bad).any() else 0.0
+        g = np.column_stack(np.broadcast_arrays(*(np.asarray(x, float) for x in gains)))
+        g = np.broadcast_to(g, (c0.shape[0], 2))
+        vc = np.concatenate([var[:, c:c + 1] * g[:, [0, 1, 0]] for c in range(2)], axis=1)
+        # d/dc [c³ / (c² + v)]: the shrinkage is smooth, its slope 0 at c = 0
+        c2 = c0**2
+        den = (c2 + vc) ** 2
+        factor = np.divide(c2 * (c2 + 3 * vc), den, out=np.ones_like(c2), where=den > 0)
+    factor[~np.asarray(data, bool)] = 0.0
+    return ADMMLinearisation(solver, iterations, mu, active,
+                             curvature=CurvatureFeedback(est, factor))
 
 
 def _local_maps(q, k: int):
@@ -107,8 +156,27 @@ class _BatchSolver:
         return full[:, :k], full[:, k:]
 
 
+def _curvature_coupling(m: np.ndarray, k: int) -> np.ndarray:
+    """(n, 2, 6) ``Σ J ∇fᵀ q`` per unit curvature ``(uxx, uxy, uyy, vxx, vxy,
+    vyy)``, ``q = dXᵀ (∇∇u) dX / 2``: from the second moments in the blocks of
+    ``M`` (entries of the monomials dx, dy)."""
+    out = np.empty((m.shape[0], 2, 6))
+    for a in range(2):
+        for b in range(2):
+            blk = m[:, a * k:(a + 1) * k, b * k:(b + 1) * k]
+            out[:, a, 3 * b:3 * b + 3] = np.stack(
+                [0.5 * blk[:, 1, 1], blk[:, 1, 2], 0.5 * blk[:, 2, 2]], axis=1)
+    return out
+
+
+def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
+    """(n, 6, K) linearised change of the warp curvature for field errors (n, K)."""
+    cols = [fb.estimator(uh[:, j], vh[:, j]) for j in range(uh.shape[1])]
+    return fb.factor[:, :, None] * np.stack(cols, axis=2)
+
+
 def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,
-               pen: np.ndarray, k: int):
+               pen: np.ndarray, k: int, coupling: np.ndarray | None = None):
     """The linearised ADMM run for a batch of noise images (last axis): start
     ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
     the global ``û``, ``v̂`` (n, K) each."""
@@ -124,6 +192,9 @@ def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: n
         F = solver.gradients(uh, vh)
         F[out] = g0[out]
         r = b_t + pen[:, None, None] * np.stack([uh + vu, vh + vv], axis=1)
+        if lin.curvature is not None:
+            # a curvature error bends the subset: the translation takes less
+            r -= np.einsum("nij,njk->nik", coupling, _curvature_change(lin.curvature, uh, vh))
         uv = np.einsum("nij,njk->nik", cinv, r)
         u = np.where(act, uv[:, 0], u)
         v = np.where(act, uv[:, 1], v)
@@ -157,12 +228,13 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     cinv = np.zeros_like(cp)
     cinv[good] = np.linalg.inv(cp[good])
     active = lin.active & good
-    lin = ADMMLinearisation(lin.solver, lin.iterations, lin.mu, active, lin.probes, lin.seed)
+    lin = ADMMLinearisation(lin.solver, lin.iterations, lin.mu, active, lin.probes, lin.seed,
+                            lin.curvature)
     rng = np.random.default_rng(lin.seed)
     b = np.stack([project(rng) for _ in range(lin.probes)], axis=2)
     b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
     dp0 = np.einsum("nij,njk->nik", minv, b)
-    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k)
+    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k, _curvature_coupling(m, k))
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
     s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
