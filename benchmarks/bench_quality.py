@@ -44,8 +44,11 @@ def _old_model(ref, res, sub):
     return np.sqrt(displacement_variance(st, var_e, gradient_noise_gain(3)))
 
 
-def uncertainty_row(method, shift, noise, sub, n, size=192, step=10):
-    ref0, dfm0 = S.speckle_pair((size, size), S.Translation(*shift), seed=3, bit_depth=None)
+def uncertainty_row(method, shift, noise, sub, n, size=192, step=10, curved=False):
+    fld = S.Translation(*shift)
+    if curved:  # a curved field: AL-DIC's second-order warp feeds back curvature
+        fld = S.Sum([fld, S.Sinusoid(amplitude_u=1.0, amplitude_v=1.0, wavelength=96.0)])
+    ref0, dfm0 = S.speckle_pair((size, size), fld, seed=3, bit_depth=None)
     rng = np.random.default_rng(1)
     d_loc, d_glob, new, old = [], [], [], []
     for _ in range(n):
@@ -138,11 +141,18 @@ def uncertainty_table(n: int, quick: bool, only: str | None = None) -> None:
                     # AL-DIC at step 8: subsets overlap more (correlated errors)
                     r = uncertainty_row(method, shift, noise, sub, n,
                                         step=8 if method == "aldic" else 10)
-                    print(f"| {method} | {shift} | {noise:g} | {sub} | {r['actual_px']:.4f} | "
-                          f"{r['new']:.3f} ({r['new_u']:.3f}; {r['new_v']:.3f}) | "
-                          f"{r['old']:.3f} | {r['u_gain']:.3f} | "
-                          f"{r['nodes']} |", flush=True)
+                    _print_row(r)
+    if only != "local":
+        for noise in (2.0, 5.0, 10.0):  # curved field, 21 px
+            r = uncertainty_row("aldic", (2.3, -1.4), noise, 21, n, step=8, curved=True)
+            _print_row(r | {"shift": "(2.3, -1.4) + sine"})
     print()
+
+
+def _print_row(r: dict) -> None:
+    print(f"| {r['method']} | {r['shift']} | {r['noise']:g} | {r['subset']} | "
+          f"{r['actual_px']:.4f} | {r['new']:.3f} ({r['new_u']:.3f}; {r['new_v']:.3f}) | "
+          f"{r['old']:.3f} | {r['u_gain']:.3f} | {r['nodes']} |", flush=True)
 
 
 def advice_table() -> None:

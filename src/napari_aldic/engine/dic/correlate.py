@@ -26,7 +26,7 @@ from .quality import result_quality
 from .regularise import choose_smoothing, gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .subsets import SubsetMasks, split_subsets
-from .uncertainty_aldic import ADMMLinearisation
+from .uncertainty_aldic import ADMMLinearisation, linearise_admm
 
 __all__ = ["correlate", "reference_result"]
 
@@ -307,8 +307,12 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
                      sol.u, sol.v, state.history, _smoothing_record(table, smooth),
                      sol.std, validity.summary(zncc_local, reason == Reason.OK),
-                     ADMMLinearisation(solver, len(state.history), params.mu,
-                                       trusted & (state.reason == Reason.OK)))
+                     linearise_admm(solver, len(state.history), params.mu,
+                                    trusted & (state.reason == Reason.OK),
+                                    second_order=second_order, uh=state.uh, vh=state.vh,
+                                    length=CURVATURE_SMOOTHING * params.half,
+                                    data=sub.slot < 0, noise_var=noise_var, smooth=smooth,
+                                    step=params.step, subset=params.subset))
 
 
 def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth) -> str:

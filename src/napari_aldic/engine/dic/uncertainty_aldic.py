@@ -8,9 +8,13 @@ image, white) moves every quantity of an AL-DIC run linearly:
   shape-function Gauss-Newton step with the noise as residual; ``M = Σ J ∇fᵀ``,
   ``t`` the shape monomials); neighbouring subsets share pixels, so their
   errors are correlated exactly as in the real run;
-* each ADMM local step (translation, gradient fixed, penalty ``pen_i``) by
-  ``(C_i + pen_i I) δu_i = b_i + pen_i δt_i`` with ``C_i`` the translation
-  block of ``M_i``, ``b_i = Σ J_i n`` and ``δt`` the perturbed penalty target;
+* each ADMM local step (translation, gradient ``F`` and warp curvature ``K``
+  fixed, penalty ``pen_i``) by ``(C_i + pen_i I) δu_i = b_i + pen_i δt_i
+  - B_i δF_i - Q_i δK_i`` with ``C_i`` the translation block of ``M_i``,
+  ``b_i = Σ J_i n``, ``δt`` the perturbed penalty target, ``B_i``, ``Q_i``
+  the first and second moments of ``Σ J ∇fᵀ`` over the subset (how bending
+  the subset moves its translation) and ``δK`` the curvature the run's
+  smoother and shrinkage make of ``δû`` (linearised at the run's field);
 * each global step and dual update exactly as the solver does them (they
   are linear; the solver's matrix, weights and smoothing are frozen at the
   run's values), for the same number of ADMM iterations.
@@ -20,9 +24,7 @@ maps gives per node the std of the smoothed field and of the Local DIC
 start under the same noise; their ratio (the smoothing gain, noise level
 free) scales the Local model's standard uncertainty (``dic.quality``),
 which already carries the node's own noise level, the interpolation and the
-gradient-noise corrections. Left out: the coupling of a gradient error into
-the translation of the local step and the second-order warp's curvature
-feedback (both second order in a nearly uniform field).
+gradient-noise corrections.
 """
 
 from __future__ import annotations
@@ -80,17 +82,28 @@ class CurvatureFeedback:
     factor: np.ndarray
 
 
+def _shrink_gains(smooth, length: float, step: float, subset: int):
+    """Curvature noise gains ``(g_xx, g_xy)`` of the run's shrinkage, per node
+    when the smoothing length is."""
+    from .regularise import curvature_noise_gains
+
+    lengths, inverse = np.unique(np.atleast_1d(np.asarray(smooth, float)), return_inverse=True)
+    g = np.array([curvature_noise_gains(float(ell), length, step, subset) for ell in lengths])
+    return g[inverse.ravel(), 0], g[inverse.ravel(), 1]
+
+
 def linearise_admm(solver, iterations: int, mu: float, active, *, second_order: bool = False,
                    uh=None, vh=None, length: float = 0.0, data=None, noise_var=None,
-                   gains=None) -> ADMMLinearisation:
+                   smooth=0.0, step: float = 1.0, subset: int = 0) -> ADMMLinearisation:
     """:class:`ADMMLinearisation` of a finished run; with ``second_order`` the
     curvature feedback (``length``: the curvature smoother's, ``data``: nodes
-    it fits, ``noise_var`` (n, 2) and ``gains`` (g_xx, g_xy, scalars or per
-    node) as the run's shrinkage used them) linearised at ``uh``, ``vh``."""
+    it fits, ``noise_var`` (n, 2) local variances and ``smooth``, ``step``,
+    ``subset`` as the run's shrinkage used them) linearised at ``uh``, ``vh``."""
     if not second_order:
         return ADMMLinearisation(solver, iterations, mu, active)
     from .global_solve import CurvatureEstimator
 
+    gains = None if noise_var is None else _shrink_gains(smooth, length, step, subset)
     est = CurvatureEstimator(solver.mesh, length, data, solver.T, solver.free)
     c0 = est(uh, vh)
     factor = np.ones_like(c0)
@@ -166,7 +179,17 @@ def _curvature_coupling(m: np.ndarray, k: int) -> np.ndarray:
             blk = m[:, a * k:(a + 1) * k, b * k:(b + 1) * k]
             out[:, a, 3 * b:3 * b + 3] = np.stack(
                 [0.5 * blk[:, 1, 1], blk[:, 1, 2], 0.5 * blk[:, 2, 2]], axis=1)
-    return out
+    return np.nan_to_num(out)
+
+
+def _gradient_coupling(m: np.ndarray, k: int) -> np.ndarray:
+    """(n, 2, 4) ``Σ J ∇fᵀ (δF dX)`` per unit gradient error ``(ux, uy, vx, vy)``:
+    the first moments in the blocks of ``M`` (the subset is bent by ``F``)."""
+    out = np.empty((m.shape[0], 2, 4))
+    for a in range(2):
+        for b in range(2):
+            out[:, a, 2 * b:2 * b + 2] = m[:, a * k, b * k + 1:b * k + 3]
+    return np.nan_to_num(out)
 
 
 def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
@@ -176,7 +199,7 @@ def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
 
 
 def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,
-               pen: np.ndarray, k: int, coupling: np.ndarray | None = None):
+               pen: np.ndarray, k: int, coupling: np.ndarray, fcoupling: np.ndarray):
     """The linearised ADMM run for a batch of noise images (last axis): start
     ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
     the global ``û``, ``v̂`` (n, K) each."""
@@ -192,6 +215,7 @@ def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: n
         F = solver.gradients(uh, vh)
         F[out] = g0[out]
         r = b_t + pen[:, None, None] * np.stack([uh + vu, vh + vv], axis=1)
+        r -= np.einsum("nij,njk->nik", fcoupling, F)  # the subset is warped by F
         if lin.curvature is not None:
             # a curvature error bends the subset: the translation takes less
             r -= np.einsum("nij,njk->nik", coupling, _curvature_change(lin.curvature, uh, vh))
@@ -234,7 +258,8 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     b = np.stack([project(rng) for _ in range(lin.probes)], axis=2)
     b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
     dp0 = np.einsum("nij,njk->nik", minv, b)
-    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k, _curvature_coupling(m, k))
+    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k, _curvature_coupling(m, k),
+                        _gradient_coupling(m, k))
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
     s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -1,0 +1,333 @@
+"""Weighted window moments of pixel products, in one streaming pass.
+
+For square windows centred on nodes of a lattice, the sums
+``Σ_window a X^p Y^q`` (``X``, ``Y`` image-centred pixel coordinates,
+``p + q <= order``) of several product images ``a = b_i b_j`` (or
+``hypot(b_i, b_j)``) of a few base images ``b`` at once, optionally times a
+binary mask -- without ever forming a product image. The speckle quality
+and the Gauss-Newton matrices of the uncertainty (``dic.quality``) use them.
+
+The image is read once, row by row. The window edges of the distinct node
+columns cut each row into segments; per row and product, the sums of
+``a X^p`` over each segment (formed pixel by pixel, never stored), added
+up over a window's segments, give the row's window sums; these times
+``Y^q`` are added to one accumulator per (distinct column, moment). A
+node's moments are the accumulator after its window's last row less the
+accumulator before its first row. To keep the cancellation of these
+differences local (as small as the sums of one window, not of a whole row
+or column), the running sums over segments restart every :data:`SBLOCK`
+segments and the accumulators every :data:`EPOCH` rows (the windows open
+across a restart carry the accumulator over). Memory:
+``O(nodes x moments + distinct columns x moments + width)``.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .flags import CACHED, FASTMATH
+
+__all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "moment_terms",
+           "moments_kernel", "window_moments"]
+
+#: base index of an image of ones (``(ONES, ONES)`` is the mask itself)
+ONES = -1
+#: product kinds: ``b_i * b_j`` and ``hypot(b_i, b_j)``
+PRODUCT, HYPOT = 0, 1
+#: at most this many base images
+MAX_IMAGES = 5
+#: highest moment order ``p + q``
+MAX_ORDER = 4
+#: the running sums of the segments of a row restart every SBLOCK segments ...
+SBLOCK = 16
+#: ... and the column accumulators every EPOCH rows
+EPOCH = 64
+
+_ONES_ROW = MAX_IMAGES
+_MASK_ROW = MAX_IMAGES + 1
+
+
+def moment_terms(order: int) -> list:
+    """The exponents ``(p, q)`` with ``p + q <= order``, in the kernel's order."""
+    return [(p, q) for p in range(order + 1) for q in range(order + 1 - p)]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _copy_row(dst, src, i):
+    """``dst[:] = src[i, :]`` as float64 (any input dtype)."""
+    for j in range(dst.size):
+        dst[j] = src[i, j]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _load_rows(i, a0, a1, a2, a3, a4, mask, used, rows):
+    """Row ``i`` of every used base image and of the mask into ``rows``
+    (float64; row :data:`_ONES_ROW` holds ones and is left alone)."""
+    if used[0]:
+        _copy_row(rows[0], a0, i)
+    if used[1]:
+        _copy_row(rows[1], a1, i)
+    if used[2]:
+        _copy_row(rows[2], a2, i)
+    if used[3]:
+        _copy_row(rows[3], a3, i)
+    if used[4]:
+        _copy_row(rows[4], a4, i)
+    if mask.size:
+        m = rows[_MASK_ROW]
+        for j in range(m.size):
+            m[j] = 1.0 if mask[i, j] else 0.0
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _segment_sums(rows, ia, ib, kind, masked, xs, edges, order, seg):
+    """``seg[p, s]``: sum of ``a X^p`` over columns ``[edges[s], edges[s + 1])``
+    of the row's product ``a = b_ia b_ib`` (or their hypot), masked. The
+    powers run as independent chains (no add-latency stall)."""
+    u, v, m = rows[ia], rows[ib], rows[_MASK_ROW]
+    hyp = kind == HYPOT
+    for s in range(edges.size - 1):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        for j in range(edges[s], edges[s + 1]):
+            a = np.sqrt(u[j] * u[j] + v[j] * v[j]) if hyp else u[j] * v[j]
+            if masked:
+                a *= m[j]
+            s0 += a
+            if order > 0:
+                x = xs[j]
+                a1 = a * x
+                a2 = a1 * x
+                s1 += a1
+                s2 += a2
+                if order > 2:
+                    a3 = a2 * x
+                    s3 += a3
+                    s4 += a3 * x
+        seg[0, s] = s0
+        seg[1, s] = s1
+        seg[2, s] = s2
+        seg[3, s] = s3
+        seg[4, s] = s4
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _segment_prefix(seg, nseg, order, loc, btot):
+    """Running sums of the segment sums, restarting every SBLOCK segments:
+    ``loc[p, s]`` sums the segments of ``s``'s block before ``s``,
+    ``btot[p, b]`` is block ``b``'s total (``loc[:, nseg]`` belongs to block
+    ``nseg // SBLOCK``)."""
+    nblk = nseg // SBLOCK + 1
+    for p in range(order + 1):
+        for b in range(nblk):
+            run = 0.0
+            for s in range(b * SBLOCK, min(b * SBLOCK + SBLOCK, nseg)):
+                loc[p, s] = run
+                run += seg[p, s]
+            btot[p, b] = run
+        loc[p, nseg] = btot[p, nblk - 1]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _window(loc, btot, p, c0, c1):
+    """Sum of the row over segments ``[c0, c1)`` at power ``p``."""
+    b0 = c0 // SBLOCK
+    b1 = c1 // SBLOCK
+    if b0 == b1:
+        return loc[p, c1] - loc[p, c0]
+    s = btot[p, b0] - loc[p, c0]
+    for b in range(b0 + 1, b1):
+        s += btot[p, b]
+    return s + loc[p, c1]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _add_row(acc, loc, btot, c0, c1, order, off, ypow, band):
+    """Add the row's window sums times ``Y^q`` to the column accumulators."""
+    for c in range(c0.size):
+        for p in range(order + 1):
+            band[p] = _window(loc, btot, p, c0[c], c1[c])
+        k = off
+        for p in range(order + 1):
+            for q in range(order + 1 - p):
+                acc[c, k] += band[p] * ypow[q]
+                k += 1
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _flush(out, acc, node, col, sign):
+    """``out[node] += sign * acc[col]`` over every moment."""
+    for k in range(out.shape[1]):
+        out[node, k] += sign * acc[col, k]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0, r1, xs,
+                   ys):
+    """Window moments of pixel products per node, streaming over the rows.
+
+    For each node ``n`` and product ``k`` (base images ``b_i``, ``b_j``;
+    index :data:`ONES` is an image of ones), the sums over the window
+    ``rows [r0[n], r1[n]) x columns [edges[e0[c]], edges[e1[c]])``
+    (``c = col_of[n]``) of
+    ``a_k X^p Y^q`` with ``a_k = b_i b_j`` (kind PRODUCT) or
+    ``hypot(b_i, b_j)`` (kind HYPOT), times the mask when one is given, for
+    every ``p + q <= order_k`` (:func:`moment_terms` order). One pass over
+    the rows: segment sums between window edges (their running sums
+    restarted every SBLOCK segments) give the row's sums over the distinct
+    column windows, accumulated per
+    column (restarted every EPOCH rows, the open windows carrying over);
+    each node takes the accumulator at ``r1`` less that at ``r0``.
+
+    Parameters
+    ----------
+    a0, a1, a2, a3, a4 : (H, W) float arrays
+        Base images (any float dtype; unused ones may be empty).
+    mask : (H, W) bool or (0, 0) bool
+        Binary mask multiplied into every product; empty: none.
+    products : (P, 4) int64
+        Per product ``(i, j, kind, order)``; ``order <= MAX_ORDER``.
+    edges : (E,) int64
+        Sorted distinct window edges (columns, within the image).
+    e0, e1 : (C,) int64
+        Column window of each distinct node column: edges ``e0`` to ``e1``.
+    col_of : (N,) int64
+        Distinct column of each node.
+    r0, r1 : (N,) int64
+        Row window ``[r0, r1)`` of each node, within the image.
+    xs, ys : (W,), (H,) float64
+        Coordinate ``X`` of each column and ``Y`` of each row.
+
+    Returns
+    -------
+    (N, M) float64
+        Per node, the moments of product 0, then those of product 1, ...
+        (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
+    """
+    h, w = ys.size, xs.size
+    nprod = products.shape[0]
+    offs = np.zeros(nprod + 1, np.int64)
+    used = np.zeros(MAX_IMAGES, np.bool_)
+    for k in range(nprod):
+        o = products[k, 3]
+        offs[k + 1] = offs[k] + (o + 1) * (o + 2) // 2
+        for t in range(2):
+            if products[k, t] >= 0:
+                used[products[k, t]] = True
+    n, nc = r0.size, e0.size
+    nseg = max(edges.size - 1, 0)
+    out = np.zeros((n, offs[nprod]))
+    acc = np.zeros((nc, offs[nprod]))
+    rows = np.ones((MAX_IMAGES + 2, w))
+    seg = np.zeros((MAX_ORDER + 1, nseg))
+    loc = np.zeros((MAX_ORDER + 1, nseg + 1))
+    btot = np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1))
+    band = np.empty(MAX_ORDER + 1)
+    ypow = np.empty(MAX_ORDER + 1)
+    by0 = np.argsort(r0)
+    by1 = np.argsort(r1)
+    tall = 0
+    for i in range(n):
+        tall = max(tall, r1[i] - r0[i])
+    p0 = p1 = lo = 0
+    for b in range(h + 1):
+        # windows ending before row b take the accumulator
+        while p1 < n and r1[by1[p1]] == b:
+            nd = by1[p1]
+            if r0[nd] < b:
+                _flush(out, acc, nd, col_of[nd], 1.0)
+            p1 += 1
+        if b % EPOCH == 0 and 0 < b < h:
+            # restart: the windows open across row b keep what they have so far
+            while lo < n and r0[by0[lo]] <= b - tall:
+                lo += 1
+            t = lo
+            while t < n and r0[by0[t]] < b:
+                nd = by0[t]
+                if r1[nd] > b:
+                    _flush(out, acc, nd, col_of[nd], 1.0)
+                t += 1
+            acc[:] = 0.0
+        # windows starting at row b give back what came before
+        while p0 < n and r0[by0[p0]] == b:
+            nd = by0[p0]
+            if r1[nd] > b:
+                _flush(out, acc, nd, col_of[nd], -1.0)
+            p0 += 1
+        if b == h:
+            break
+        _load_rows(b, a0, a1, a2, a3, a4, mask, used, rows)
+        ypow[0] = 1.0
+        for q in range(1, MAX_ORDER + 1):
+            ypow[q] = ypow[q - 1] * ys[b]
+        for k in range(nprod):
+            ia = products[k, 0] if products[k, 0] >= 0 else _ONES_ROW
+            ib = products[k, 1] if products[k, 1] >= 0 else _ONES_ROW
+            order = products[k, 3]
+            _segment_sums(rows, ia, ib, products[k, 2], mask.size > 0, xs, edges, order, seg)
+            _segment_prefix(seg, nseg, order, loc, btot)
+            _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
+    return out
+
+
+def window_moments(images, products, x, y, half: int, *, mask=None, origin=None) -> list:
+    """Raw window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
+
+    Parameters
+    ----------
+    images : sequence of (H, W) float arrays
+        Up to :data:`MAX_IMAGES` base images (not copied).
+    products : sequence of tuples
+        ``(i, j, order)`` or ``(i, j, order, kind)``: base indices (``ONES``
+        for an image of ones), highest ``p + q`` (``<= MAX_ORDER``) and kind
+        (:data:`PRODUCT`, the default, or :data:`HYPOT`).
+    x, y : (N,) int-like
+        Node coordinates (column, row).
+    half : int
+        Window half-width: columns ``x - half .. x + half`` clipped to the image.
+    mask : (H, W) bool, optional
+        Binary mask multiplied into every product.
+    origin : (cx, cy), optional
+        Coordinate origin (default: the image centre ``((W-1)/2, (H-1)/2)``).
+
+    Returns
+    -------
+    list of dict
+        Per product, ``{(p, q): (N,) float64}``.
+    """
+    images = [np.asarray(a) for a in images]
+    if not 1 <= len(images) <= MAX_IMAGES:
+        raise ValueError(f"window_moments takes 1 to {MAX_IMAGES} images, got {len(images)}")
+    h, w = images[0].shape
+    if any(a.shape != (h, w) for a in images):
+        raise ValueError("window_moments: the images differ in shape")
+    prod = np.array([(int(t[0]), int(t[1]), int(t[3]) if len(t) > 3 else PRODUCT, int(t[2]))
+                     for t in products], np.int64).reshape(-1, 4)
+    if np.any(prod[:, :2] >= len(images)) or np.any(prod[:, :2] < ONES):
+        raise ValueError("window_moments: a product names a missing image")
+    if np.any(prod[:, 3] < 0) or np.any(prod[:, 3] > MAX_ORDER):
+        raise ValueError(f"window_moments: moment orders must be 0..{MAX_ORDER}")
+    empty = np.zeros((0, 0), images[0].dtype)
+    images += [empty] * (MAX_IMAGES - len(images))
+    m = np.zeros((0, 0), np.bool_) if mask is None else np.asarray(mask, np.bool_)
+    if mask is not None and m.shape != (h, w):
+        raise ValueError(f"window_moments: mask shape {m.shape} differs from the images' "
+                         f"{(h, w)}")
+    cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0) if origin is None else origin
+    cols, col_of = np.unique(np.asarray(x, np.int64), return_inverse=True)
+    yi = np.asarray(y, np.int64).ravel()
+    c0, c1 = np.clip(cols - half, 0, w), np.clip(cols + half + 1, 0, w)
+    edges = np.unique(np.concatenate([c0, c1]))
+    out = moments_kernel(*images, m, prod, edges, np.searchsorted(edges, c0),
+                         np.searchsorted(edges, c1), col_of.ravel().astype(np.int64),
+                         np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h),
+                         np.arange(w) - float(cx), np.arange(h) - float(cy))
+    res, k = [], 0
+    for o in prod[:, 3]:
+        res.append({pq: out[:, k + i] for i, pq in enumerate(moment_terms(int(o)))})
+        k += len(res[-1])
+    return res
