@@ -11,7 +11,14 @@ try:
 except Exception:  # pragma: no cover - running from a source tree
     __version__ = "0.1.0"
 
-# the sample files the package ships (the crack sequence, the open-hole pair), for scripts
-from ._sample_data import CRACK_FILE, sample_data_dir  # noqa: E402  (NumPy only, no napari)
-
 __all__ = ["__version__", "CRACK_FILE", "sample_data_dir"]
+
+
+def __getattr__(name: str):
+    # the sample files the package ships (crack sequence, open-hole pair), for
+    # scripts; imported on first use so that importing the engine stays lean
+    if name in ("CRACK_FILE", "sample_data_dir"):
+        from . import _sample_data
+
+        return getattr(_sample_data, name)
+    raise AttributeError(f"module 'napari_aldic' has no attribute {name!r}")

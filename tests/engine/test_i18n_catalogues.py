@@ -38,7 +38,8 @@ SAME_AS_ENGLISH: dict[str, set[str]] = {
     "*": {"AL-DIC", "MATLAB (.mat)", "MATLAB (*.mat)", "CSV (*.csv)", "PNG (*.png)",
           "GIF (*.gif)", "PDF (*.pdf)", "ZNCC", "px", "µm", "mm", "{prog}: error: {message}"},
     "de": {"Format", "Export", "Subset (px)", "Tracking", "Status", "Name"},
-    "fr": {"Format", "Local (IC-GN)", "Export", "Position", "Regions", "Zones"},
+    "fr": {"Format", "Local (IC-GN)", "Export", "Position", "Regions", "Zones",
+           "options"},  # the CLI help heading: the same word in French
     "es": {"Local (IC-GN)"},
     "zh_CN": set(), "zh_TW": set(), "ja": set(), "ko": set(),
 }

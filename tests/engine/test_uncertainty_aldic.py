@@ -9,7 +9,7 @@ import pytest
 from napari_aldic.engine import correlate, synthetic as S
 from napari_aldic.engine.dic.global_solve import GlobalSolver, uniform_mesh
 from napari_aldic.engine.dic.mesh import make_grid
-from napari_aldic.engine.dic.uncertainty_aldic import _BatchSolver
+from napari_aldic.engine.dic.uncertainty_aldic import BatchSolver
 
 
 @pytest.mark.parametrize("method", ["direct", "amg"])
@@ -23,7 +23,7 @@ def test_batch_solve_is_the_global_solve(method):
     trusted = rng.random(grid.n) > 0.1
     solver = GlobalSolver(mesh, beta=3.0, mu=1.0, weights=trusted, curvature=50.0,
                           method=method)
-    batch = _BatchSolver(solver)
+    batch = BatchSolver(solver)
     n, k = grid.n, 3
     F, W = rng.normal(size=(n, 4, k)), rng.normal(size=(n, 4, k))
     u, v, vu, vv = (rng.normal(size=(n, k)) for _ in range(4))

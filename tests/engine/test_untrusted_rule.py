@@ -33,10 +33,18 @@ def _flag(res: DICResult, nodes) -> DICResult:
 
 
 @pytest.fixture(scope="module")
-def incremental(export_stack):
-    """An incremental sequence: material that leaves the lattice is flagged, u = NaN."""
-    seq = track(export_stack, subset=21, step=12, reference="incremental")
+def incremental():
+    """An incremental sequence whose material moves 7 px per frame to the right:
+    subsets near the right edge leave the image and are flagged, u = NaN."""
+    from napari_aldic.engine import synthetic as S
+
+    shape = (128, 128)
+    pat = S.make_pattern(shape, seed=23, margin=40)
+    stack = np.stack([S.render(pat, shape, None if k == 0 else S.Translation(7.0 * k, 0.3 * k),
+                               n_quad=2, seed=60 + k) for k in range(4)])
+    seq = track(stack, subset=21, step=12, reference="incremental")
     assert any((~seq[k].valid).any() for k in range(1, len(seq)))
+    assert all(seq[k].valid.sum() > seq[k].valid.size // 2 for k in range(1, len(seq)))
     return seq
 
 

@@ -17,6 +17,9 @@
   not the noise the match picks up (that lies at the speckle's low spatial
   frequencies, which interpolation passes). Pan's rule ``σ_u ≈ √2 σ / √SSSIG``
   is the translation-only, noise-free-gradient limit of this formula.
+  For AL-DIC the smoothed field's uncertainty is this times a per-node
+  smoothing gain from linear noise propagation through the ADMM run
+  (:mod:`.uncertainty_aldic`).
 * **Subset advice** -- the predicted standard uncertainty of a static
   (integer-shift) match for a range of subset sizes, from the reference
   image alone and its noise (Immerkær's estimator); the smallest subset at

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain"]
+__all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver"]
 
 
 @dataclass
@@ -119,7 +119,8 @@ def linearise_admm(solver, iterations: int, mu: float, active, *, second_order: 
         c2 = c0**2
         den = (c2 + vc) ** 2
         factor = np.divide(c2 * (c2 + 3 * vc), den, out=np.ones_like(c2), where=den > 0)
-    factor[~np.asarray(data, bool)] = 0.0
+    if data is not None:  # subsets cut by the ROI edge keep the affine warp
+        factor[~np.asarray(data, bool)] = 0.0
     return ADMMLinearisation(solver, iterations, mu, active,
                              curvature=CurvatureFeedback(est, factor))
 
@@ -138,7 +139,7 @@ def _local_maps(q, k: int):
     return m, c, pen, ok
 
 
-class _BatchSolver:
+class BatchSolver:
     """:meth:`GlobalSolver.solve` and ``gradients`` for many right-hand sides
     at once (columns: noise images) with the run's matrix; the formula of the
     right-hand side is the solver's (``test_uncertainty_aldic`` checks that
@@ -203,7 +204,7 @@ def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: n
     """The linearised ADMM run for a batch of noise images (last axis): start
     ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
     the global ``û``, ``v̂`` (n, K) each."""
-    solver = _BatchSolver(lin.solver)
+    solver = BatchSolver(lin.solver)
     u, v = dp0[:, 0].copy(), dp0[:, k].copy()
     g0 = dp0[:, [1, 2, k + 1, k + 2]]
     W = np.zeros_like(g0)

@@ -29,7 +29,7 @@ import numpy as np
 from .flags import CACHED, FASTMATH
 
 __all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "moment_terms",
-           "moments_kernel", "window_moments"]
+           "moments_kernel", "centre_moments", "window_moments"]
 
 #: base index of an image of ones (``(ONES, ONES)`` is the mask itself)
 ONES = -1
@@ -74,40 +74,55 @@ def _load_rows(i, a0, a1, a2, a3, a4, mask, used, rows):
         _copy_row(rows[3], a3, i)
     if used[4]:
         _copy_row(rows[4], a4, i)
-    if mask.size:
+    if mask.size:  # else the mask row keeps its ones
         m = rows[_MASK_ROW]
         for j in range(m.size):
             m[j] = 1.0 if mask[i, j] else 0.0
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _segment_sums(rows, ia, ib, kind, masked, xs, edges, order, seg):
-    """``seg[p, s]``: sum of ``a X^p`` over columns ``[edges[s], edges[s + 1])``
-    of the row's product ``a = b_ia b_ib`` (or their hypot), masked. The
-    powers run as independent chains (no add-latency stall)."""
+def _product_row(rows, ia, ib, kind, out):
+    """One row of the product image ``b_ia b_ib`` (or their hypot), masked
+    (the mask row holds ones when there is no mask)."""
     u, v, m = rows[ia], rows[ib], rows[_MASK_ROW]
-    hyp = kind == HYPOT
+    if kind == HYPOT:
+        for j in range(out.size):
+            out[j] = np.sqrt(u[j] * u[j] + v[j] * v[j]) * m[j]
+    else:
+        for j in range(out.size):
+            out[j] = u[j] * v[j] * m[j]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _segment_sums(a, xs, edges, order, seg):
+    """``seg[p, s]``: sum of ``a X^p`` over columns ``[edges[s], edges[s + 1])``
+    for ``p <= order`` (one loop per order range, the powers as independent
+    chains: no add-latency stall)."""
     for s in range(edges.size - 1):
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        s4 = 0.0
-        for j in range(edges[s], edges[s + 1]):
-            a = np.sqrt(u[j] * u[j] + v[j] * v[j]) if hyp else u[j] * v[j]
-            if masked:
-                a *= m[j]
-            s0 += a
-            if order > 0:
+        s0 = s1 = s2 = s3 = s4 = 0.0
+        if order == 0:
+            for j in range(edges[s], edges[s + 1]):
+                s0 += a[j]
+        elif order <= 2:
+            for j in range(edges[s], edges[s + 1]):
                 x = xs[j]
-                a1 = a * x
+                a0 = a[j]
+                a1 = a0 * x
+                s0 += a0
+                s1 += a1
+                s2 += a1 * x
+        else:
+            for j in range(edges[s], edges[s + 1]):
+                x = xs[j]
+                a0 = a[j]
+                a1 = a0 * x
                 a2 = a1 * x
+                a3 = a2 * x
+                s0 += a0
                 s1 += a1
                 s2 += a2
-                if order > 2:
-                    a3 = a2 * x
-                    s3 += a3
-                    s4 += a3 * x
+                s3 += a3
+                s4 += a3 * x
         seg[0, s] = s0
         seg[1, s] = s1
         seg[2, s] = s2
@@ -133,36 +148,39 @@ def _segment_prefix(seg, nseg, order, loc, btot):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _window(loc, btot, p, c0, c1):
-    """Sum of the row over segments ``[c0, c1)`` at power ``p``."""
-    b0 = c0 // SBLOCK
-    b1 = c1 // SBLOCK
-    if b0 == b1:
-        return loc[p, c1] - loc[p, c0]
-    s = btot[p, b0] - loc[p, c0]
-    for b in range(b0 + 1, b1):
-        s += btot[p, b]
-    return s + loc[p, c1]
-
-
-@nb.njit(**CACHED, fastmath=FASTMATH)
-def _add_row(acc, loc, btot, c0, c1, order, off, ypow, band):
-    """Add the row's window sums times ``Y^q`` to the column accumulators."""
-    for c in range(c0.size):
+def _add_row(acc, loc, btot, e0, e1, order, off, ypow, band):
+    """Add the row's window sums (segments ``[e0, e1)`` of each distinct
+    column ``c``, from the block running sums) times ``Y^q`` to the column
+    accumulators ``acc[off + t, c]`` (moments ``t`` in :func:`moment_terms`
+    order; the last loop runs along the columns and vectorises)."""
+    nc = e0.size
+    for c in range(nc):
+        s0, s1 = e0[c], e1[c]
+        b0, b1 = s0 // SBLOCK, s1 // SBLOCK
         for p in range(order + 1):
-            band[p] = _window(loc, btot, p, c0[c], c1[c])
-        k = off
-        for p in range(order + 1):
-            for q in range(order + 1 - p):
-                acc[c, k] += band[p] * ypow[q]
-                k += 1
+            if b0 == b1:
+                band[p, c] = loc[p, s1] - loc[p, s0]
+            else:
+                s = btot[p, b0] - loc[p, s0]
+                for b in range(b0 + 1, b1):
+                    s += btot[p, b]
+                band[p, c] = s + loc[p, s1]
+    t = off
+    for p in range(order + 1):
+        bp = band[p]
+        for q in range(order + 1 - p):
+            y = ypow[q]
+            a = acc[t]
+            for c in range(nc):
+                a[c] += bp[c] * y
+            t += 1
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def _flush(out, acc, node, col, sign):
-    """``out[node] += sign * acc[col]`` over every moment."""
+    """``out[node, :] += sign * acc[:, col]`` (every moment)."""
     for k in range(out.shape[1]):
-        out[node, k] += sign * acc[col, k]
+        out[node, k] += sign * acc[k, col]
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
@@ -221,12 +239,13 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     n, nc = r0.size, e0.size
     nseg = max(edges.size - 1, 0)
     out = np.zeros((n, offs[nprod]))
-    acc = np.zeros((nc, offs[nprod]))
+    acc = np.zeros((offs[nprod], nc))
     rows = np.ones((MAX_IMAGES + 2, w))
+    prow = np.empty(w)
     seg = np.zeros((MAX_ORDER + 1, nseg))
     loc = np.zeros((MAX_ORDER + 1, nseg + 1))
     btot = np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1))
-    band = np.empty(MAX_ORDER + 1)
+    band = np.empty((MAX_ORDER + 1, nc))
     ypow = np.empty(MAX_ORDER + 1)
     by0 = np.argsort(r0)
     by1 = np.argsort(r1)
@@ -268,14 +287,66 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
             ia = products[k, 0] if products[k, 0] >= 0 else _ONES_ROW
             ib = products[k, 1] if products[k, 1] >= 0 else _ONES_ROW
             order = products[k, 3]
-            _segment_sums(rows, ia, ib, products[k, 2], mask.size > 0, xs, edges, order, seg)
+            _product_row(rows, ia, ib, products[k, 2], prow)
+            _segment_sums(prow, xs, edges, order, seg)
             _segment_prefix(seg, nseg, order, loc, btot)
             _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
     return out
 
 
-def window_moments(images, products, x, y, half: int, *, mask=None, origin=None) -> list:
-    """Raw window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def centre_moments(raw, dx, dy, order):
+    """Moments about each node from moments about the origin.
+
+    The binomial expansion ``Σ a (X - dx)^p (Y - dy)^q = Σ_ij C(p, i) C(q, j)
+    (-dx)^(p-i) (-dy)^(q-j) Σ a X^i Y^j``, node by node.
+
+    Parameters
+    ----------
+    raw : (N, M) float64
+        Moments ``Σ a X^p Y^q`` of one product, in :func:`moment_terms` order.
+    dx, dy : (N,) float64
+        Each node's position in the coordinates of ``raw``.
+    order : int
+        Highest ``p + q`` (``M = (order + 1)(order + 2) / 2``).
+
+    Returns
+    -------
+    (N, M) float64
+        The moments about each node.
+    """
+    n = raw.shape[0]
+    start = np.empty(order + 2, np.int64)  # column of (p, 0)
+    start[0] = 0
+    for p in range(order + 1):
+        start[p + 1] = start[p] + order + 1 - p
+    binom = np.zeros((order + 1, order + 1))
+    for p in range(order + 1):
+        binom[p, 0] = 1.0
+        for i in range(1, p + 1):
+            binom[p, i] = binom[p - 1, i - 1] + binom[p - 1, i]
+    out = np.zeros((n, raw.shape[1]))
+    px = np.empty(order + 1)
+    py = np.empty(order + 1)
+    for k in range(n):
+        px[0] = py[0] = 1.0
+        for i in range(1, order + 1):
+            px[i] = -dx[k] * px[i - 1]
+            py[i] = -dy[k] * py[i - 1]
+        for p in range(order + 1):
+            for q in range(order + 1 - p):
+                m = 0.0
+                for i in range(p + 1):
+                    for j in range(q + 1):
+                        m += binom[p, i] * binom[q, j] * px[p - i] * py[q - j] * \
+                            raw[k, start[i] + j]
+                out[k, start[p] + q] = m
+    return out
+
+
+def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
+                   centre: bool = False) -> list:
+    """Window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
 
     Parameters
     ----------
@@ -293,11 +364,15 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None)
         Binary mask multiplied into every product.
     origin : (cx, cy), optional
         Coordinate origin (default: the image centre ``((W-1)/2, (H-1)/2)``).
+    centre : bool
+        Return the moments about each node instead (``X - x``, ``Y - y``;
+        :func:`centre_moments` of the raw ones).
 
     Returns
     -------
-    list of dict
-        Per product, ``{(p, q): (N,) float64}``.
+    list of (N, M_k) float64
+        Per product, the moments ``(p, q)`` in :func:`moment_terms` order
+        (views of one array).
     """
     images = [np.asarray(a) for a in images]
     if not 1 <= len(images) <= MAX_IMAGES:
@@ -328,6 +403,12 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None)
                          np.arange(w) - float(cx), np.arange(h) - float(cy))
     res, k = [], 0
     for o in prod[:, 3]:
-        res.append({pq: out[:, k + i] for i, pq in enumerate(moment_terms(int(o)))})
-        k += len(res[-1])
+        m = (o + 1) * (o + 2) // 2
+        res.append(out[:, k:k + m])
+        k += m
+    if centre:
+        dx = np.asarray(x, np.float64).ravel() - float(cx)
+        dy = yi - float(cy)
+        res = [centre_moments(np.ascontiguousarray(r), dx, dy, int(o))
+               for r, o in zip(res, prod[:, 3])]
     return res
