@@ -5,6 +5,7 @@ displacement and strain noise measured on a static pair."""
 from __future__ import annotations
 
 import json
+import unicodedata
 from pathlib import Path
 
 from ..engine import advise_subset, noise_floor
@@ -13,6 +14,13 @@ from ..i18n import tr
 from .console import CLIError
 from .run import read_mask
 from .settings import settings_from_args
+
+
+def _rjust(text: str, width: int) -> str:
+    """``text`` right-aligned in ``width`` terminal columns: CJK characters take
+    two columns, so padding by character count would misalign the headings."""
+    cols = sum(2 if unicodedata.east_asian_width(c) in "WF" else 1 for c in text)
+    return " " * max(width - cols, 0) + text
 
 
 def _image(path: Path):
@@ -32,10 +40,8 @@ def advise_command(args) -> None:
              "(nodes to meet it: {percent:.0f} %)").format(
         noise=adv.noise, how=tr("given") if args.noise is not None else tr("estimated"),
         target=adv.target, percent=100 * adv.coverage))
-    # a pure layout string (column widths of the rows below): not for translation
-    print("{subset:>7} {median:>13} {p90:>13} {fraction:>15}".format(
-        subset=tr("subset"), median=tr("median (px)"), p90=tr("90th pct (px)"),
-        fraction=tr("meeting target")))
+    heads = (tr("subset"), tr("median (px)"), tr("90th pct (px)"), tr("meeting target"))
+    print(" ".join(_rjust(h, w) for h, w in zip(heads, (7, 13, 13, 15))))
     for r in adv.rows:
         print(f"{r['subset']:>7d} {r['median_std_px']:>13.4f} {r['p90_std_px']:>13.4f} "
               f"{100 * r['fraction']:>14.1f}%")
