@@ -38,11 +38,11 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from math import comb
 
 import numpy as np
 from scipy import ndimage
 
+from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms, window_moments
 from .interpolation import (
     JACOBIAN_SMOOTHING,
     JACOBIAN_SMOOTHING_MAX,
@@ -68,84 +68,40 @@ _MIN_SPECKLE_FRACTION = 0.1
 _CHUNK = 4096  # nodes per batch of small matrix inversions
 
 
-class _BoxSums:
-    """Weighted sums of an image over the square windows of half-width
-    ``half`` centred on nodes: ``Σ a x^p y^q`` (image-centred coordinates).
-
-    Separable: one cumulative sum along the rows per column weight ``x^p``
-    gives the column-window sums at the distinct node columns only (a
-    contiguous pass, the fast direction), and a cumulative sum down those few
-    columns per row weight ``y^q`` the window sums."""
-
-    def __init__(self, shape, x, y, half: int):
-        h, w = shape
-        self.cx, self.cy = (w - 1) / 2.0, (h - 1) / 2.0
-        cols, self.col_of = np.unique(np.asarray(x, np.int64), return_inverse=True)
-        self.c0 = np.clip(cols - half, 0, w)
-        self.c1 = np.clip(cols + half + 1, 0, w)
-        self.r0 = np.clip(np.asarray(y, np.int64) - half, 0, h)
-        self.r1 = np.clip(np.asarray(y, np.int64) + half + 1, 0, h)
-        self.xs = np.arange(w) - self.cx
-        self.ys = np.arange(h) - self.cy
-
-    def moments(self, a: np.ndarray, order: int) -> dict:
-        """``{(p, q): Σ a x^p y^q}`` per node window, ``p + q <= order``."""
-        out = {}
-        cs = np.zeros((a.shape[0], a.shape[1] + 1))
-        for p in range(order + 1):
-            np.cumsum(a * self.xs**p if p else a, axis=1, out=cs[:, 1:])
-            band = cs[:, self.c1] - cs[:, self.c0]  # (H, distinct columns)
-            cb = np.zeros((band.shape[0] + 1, band.shape[1]))
-            for q in range(order + 1 - p):
-                np.cumsum(band * self.ys[:, None] ** q if q else band, axis=0, out=cb[1:])
-                out[p, q] = cb[self.r1, self.col_of] - cb[self.r0, self.col_of]
-        return out
-
-    def ones_moments(self, order: int) -> dict:
-        """:meth:`moments` of an image of ones (no ROI), from 1-D sums."""
-        cy = np.zeros(self.ys.size + 1)
-        cx = np.zeros(self.xs.size + 1)
-        out = {}
-        for p in range(order + 1):
-            cx[1:] = np.cumsum(self.xs**p)
-            cols = (cx[self.c1] - cx[self.c0])[self.col_of]
-            for q in range(order + 1 - p):
-                cy[1:] = np.cumsum(self.ys**q)
-                out[p, q] = cols * (cy[self.r1] - cy[self.r0])
-        return out
-
-    def __call__(self, a: np.ndarray) -> np.ndarray:
-        return self.moments(a, 0)[0, 0]
+def _ones_moments(shape, x, y, half: int, order: int) -> np.ndarray:
+    """(n, M) ``Σ (X - x)^p (Y - y)^q`` over each node's window clipped to the
+    image (no ROI; ``(p, q)`` in ``moment_terms(order)`` order), from 1-D sums."""
+    h, w = shape
+    xi, yi = np.asarray(x, np.int64), np.asarray(y, np.int64)
+    xs, ys = np.arange(w) - (w - 1) / 2.0, np.arange(h) - (h - 1) / 2.0
+    c0, c1 = np.clip(xi - half, 0, w), np.clip(xi + half + 1, 0, w)
+    r0, r1 = np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h)
+    cx, cy = np.zeros(w + 1), np.zeros(h + 1)
+    cols = []
+    for p, q in moment_terms(order):
+        cx[1:] = np.cumsum(xs**p)
+        cy[1:] = np.cumsum(ys**q)
+        cols.append((cx[c1] - cx[c0]) * (cy[r1] - cy[r0]))
+    return centre_moments(np.column_stack(cols), xi - (w - 1) / 2.0, yi - (h - 1) / 2.0,
+                          order)
 
 
-def _centred_moments(box: _BoxSums, a: np.ndarray | None, x, y, order: int) -> dict:
-    """``{(p, q): Σ a (X - x)^p (Y - y)^q}`` over each node's window, p + q <= order
-    (``a=None``: an image of ones).
-
-    Raw moments of the image-centred coordinates are summed once per
-    monomial and shifted to each node by the binomial expansion."""
-    raw = box.ones_moments(order) if a is None else box.moments(a, order)
-    dx = np.asarray(x, float) - box.cx
-    dy = np.asarray(y, float) - box.cy
-    out = {}
-    for (p, q) in raw:
-        m = np.zeros(dx.shape)
-        for i in range(p + 1):
-            for j in range(q + 1):
-                m += comb(p, i) * comb(q, j) * (-dx) ** (p - i) * (-dy) ** (q - j) * raw[i, j]
-        out[p, q] = m
-    return out
-
-
-def _block(mom: dict, terms) -> np.ndarray:
-    """(n, k, k) matrix ``Σ a t_i t_j`` of the monomials ``terms``."""
-    k = len(terms)
-    n = next(iter(mom.values())).shape[0]
-    out = np.empty((n, k, k))
-    for i, (p1, q1) in enumerate(terms):
-        for j, (p2, q2) in enumerate(terms):
-            out[:, i, j] = mom[p1 + p2, q1 + q2]
-    return out
+def _matrices(moms, layout, terms, order: int) -> np.ndarray:
+    """(n, 2k, 2k) matrix whose block ``(i, j)`` is ``Σ a t tᵀ`` of the
+    monomials ``terms``, ``a``'s centred moments being ``moms[layout[i][j]]``
+    ((n, M) in ``moment_terms(order)`` order; None: a zero block)."""
+    col = {pq: c for c, pq in enumerate(moment_terms(order))}
+    nm, k = len(col), len(terms)
+    table = np.full((2 * k, 2 * k), len(moms) * nm)  # the zero column
+    for bi in range(2):
+        for bj in range(2):
+            if layout[bi][bj] is None:
+                continue
+            for i, (p1, q1) in enumerate(terms):
+                for j, (p2, q2) in enumerate(terms):
+                    table[bi * k + i, bj * k + j] = layout[bi][bj] * nm + col[p1 + p2, q1 + q2]
+    flat = np.column_stack([*moms, np.zeros(moms[0].shape[0])])
+    return flat[:, table]
 
 
 @dataclass
@@ -212,19 +168,33 @@ def filter_gains(sigma: float, order: int) -> tuple[float, float, float]:
     return float(np.sum(d * d)), float(np.sum(dj * dj)), float(np.sum(d * dj))
 
 
-def _matrix(box, x, y, deg, terms, ax, ay, bx, by) -> np.ndarray:
-    """(n, 2k, 2k) ``Σ a bᵀ`` with ``a = (ax t, ay t)``, ``b = (bx t, by t)``."""
-    k = len(terms)
-    blocks = {}
-    for i, ai in enumerate((ax, ay)):
-        for j, bj in enumerate((bx, by)):
-            if (j, i) in blocks and ax is bx and ay is by:
-                blocks[i, j] = blocks[j, i].transpose(0, 2, 1)
-                continue
-            blocks[i, j] = _block(_centred_moments(box, ai * bj, x, y, deg), terms)
-    out = np.empty((blocks[0, 0].shape[0], 2 * k, 2 * k))
-    for (i, j), b in blocks.items():
-        out[:, i * k:(i + 1) * k, j * k:(j + 1) * k] = b
+def _subset_sums(img, gx, gy, jac, mask, x, y, half: int, deg: int) -> dict:
+    """Every window sum :func:`speckle_quality` needs, in one pass of the
+    moment kernel (no product image is formed): the moments about the node
+    up to ``deg`` of the ROI and of ``J Jᵀ`` (``J = jac`` or the gradients)
+    and, when ``jac`` is given, ``J ∇fᵀ``; the sums of ``f``, ``f²``,
+    ``|∇f|``, ``f_x²`` and ``f_y²`` (all within the ROI)."""
+    F, GX, GY, JX, JY = range(5)
+    jx, jy = (GX, GY) if jac is None else (JX, JY)
+    prods = {"jj": [(jx, jx, deg), (jx, jy, deg), (jy, jy, deg)],
+             "s": [(F, ONES, 0), (F, F, 0), (GX, GY, 0, HYPOT)]}
+    if jac is not None:
+        prods["jg"] = [(JX, GX, deg), (JX, GY, deg), (JY, GX, deg), (JY, GY, deg)]
+        prods["s"] += [(GX, GX, 0), (GY, GY, 0)]
+    if mask is not None:
+        prods["m"] = [(ONES, ONES, deg)]
+    images = [img, gx, gy] + ([] if jac is None else list(jac))
+    flat = window_moments(images, [t for v in prods.values() for t in v], x, y, half,
+                          mask=mask, centre=True)
+    out, k = {}, 0
+    for key, v in prods.items():
+        out[key] = flat[k:k + len(v)]
+        k += len(v)
+    if mask is None:
+        out["m"] = [_ones_moments(img.shape, x, y, half, deg)]
+    if jac is None:
+        out["s"] += [out["jj"][0], out["jj"][2]]  # Σ f_x², Σ f_y²
+    out["s"] = [r[:, 0] for r in out["s"]]  # moment (0, 0) comes first
     return out
 
 
@@ -261,42 +231,33 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
         raise ValueError(f"shape_function must be one of {sorted(SHAPE_TERMS)}, "
                          f"got {shape_function!r}")
     whole = roi is None or bool(np.all(roi))
-    mask = None if whole else np.asarray(roi, bool).astype(np.float64)
+    mask = None if whole else np.asarray(roi, bool)
     if gradients is None:
         gx, gy, gain = _gradients(img, order)
     else:
-        gx, gy = (np.asarray(a, np.float64) for a in gradients)
+        gx, gy = gradients
         gain = gradient_noise_gain(order)
-    if mask is not None:
-        gx = gx * mask
-        gy = gy * mask
-    box = _BoxSums(img.shape, x, y, subset // 2)
     terms = SHAPE_TERMS[shape_function]
     deg = 2 * max(p + q for p, q in terms)
-    mm = _centred_moments(box, mask, x, y, deg)  # pixel counts and their moments
-    k = len(terms)
-    unit = np.zeros((mm[0, 0].size, 2 * k, 2 * k))
-    unit[:, :k, :k] = unit[:, k:, k:] = _block(mm, terms)
+    sums = _subset_sums(img, gx, gy, None if jacobian is None else jacobian[:2], mask, x, y,
+                        subset // 2, deg)
+    # Σ ay ax t tᵀ = Σ ax ay t tᵀ: the lower-left block repeats the upper-right one
+    hess = _matrices(sums["jj"], ((0, 1), (1, 2)), terms, deg)
+    noise = _matrices(sums["m"], ((0, None), (None, 0)), terms, deg)
     cross = cross_noise = None
     if jacobian is None:
-        hess = _matrix(box, x, y, deg, terms, gx, gy, gx, gy)
-        noise = gain * unit
+        noise *= gain
     else:
-        jx, jy = (np.asarray(a, np.float64) * (1.0 if mask is None else mask)
-                  for a in jacobian[:2])
         _, gain_j, gain_c = filter_gains(float(jacobian[2]), order)
-        hess = _matrix(box, x, y, deg, terms, jx, jy, jx, jy)
-        noise = gain_j * unit
-        cross = _matrix(box, x, y, deg, terms, jx, jy, gx, gy)
-        cross_noise = gain_c * unit
-    m = mm[0, 0]
-    masked = img if mask is None else img * mask
-    s1, s2 = box(masked), box(masked * img)
+        cross = _matrices(sums["jg"], ((0, 1), (2, 3)), terms, deg)
+        cross_noise = noise * gain_c
+        noise *= gain_j
+    m = sums["m"][0][:, 0]
+    s1, s2, grad_abs, sx, sy = sums["s"]
     with np.errstate(invalid="ignore", divide="ignore"):
-        mig = box(np.hypot(gx, gy)) / m
+        mig = grad_abs / m
         var_f = np.maximum(s2 / m - (s1 / m) ** 2, 0.0)
-    return SpeckleQuality(mig, box(gx * gx), box(gy * gy), m, var_f, hess, noise, cross,
-                          cross_noise)
+    return SpeckleQuality(mig, sx, sy, m, var_f, hess, noise, cross, cross_noise)
 
 
 def _noise_scale(m: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -399,21 +360,16 @@ def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "
     """A callable ``rng -> (n, 2k)``: for a fresh unit white noise image ``n``,
     ``Σ_subset J t n`` per node (the right-hand side of the subset's
     Gauss-Newton step with the noise as residual; ``J = (jx, jy)``)."""
-    jx, jy = np.asarray(jx, np.float64), np.asarray(jy, np.float64)
     mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
     terms = SHAPE_TERMS[shape_function]
     deg = max(p + q for p, q in terms)
-    box = _BoxSums(jx.shape, x, y, subset // 2)
 
     def project(rng) -> np.ndarray:
-        noise = rng.standard_normal(jx.shape, dtype=np.float32)
-        if mask is not None:
-            noise[~mask] = 0.0
-        cols = []
-        for a in (jx * noise, jy * noise):
-            mom = _centred_moments(box, a, x, y, deg)
-            cols += [mom[t] for t in terms]
-        return np.column_stack(cols)
+        noise = rng.standard_normal(np.shape(jx), dtype=np.float32)
+        mom = window_moments([jx, jy, noise], [(0, 2, deg), (1, 2, deg)], x, y,
+                             subset // 2, mask=mask, centre=True)
+        col = [moment_terms(deg).index(t) for t in terms]
+        return np.column_stack([mom[0][:, col], mom[1][:, col]])
 
     return project
 
