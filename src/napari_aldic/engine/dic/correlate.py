@@ -162,7 +162,7 @@ def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
     timing["setup"] = time.perf_counter() - t
     report(0.05, f"{grid.n} nodes")
     t = time.perf_counter()
-    im = prepare_images(f, g, params.interpolation)
+    im = prepare_images(f, g, params.interpolation, params.extra.get("speckle_scale"))
     timing["prefilter"] = time.perf_counter() - t
     report(0.15, "interpolation ready")
     return im, base, grid, qmesh

@@ -21,7 +21,8 @@ from scipy import ndimage
 from ..kernels.bspline import PAD, sample_points, spline_gradients
 
 __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
-           "speckle_scale", "choose_order", "steepest_descent_gradients", "JACOBIAN_SMOOTHING"]
+           "speckle_scale", "choose_order", "steepest_descent_gradients", "JACOBIAN_SMOOTHING",
+           "jacobian_smoothing"]
 
 #: below this autocorrelation half-width (pixels) the speckle is so fine that
 #: cubic B-splines leave a sub-pixel bias near 0.005-0.01 px; quintic ones
@@ -117,7 +118,18 @@ def reference_gradients(spl: SplineImage) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-def steepest_descent_gradients(f: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+def jacobian_smoothing(f: np.ndarray, scale: float | None = None) -> float:
+    """Standard deviation (px) of the Gaussian that smooths the reference for
+    the steepest-descent images: :data:`JACOBIAN_SMOOTHING` times the speckle
+    ``scale`` (measured on ``f`` by :func:`speckle_scale` when None; tiled
+    runs measure it once on the whole reference so every block uses the same
+    value), at most :data:`JACOBIAN_SMOOTHING_MAX`."""
+    s = speckle_scale(f) if scale is None else float(scale)
+    return min(JACOBIAN_SMOOTHING * s, JACOBIAN_SMOOTHING_MAX)
+
+
+def steepest_descent_gradients(f: np.ndarray, order: int,
+                               sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Reference gradients for the IC-GN steepest-descent images.
 
     The spline gradients (:func:`reference_gradients`) of ``f`` smoothed by
@@ -129,7 +141,8 @@ def steepest_descent_gradients(f: np.ndarray, order: int) -> tuple[np.ndarray, n
     estimate (the matched-filter argument: the best ``J`` is the noise-free
     gradient). The validity tests keep using the unsmoothed gradients.
     """
-    sigma = min(JACOBIAN_SMOOTHING * speckle_scale(f), JACOBIAN_SMOOTHING_MAX)
+    if sigma is None:
+        sigma = jacobian_smoothing(f)
     smooth = ndimage.gaussian_filter(np.asarray(f, np.float64), sigma, mode="reflect")
     return reference_gradients(prefilter(smooth, order))
 

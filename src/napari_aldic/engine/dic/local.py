@@ -31,6 +31,7 @@ from .init_guess import ncc_search_widening
 from .interpolation import (
     SplineImage,
     choose_order,
+    jacobian_smoothing,
     prefilter,
     reference_gradients,
     steepest_descent_gradients,
@@ -67,15 +68,20 @@ class Images:
     g_spline: SplineImage
     jgx: np.ndarray | None = None
     jgy: np.ndarray | None = None
+    j_sigma: float = 0.0
 
 
-def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str) -> Images:
+def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
+                   speckle: float | None = None) -> Images:
     """Prefilter once: reference gradients and deformed-image coefficients
-    (``interpolation="auto"`` picks the order from the speckle size)."""
+    (``interpolation="auto"`` picks the order from the speckle size);
+    ``speckle``: the speckle scale (px) when measured beforehand on the whole
+    reference (tiled runs), else measured on ``f``."""
     order = choose_order(interpolation, f)
     fgx, fgy = reference_gradients(prefilter(f, order))
-    jgx, jgy = steepest_descent_gradients(f, order)
-    return Images(f, g, fgx, fgy, prefilter(g, order), jgx, jgy)
+    sigma = jacobian_smoothing(f, speckle)
+    jgx, jgy = steepest_descent_gradients(f, order, sigma)
+    return Images(f, g, fgx, fgy, prefilter(g, order), jgx, jgy, sigma)
 
 
 class _State:

@@ -48,7 +48,7 @@ from ..core.progress import check_cancel
 from ..core.reasons import Reason
 from ..core.results import DICResult
 from ..dic.correlate import correlate
-from ..dic.interpolation import choose_order
+from ..dic.interpolation import choose_order, speckle_scale
 from ..dic.mesh import EDGE
 from ..io.stack import open_image
 
@@ -141,11 +141,16 @@ def _resolved(params: DICParams, ref, shape) -> DICParams:
     changes = {}
     if params.search_max is None:
         changes["search_max"] = 4 * params.search
+    # speckle_scale reads the central 512² of its image: this window gives it
+    # exactly the crop an untiled run of the whole image would measure
+    r0, c0 = max(0, shape[0] // 2 - 512), max(0, shape[1] // 2 - 512)
+    middle = np.asarray(ref[r0:r0 + 1024, c0:c0 + 1024], np.float64)
     if params.interpolation == "auto":
-        r0, c0 = max(0, shape[0] // 2 - 512), max(0, shape[1] // 2 - 512)
-        middle = np.asarray(ref[r0:r0 + 1024, c0:c0 + 1024], np.float32)
         changes["interpolation"] = "quintic" if choose_order("auto", middle) == 5 else "cubic"
-    return params.replace(**changes) if changes else params
+    # every block smooths its steepest-descent images with the whole pair's value
+    # (a new dict: replace() would share the caller's)
+    changes["extra"] = {**params.extra, "speckle_scale": speckle_scale(middle)}
+    return params.replace(**changes)
 
 
 def _block(ref, dfm, roi, plan: _Plan, bounds, params: DICParams, guess):
