@@ -405,7 +405,7 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          shape_function=getattr(params, "shape_function", "affine"),
                          # the steepest-descent images IC-GN (and AL-DIC's local
                          # step) matched with, when smoothed
-                         jacobian=None if im.jgx is None else (im.jgx, im.jgy),
+                         jacobian=None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma),
                          aldic=sol.admm)
     timing["quality"] = time.perf_counter() - t
     return out

@@ -44,11 +44,9 @@ from scipy import ndimage
 
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms, window_moments
 from .interpolation import (
-    JACOBIAN_SMOOTHING,
-    JACOBIAN_SMOOTHING_MAX,
+    jacobian_smoothing,
     prefilter,
     reference_gradients,
-    speckle_scale,
     steepest_descent_gradients,
 )
 from .regularise import gradient_noise_gain
@@ -101,7 +99,7 @@ def _matrices(moms, layout, terms, order: int) -> np.ndarray:
                 for j, (p2, q2) in enumerate(terms):
                     table[bi * k + i, bj * k + j] = layout[bi][bj] * nm + col[p1 + p2, q1 + q2]
     flat = np.column_stack([*moms, np.zeros(moms[0].shape[0])])
-    return flat[:, table]
+    return np.take(flat, table, axis=1)
 
 
 @dataclass
@@ -222,7 +220,9 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
         ``gradients``: those of ``image`` smoothed by a Gaussian of standard
         deviation ``sigma`` px.
     """
-    img = np.asarray(image, np.float64)
+    img = np.asarray(image)
+    if not np.issubdtype(img.dtype, np.floating):
+        img = img.astype(np.float64)  # float images are read as they are: no copy
     if img.ndim != 2:
         raise ValueError(f"speckle_quality needs a 2-D image, got shape {img.shape}")
     if subset < 3 or subset % 2 == 0:
@@ -345,7 +345,8 @@ def node_uncertainty(q: SpeckleQuality, zncc, u, v, grad=None, order: int = 3) -
                        for i in range(5) for j in range(5)], axis=0)
     var_e = 2.0 * (1.0 - zncc) * q.var_f / (1.0 + rho)
     var_e = np.where(np.isfinite(zncc), var_e, np.nan)
-    return np.sqrt(_covariance_diag(q, var_e))
+    with np.errstate(invalid="ignore"):  # degenerate (untrusted) nodes: NaN
+        return np.sqrt(_covariance_diag(q, var_e))
 
 
 def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
@@ -374,28 +375,21 @@ def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "
     return project
 
 
-def jacobian_sigma(f: np.ndarray) -> float:
-    """The Gaussian smoothing (px) behind Local IC-GN's steepest-descent images
-    (:func:`~napari_aldic.engine.dic.interpolation.steepest_descent_gradients`)."""
-    return min(JACOBIAN_SMOOTHING * speckle_scale(f), JACOBIAN_SMOOTHING_MAX)
-
-
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
                    shape_function: str = "affine", jacobian=None, aldic=None) -> dict:
     """The quality fields ``correlate`` stores with a result: ``sssig``,
     ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
     subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
-    the reference alone: no uncertainty). ``jacobian``: ``(jx, jy)``, the
-    gradients of the steepest-descent images when they are smoothed ones.
+    the reference alone: no uncertainty). ``jacobian``: ``(jx, jy, sigma)``,
+    the gradients of the steepest-descent images when they are smoothed ones
+    and the smoothing (px) they were made with.
     ``aldic``: an :class:`~.uncertainty_aldic.ADMMLinearisation` of the run
     when ``u``, ``v`` are AL-DIC's local estimates: ``u_std``, ``v_std`` then
     describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`)."""
     xi = np.rint(np.asarray(x, float)).astype(np.int64)
     yi = np.rint(np.asarray(y, float)).astype(np.int64)
     sd_images = jacobian if jacobian is not None else gradients
-    if jacobian is not None and zncc is not None:
-        jacobian = (*jacobian, jacobian_sigma(f))
-    else:
+    if zncc is None:
         jacobian = None
     q = speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function, order=order,
                         gradients=gradients, jacobian=jacobian)
@@ -403,7 +397,7 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)
         if aldic is not None:
-            project = noise_projector(*sd_images, xi, yi, subset, roi, shape_function)
+            project = noise_projector(*sd_images[:2], xi, yi, subset, roi, shape_function)
             s = s * aldic_gain(q, project, aldic)
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
@@ -501,7 +495,8 @@ def advise_subset(image, roi=None, target_noise: float = 0.01, *, step: int | No
     step = int(step) if step else max(8, widths[0] // 2)
     gx, gy, _ = _gradients(img, 3)
     # as Local IC-GN matches: smoothed steepest-descent images
-    jac = (*steepest_descent_gradients(img, 3), jacobian_sigma(img))
+    j_sigma = jacobian_smoothing(img)
+    jac = (*steepest_descent_gradients(img, 3, j_sigma), j_sigma)
     rows, best = [], None
     for s in widths:
         if s > min(img.shape):

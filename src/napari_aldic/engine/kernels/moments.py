@@ -9,8 +9,9 @@ and the Gauss-Newton matrices of the uncertainty (``dic.quality``) use them.
 
 The image is read once, row by row. The window edges of the distinct node
 columns cut each row into segments; per row and product, the sums of
-``a X^p`` over each segment (formed pixel by pixel, never stored), added
-up over a window's segments, give the row's window sums; these times
+``a X^p`` over each segment (the product formed one row at a time, in a
+row buffer), added up over a window's segments, give the row's window
+sums; these times
 ``Y^q`` are added to one accumulator per (distinct column, moment). A
 node's moments are the accumulator after its window's last row less the
 accumulator before its first row. To keep the cancellation of these
@@ -18,7 +19,9 @@ differences local (as small as the sums of one window, not of a whole row
 or column), the running sums over segments restart every :data:`SBLOCK`
 segments and the accumulators every :data:`EPOCH` rows (the windows open
 across a restart carry the accumulator over). Memory:
-``O(nodes x moments + distinct columns x moments + width)``.
+``O(nodes x moments + distinct columns x moments + width)``. Moments about
+each node follow from these by the binomial expansion
+(:func:`centre_moments`).
 """
 
 from __future__ import annotations
@@ -409,6 +412,5 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
     if centre:
         dx = np.asarray(x, np.float64).ravel() - float(cx)
         dy = yi - float(cy)
-        res = [centre_moments(np.ascontiguousarray(r), dx, dy, int(o))
-               for r, o in zip(res, prod[:, 3])]
+        res = [centre_moments(r, dx, dy, int(o)) for r, o in zip(res, prod[:, 3])]
     return res
