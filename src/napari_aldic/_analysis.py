@@ -107,6 +107,21 @@ def brush_refinement(preset: str | None, brush: np.ndarray) -> Refinement:
                    brush=np.asarray(brush, bool))
 
 
+def _relative_frames(n: int, start: int, stop: int, stride: int) -> list[int]:
+    """Frames ``0, stride, ... <= stop - start`` of the sliced stack (checked)."""
+    if not (0 <= start < stop < n):
+        raise ValueError(tr("frame range {start}..{stop} is not valid for a stack of {n} "
+                            "frames (the first frame must come before the last)").format(
+                                start=start, stop=stop, n=n))
+    if stride < 1:
+        raise ValueError(tr("frame stride {stride} must be >= 1").format(stride=stride))
+    rel = list(range(0, stop - start + 1, stride))
+    if len(rel) < 2:
+        raise ValueError(tr("frames {start}..{stop} with stride {stride} hold a single "
+                            "frame").format(start=start, stop=stop, stride=stride))
+    return rel
+
+
 def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
                  start: int = 0, stop: int | None = None, stride: int = 1,
                  brush: np.ndarray | None = None,
@@ -137,17 +152,7 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     t0 = time.perf_counter()
     n = int(stack.shape[0])
     stop = n - 1 if stop is None else int(stop)
-    if not (0 <= start < stop < n):
-        raise ValueError(tr("frame range {start}..{stop} is not valid for a stack of {n} "
-                            "frames (the first frame must come before the last)").format(
-                                start=start, stop=stop, n=n))
-    if stride < 1:
-        raise ValueError(tr("frame stride {stride} must be >= 1").format(stride=stride))
-    rel = list(range(0, stop - start + 1, stride))
-    if len(rel) < 2:
-        raise ValueError(tr("frames {start}..{stop} with stride {stride} hold a single "
-                            "frame").format(
-                                start=start, stop=stop, stride=stride))
+    rel = _relative_frames(n, start, stop, stride)
     frames = [start + k for k in rel]
     sub = stack[start:stop + 1]
     report = progress or (lambda k, frac, msg: None)

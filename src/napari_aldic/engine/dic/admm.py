@@ -100,19 +100,16 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
     timing["global_factorise"] = time.perf_counter() - t
     n = u0.size
     W = np.zeros((n, 4))
-    vu = np.zeros(n)
-    vv = np.zeros(n)
+    vu, vv = np.zeros(n), np.zeros(n)  # scaled multipliers of the constraint u = û
     # initial global field: the compatible projection of the local result
     t = time.perf_counter()
     uh, vh = solver.solve(grad0, W, u0, v0, vu, vv)
     timing["global_solve"] += time.perf_counter() - t
-    u = u0.copy()
-    v = v0.copy()
+    u, v = u0.copy(), v0.copy()
     zncc = np.full(n, np.nan)
     reason = np.where(usable, Reason.OK, Reason.SMALL_COMPONENT).astype(np.int8)
     iters = np.zeros(n, np.int32)
-    history = []
-    active = usable.copy()
+    history, active = [], usable.copy()
     gains = None
     if second_order and noise_var is not None and subset is not None:
         gains = _noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)

@@ -9,8 +9,7 @@ image or has no texture, the solution wanders off by more than a subset
 width, or ``max_iter`` is reached. Each step samples the warped subset in the
 deformed image (:func:`~.gauss_newton.gn_step`, one pass of nine sums).
 
-* :func:`icgn_affine`: the six affine parameters ``(u, ux, uy, v, vx, vy)``
-  (Local DIC);
+* :func:`icgn_affine`: the six affine parameters ``(u, ux, uy, v, vx, vy)`` (Local DIC);
 * :func:`icgn_translation`: the displacement only, gradient held fixed, with
   the AL-DIC penalty towards a target (the local step of ADMM).
 

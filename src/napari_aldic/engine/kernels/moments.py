@@ -187,6 +187,88 @@ def _flush(out, acc, node, col, sign):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
+def _offsets(products):
+    """Where each product's moments start in a node's output row (``offs``,
+    length P + 1) and which base images the products use."""
+    nprod = products.shape[0]
+    offs = np.zeros(nprod + 1, np.int64)
+    used = np.zeros(MAX_IMAGES, np.bool_)
+    for k in range(nprod):
+        o = products[k, 3]
+        offs[k + 1] = offs[k] + (o + 1) * (o + 2) // 2
+        for t in range(2):
+            if products[k, t] >= 0:
+                used[products[k, t]] = True
+    return offs, used
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _close_windows(b, r0, r1, by1, p1, col_of, out, acc):
+    """Nodes whose window ends before row ``b`` (``by1``: nodes by ``r1``,
+    from position ``p1``) take the accumulator; the next position."""
+    n = r0.size
+    while p1 < n and r1[by1[p1]] == b:
+        nd = by1[p1]
+        if r0[nd] < b:
+            _flush(out, acc, nd, col_of[nd], 1.0)
+        p1 += 1
+    return p1
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _restart(b, r0, r1, by0, lo, tall, col_of, out, acc):
+    """Restart the accumulator at row ``b`` (bounds its cancellation): the
+    windows open across ``b`` keep what they have so far. Windows taller
+    than ``tall`` do not exist, so the scan starts at ``lo``; its update."""
+    n = r0.size
+    while lo < n and r0[by0[lo]] <= b - tall:
+        lo += 1
+    t = lo
+    while t < n and r0[by0[t]] < b:
+        nd = by0[t]
+        if r1[nd] > b:
+            _flush(out, acc, nd, col_of[nd], 1.0)
+        t += 1
+    acc[:] = 0.0
+    return lo
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _open_windows(b, r0, r1, by0, p0, col_of, out, acc):
+    """Nodes whose window starts at row ``b`` give back what the accumulator
+    holds so far; the next position in ``by0`` (nodes by ``r0``)."""
+    n = r0.size
+    while p0 < n and r0[by0[p0]] == b:
+        nd = by0[p0]
+        if r1[nd] > b:
+            _flush(out, acc, nd, col_of[nd], -1.0)
+        p0 += 1
+    return p0
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, xs,
+                   y, acc, work):
+    """Add row ``b`` (at coordinate ``Y = y``) of every product to the
+    per-column accumulators. ``work``: scratch arrays (base rows, product
+    row, segment sums, their prefixes and block totals, band, powers of y)."""
+    rows, prow, seg, loc, btot, band, ypow = work
+    nseg = seg.shape[1]
+    _load_rows(b, a0, a1, a2, a3, a4, mask, used, rows)
+    ypow[0] = 1.0
+    for q in range(1, MAX_ORDER + 1):
+        ypow[q] = ypow[q - 1] * y
+    for k in range(products.shape[0]):
+        ia = products[k, 0] if products[k, 0] >= 0 else _ONES_ROW
+        ib = products[k, 1] if products[k, 1] >= 0 else _ONES_ROW
+        order = products[k, 3]
+        _product_row(rows, ia, ib, products[k, 2], prow)
+        _segment_sums(prow, xs, edges, order, seg)
+        _segment_prefix(seg, nseg, order, loc, btot)
+        _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
 def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0, r1, xs,
                    ys):
     """Window moments of pixel products per node, streaming over the rows.
@@ -229,71 +311,29 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
         Per node, the moments of product 0, then those of product 1, ...
         (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
     """
-    h, w = ys.size, xs.size
-    nprod = products.shape[0]
-    offs = np.zeros(nprod + 1, np.int64)
-    used = np.zeros(MAX_IMAGES, np.bool_)
-    for k in range(nprod):
-        o = products[k, 3]
-        offs[k + 1] = offs[k] + (o + 1) * (o + 2) // 2
-        for t in range(2):
-            if products[k, t] >= 0:
-                used[products[k, t]] = True
-    n, nc = r0.size, e0.size
+    h = ys.size
+    offs, used = _offsets(products)
+    n = r0.size
     nseg = max(edges.size - 1, 0)
-    out = np.zeros((n, offs[nprod]))
-    acc = np.zeros((offs[nprod], nc))
-    rows = np.ones((MAX_IMAGES + 2, w))
-    prow = np.empty(w)
-    seg = np.zeros((MAX_ORDER + 1, nseg))
-    loc = np.zeros((MAX_ORDER + 1, nseg + 1))
-    btot = np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1))
-    band = np.empty((MAX_ORDER + 1, nc))
-    ypow = np.empty(MAX_ORDER + 1)
+    out = np.zeros((n, offs[-1]))
+    acc = np.zeros((offs[-1], e0.size))
+    work = (np.ones((MAX_IMAGES + 2, xs.size)), np.empty(xs.size),
+            np.zeros((MAX_ORDER + 1, nseg)), np.zeros((MAX_ORDER + 1, nseg + 1)),
+            np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1)), np.empty((MAX_ORDER + 1, e0.size)),
+            np.empty(MAX_ORDER + 1))
     by0 = np.argsort(r0)
     by1 = np.argsort(r1)
-    tall = 0
-    for i in range(n):
-        tall = max(tall, r1[i] - r0[i])
+    tall = np.max(r1 - r0) if n else 0
     p0 = p1 = lo = 0
     for b in range(h + 1):
-        # windows ending before row b take the accumulator
-        while p1 < n and r1[by1[p1]] == b:
-            nd = by1[p1]
-            if r0[nd] < b:
-                _flush(out, acc, nd, col_of[nd], 1.0)
-            p1 += 1
+        p1 = _close_windows(b, r0, r1, by1, p1, col_of, out, acc)
         if b % EPOCH == 0 and 0 < b < h:
-            # restart: the windows open across row b keep what they have so far
-            while lo < n and r0[by0[lo]] <= b - tall:
-                lo += 1
-            t = lo
-            while t < n and r0[by0[t]] < b:
-                nd = by0[t]
-                if r1[nd] > b:
-                    _flush(out, acc, nd, col_of[nd], 1.0)
-                t += 1
-            acc[:] = 0.0
-        # windows starting at row b give back what came before
-        while p0 < n and r0[by0[p0]] == b:
-            nd = by0[p0]
-            if r1[nd] > b:
-                _flush(out, acc, nd, col_of[nd], -1.0)
-            p0 += 1
+            lo = _restart(b, r0, r1, by0, lo, tall, col_of, out, acc)
+        p0 = _open_windows(b, r0, r1, by0, p0, col_of, out, acc)
         if b == h:
             break
-        _load_rows(b, a0, a1, a2, a3, a4, mask, used, rows)
-        ypow[0] = 1.0
-        for q in range(1, MAX_ORDER + 1):
-            ypow[q] = ypow[q - 1] * ys[b]
-        for k in range(nprod):
-            ia = products[k, 0] if products[k, 0] >= 0 else _ONES_ROW
-            ib = products[k, 1] if products[k, 1] >= 0 else _ONES_ROW
-            order = products[k, 3]
-            _product_row(rows, ia, ib, products[k, 2], prow)
-            _segment_sums(prow, xs, edges, order, seg)
-            _segment_prefix(seg, nseg, order, loc, btot)
-            _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
+        _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1,
+                       xs, ys[b], acc, work)
     return out
 
 
