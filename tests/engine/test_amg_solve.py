@@ -79,3 +79,9 @@ def test_aldic_through_the_amg_path_matches_the_direct_path(monkeypatch):
     assert both.mean() > 0.95
     assert np.abs(direct.u - amg.u)[both].max() < 1e-3
     assert np.abs(direct.v - amg.v)[both].max() < 1e-3
+    # the uncertainty: propagated through the ADMM run with the direct solver;
+    # on iteratively solved meshes the Local model of u_local, and said so
+    assert direct.meta["u_std"].startswith("AL-DIC")
+    assert amg.meta["u_std"].startswith("Local model")
+    assert np.isfinite(amg.u_std[amg.valid]).all()
+    assert np.median(amg.u_std[both]) > np.median(direct.u_std[both])

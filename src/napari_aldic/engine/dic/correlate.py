@@ -131,7 +131,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         if ref_spec is not None and ref_spec.error:
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
-    quality = _quality(im, mask, grid, sol, params, timing)
+    quality = _quality(im, mask, grid, sol, params, timing, meta)
     _record(meta, sol, ref_spec, grid, timing, t_start)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
@@ -393,11 +393,21 @@ def _regularisation(validity: Validity, mesh: Q4Mesh, sol: _Solution,
 
 
 def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams,
-             timing: dict) -> dict:
+             timing: dict, meta: dict) -> dict:
     """Speckle quality (SSSIG, MIG) and the standard uncertainty of the
-    displacements (``dic.quality``; for AL-DIC: of the smoothed ``u``, ``v``)."""
+    displacements (``dic.quality``; for AL-DIC: of the smoothed ``u``, ``v``,
+    which ``meta["u_std"]`` names)."""
     t = time.perf_counter()
     local = sol.u_local is not None
+    aldic = sol.admm
+    if aldic is not None and aldic.solver.system.method != "direct":
+        # past the direct solver's size every probe solve is an iterative one
+        # (16 probes x 2 components x each ADMM iteration): too slow to propagate
+        aldic = None
+        meta["u_std"] = ("Local model of u_local (the AL-DIC propagation is skipped on "
+                         "meshes solved iteratively; the smoothed u is usually less noisy)")
+    elif aldic is not None:
+        meta["u_std"] = "AL-DIC: propagated through the linearised ADMM run"
     out = result_quality(im.f, (im.fgx, im.fgy), im.g_spline.order, mask, grid.x, grid.y,
                          params.subset, zncc=sol.zncc,
                          u=sol.u_local if local else sol.u, v=sol.v_local if local else sol.v,
@@ -406,7 +416,7 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          # the steepest-descent images IC-GN (and AL-DIC's local
                          # step) matched with, when smoothed
                          jacobian=None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma),
-                         aldic=sol.admm)
+                         aldic=aldic)
     timing["quality"] = time.perf_counter() - t
     return out
 
