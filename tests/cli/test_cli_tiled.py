@@ -59,6 +59,31 @@ def test_run_tiled_bad_inputs(run_cli, tmp_path):
     assert rc == 2 and "missing.tif" in err
     rc, _, err = run_cli(["run", ref, ref, "--tile-size", -5, "-o", tmp_path / "x.npz"])
     assert rc == 2 and "--tile-size" in err
-    rc, _, err = run_cli(["run", ref, ref, "--tile-size", 128, "--method", "aldic",
+    rc, _, err = run_cli(["run", ref, ref, "--tile-size", 128, "--roi", tmp_path / "no.tif",
                           "-o", tmp_path / "x.npz"])
-    assert rc == 2 and "method='local'" in err
+    assert rc == 2 and "no.tif" in err and "Traceback" not in err
+    np.save(tmp_path / "small.npy", np.ones((100, 100), bool))
+    rc, _, err = run_cli(["run", ref, ref, "--tile-size", 128, "--roi", tmp_path / "small.npy",
+                          "-o", tmp_path / "x.npz"])
+    assert rc == 2 and "ROI mask shape (100, 100)" in err
+
+
+def test_run_tiled_aldic_with_lazy_roi(run_cli, tmp_path):
+    """AL-DIC of a pair read block by block, the ROI a tiled TIFF mask that is
+    sliced block by block as well (never read whole)."""
+    ref, dfm = _write_pair(tmp_path)
+    mask = np.full((400, 400), 255, np.uint8)
+    mask[150:260, 120:300] = 0  # a hole across block borders
+    tifffile.imwrite(tmp_path / "roi.tif", mask, tile=(128, 128))
+    out = tmp_path / "al.npz"
+    rc, stdout, err = run_cli(["run", ref, dfm, "--step", 16, "--tile-size", 128,
+                               "--method", "aldic", "--roi", tmp_path / "roi.tif", "-o", out])
+    assert rc == 0, err
+    res = load_result(out)
+    assert res.params.method == "aldic" and res.meta["admm_history"]
+    assert res.u_local is not None and res.elements is not None
+    inside_hole = (res.x >= 120) & (res.x < 300) & (res.y >= 150) & (res.y < 260)
+    assert not inside_hole.any()  # nodes only where the mask is nonzero
+    assert res.valid.mean() > 0.8
+    u, v = FIELD.displacement(res.x, res.y)
+    assert np.max(np.hypot(res.u - u, res.v - v)[res.valid]) < 0.05

@@ -12,7 +12,7 @@ from ..engine import advise_subset, noise_floor
 from ..engine.io import read_image
 from ..i18n import tr
 from .console import CLIError
-from .run import read_mask
+from .masks import read_mask
 from .settings import settings_from_args
 
 

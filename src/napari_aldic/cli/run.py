@@ -10,13 +10,12 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-
 from ..engine import correlate, track
-from ..engine.io import FrameSource, read_image, write_settings
+from ..engine.io import FrameSource, write_settings
 from ..engine.viz import plot_displacement
 from ..i18n import tr
 from .console import PROG, CLIError, clear_bar, frame_summary, progress_bar, sequence_progress
+from .masks import read_mask
 from .settings import settings_from_args
 from .tiled import metadata_units, run_tiled_pair
 
@@ -25,7 +24,6 @@ def run_command(args) -> None:
     """``napari-aldic run``: every frame against frame 0."""
     settings = settings_from_args(args, args.params)
     params, units = settings.params, settings.units
-    roi = read_mask(args.roi) if args.roi is not None else None
     if args.params_out is not None:
         used = settings.replace(tracking={"reference": args.reference})
         print(tr("parameters written to {resolve}").format(
@@ -33,8 +31,9 @@ def run_command(args) -> None:
     if units is None:  # the pixel size recorded in the images, if any
         units = metadata_units(args.inputs)
     if run_folder_of(args.output, pair=True) is None and \
-            run_tiled_pair(args, params, units, roi, args.output):
+            run_tiled_pair(args, params, units, args.output):
         return  # a large pair, read tile by tile and correlated block by block
+    roi = read_mask(args.roi) if args.roi is not None else None
     with FrameSource(args.inputs) as src:
         n = len(src)
         folder = run_folder_of(args.output, pair=n == 2 and args.reference == "accumulative")
@@ -139,24 +138,3 @@ def _report(res, path: Path, title: str, plot_src=None) -> None:
         png = plot_displacement(res, path.with_suffix(".png"), image=plot_src[0],
                                 title=f"frame {k}: {plot_src.frame_name(k)}")
         print(f"  -> {png.resolve()}")
-
-
-def read_mask(path: Path) -> np.ndarray:
-    """ROI mask from a ``.npy`` array or an image file (nonzero = analysed)."""
-    if not path.exists():
-        raise CLIError(tr("no such file: {path}").format(path=path))
-    if path.suffix.lower() == ".npy":
-        try:
-            m = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise CLIError(tr("cannot read ROI mask {path}: {exc}").format(
-                path=path, exc=exc)) from None
-    else:
-        m = read_image(path)
-    m = np.asarray(m)
-    if m.ndim == 3 and m.shape[-1] in (3, 4):  # RGB(A) mask image: any nonzero colour
-        m = (m[..., :3] != 0).any(axis=-1)
-    if m.ndim != 2:
-        raise CLIError(tr("ROI mask {path} must be a 2-D image; got shape {shape}").format(
-                              path=path, shape=m.shape))
-    return m != 0

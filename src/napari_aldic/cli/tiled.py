@@ -11,6 +11,7 @@ from ..engine import Units, correlate_tiled, needs_tiling
 from ..engine.io import open_image, pixel_size_of
 from ..i18n import tr
 from .console import CLIError, clear_bar, frame_summary, progress_bar
+from .masks import open_mask
 
 
 def metadata_units(inputs) -> Units | None:
@@ -44,7 +45,7 @@ def _zarr_dir(path: Path) -> bool:
     return any((path / name).exists() for name in ("zarr.json", ".zattrs", ".zarray"))
 
 
-def run_tiled_pair(args, params, units, roi, output: Path | None) -> bool:
+def run_tiled_pair(args, params, units, output: Path | None) -> bool:
     """Correlate the pair block by block when it is large (or ``--tile-size``
     asks for it); False when the ordinary path should run."""
     tile = getattr(args, "tile_size", None)
@@ -61,6 +62,8 @@ def run_tiled_pair(args, params, units, roi, output: Path | None) -> bool:
         ref.close()
         dfm.close()
         return False
+    # the mask of a mosaic is as large as its images: sliced block by block too
+    roi = None if args.roi is None else open_mask(args.roi)
     workers = getattr(args, "tile_workers", None) or 1
     out = Path("aldic_result.npz") if output is None else output.expanduser()
     print(tr("{ref} ({rows} x {cols} px) and {dfm}: correlated in blocks of {tile} px, "

@@ -31,6 +31,7 @@ global system is divided by ``mu``, leaving ``β/μ = beta * step^2``:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,7 +45,26 @@ from .regularise import curvature_noise_gains, shrink_curvature
 # fraction of the subset half-width (keeps the feedback a contraction)
 CURVATURE_SMOOTHING = 0.5
 
-__all__ = ["ADMMState", "run_admm"]
+__all__ = ["ADMMState", "LocalStep", "run_admm", "image_local_step"]
+
+#: the ADMM local step: ``(start (n, 2), F (n, 4), target (n, 2), mu, active (n,),
+#: curvature (n, 6) or None) -> (uv (n, 2), zncc, iterations, reason)`` for the
+#: ``active`` nodes (see :func:`~.icgn.icgn_solve_translation`)
+LocalStep = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+
+def image_local_step(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
+                     max_iter: int, tol: float) -> LocalStep:
+    """The local step on a pair held in memory: translation-only IC-GN of every
+    active node with its gradient fixed (``fgx, fgy``: the steepest-descent
+    gradients; ``slot, masks``: the subsets cut by the ROI)."""
+
+    def step(start, F, target, mu, active, curvature):
+        return icgn_solve_translation(f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F,
+                                      target, mu, active, slot, masks, half, max_iter, tol,
+                                      curvature=curvature)
+
+    return step
 
 
 @dataclass
@@ -63,11 +83,10 @@ class ADMMState:
     timing: dict = field(default_factory=dict)
 
 
-def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
-             mesh: Q4Mesh, u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray,
-             trusted: np.ndarray, usable: np.ndarray, *, mu: float, beta: float,
-             step: float, max_iter: int, tol: float, icgn_max_iter: int, icgn_tol: float,
-             smooth: float | np.ndarray = 0.0, second_order: bool = False,
+def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
+             u0: np.ndarray, v0: np.ndarray, grad0: np.ndarray, trusted: np.ndarray,
+             usable: np.ndarray, *, mu: float, beta: float, step: float, max_iter: int,
+             tol: float, smooth: float | np.ndarray = 0.0, second_order: bool = False,
              noise_var: np.ndarray | None = None, subset: int | None = None,
              solver: GlobalSolver | None = None, solver_method: str = "auto",
              on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
@@ -75,6 +94,12 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
 
     Parameters
     ----------
+    local_step : LocalStep
+        Runs the local step on the images (:func:`image_local_step` for
+        images in memory; block-wise runs read the images block by block).
+    cut : (n,) bool
+        Nodes whose subset is cut by the ROI (their warp stays affine).
+    half : subset half-width (pixels).
     u0, v0, grad0 : local DIC displacements and (n, 4) gradients.
     trusted : nodes whose local result is reliable (data weight 1).
     usable : nodes whose subset can be correlated at all (mask component OK).
@@ -123,11 +148,9 @@ def run_admm(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
         target = np.column_stack([uh + vu, vh + vv])
         start = np.column_stack([u, v])
         t = time.perf_counter()
-        curv = (_warp_curvature(solver, uh, vh, half, slot, gains, noise_var)
+        curv = (_warp_curvature(solver, uh, vh, half, cut, gains, noise_var)
                 if second_order else None)
-        uv, zncc, iters, reason_k = icgn_solve_translation(
-            f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F, target, mu, active,
-            slot, masks, half, icgn_max_iter, icgn_tol, curvature=curv)
+        uv, zncc, iters, reason_k = local_step(start, F, target, mu, active, curv)
         timing["local"] += time.perf_counter() - t
         ok = active & (reason_k == Reason.OK)
         # failed local steps keep the previous value (no new information)
@@ -170,18 +193,18 @@ def _global_step(solver: GlobalSolver, F, W, u, v, vu, vv, timing: dict):
     return uh, vh, G
 
 
-def _warp_curvature(solver: GlobalSolver, uh, vh, half: int, slot, gains, noise_var):
+def _warp_curvature(solver: GlobalSolver, uh, vh, half: int, cut, gains, noise_var):
     """Second derivatives of ``û`` for the second-order warp of the local step:
     smoothed over ``CURVATURE_SMOOTHING * half``, shrunk where noisy (when
     ``gains`` are known), zero on subsets cut by the ROI edge."""
     # cut subsets (next to holes, cracks, the outline) are often poorly
     # matched: the curvature smoother interpolates over them instead
-    curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half, data=slot < 0)
+    curv = solver.second_gradients(uh, vh, CURVATURE_SMOOTHING * half, data=~cut)
     if gains is not None:
         curv = shrink_curvature(curv, noise_var, gains)
     # subsets cut by a hole/crack/outline keep the affine warp: next to
     # a discontinuity the smoothed curvature is one-sided and unreliable
-    curv[slot >= 0] = 0.0
+    curv[cut] = 0.0
     return curv
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -16,17 +15,18 @@ from ..core.params import DICParams
 from ..core.progress import CancelFn, check_cancel
 from ..core.reasons import Reason
 from ..core.results import DICResult
-from .admm import CURVATURE_SMOOTHING, run_admm
+from .admm import image_local_step
+from .aldic import aldic_stage
 from .global_solve import Q4Mesh, uniform_mesh
 from .interpolation import choose_order
 from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .quality import result_quality
-from .regularise import choose_smoothing, gradient_noise_gain
+from .regularise import gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .subsets import SubsetMasks, split_subsets
-from .uncertainty_aldic import ADMMLinearisation, linearise_admm
+from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
 
@@ -275,65 +275,17 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     report(0.85, "AL-DIC iterations")
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
-    # noisy but correct matches are data for the global step too
-    trusted = (reason == Reason.OK) | (reason == Reason.UNCERTAIN)
-    smooth, second_order, table, noise_var = _regularisation(validity, mesh, sol, trusted,
-                                                             params)
-    key = cached = None
-    if solver_cache is not None:
-        key = _solver_key(mesh, trusted, params, smooth)
-        cached = solver_cache.get(key)
-        timing["admm_factor_reused"] = float(cached is not None)
-    timing["smoothing_choice"] = timing.get("smoothing_choice", 0.0) + table.pop("seconds")
     jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)  # method.md 5.1
-    state, solver = run_admm(
-        im.f, jgx, jgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks, params.half,
-        mesh, sol.u, sol.v, sol.grad, trusted, trusted,
-        mu=params.mu, beta=params.beta, step=params.step,
-        smooth=smooth, second_order=second_order, noise_var=noise_var,
-        subset=params.subset, solver=cached, max_iter=params.admm_max_iter,
-        tol=params.admm_tol, icgn_max_iter=params.max_iter, icgn_tol=params.tol,
-        on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
-                                      f"ADMM iteration {k}"))
-    if solver_cache is not None and cached is None:
-        solver_cache.clear()  # keep one factor: the mesh of the current frames
-        solver_cache[key] = solver
-    for k, val in state.timing.items():
-        timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
-    zncc_local = zncc
-    zncc = np.where(np.isfinite(state.zncc), state.zncc, zncc)
-    reason = _aldic_reasons(validity, state, trusted, reason, zncc, zncc_local)
-    iters = np.where(reason == Reason.OK, state.iterations, iters).astype(np.int32)
-    return _Solution(sub, state.uh, state.vh, state.grad, zncc, reason, iters, mesh,
-                     sol.u, sol.v, state.history, _smoothing_record(table, smooth),
-                     sol.std, validity.summary(zncc_local, reason == Reason.OK),
-                     linearise_admm(solver, len(state.history), params.mu,
-                                    trusted & (state.reason == Reason.OK),
-                                    second_order=second_order, uh=state.uh, vh=state.vh,
-                                    length=CURVATURE_SMOOTHING * params.half,
-                                    data=sub.slot < 0, noise_var=noise_var, smooth=smooth,
-                                    step=params.step, subset=params.subset))
-
-
-def _solver_key(mesh: Q4Mesh, trusted: np.ndarray, params: DICParams, smooth) -> str:
-    """What the global system matrix depends on, hashed (``smooth``: one
-    length or per-node lengths)."""
-    h = hashlib.sha1()
-    for a in (mesh.x, mesh.y, mesh.elements, mesh.hanging, trusted, np.asarray(smooth, float)):
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(repr((params.mu, params.beta, params.step)).encode())
-    return h.hexdigest()
-
-
-def _smoothing_record(table: dict, smooth) -> dict:
-    """meta["regularisation"]: ``smooth_px`` is the length used, or with
-    per-node lengths their mean, with their range and the best single
-    length (``smooth_px_global``)."""
-    lengths = np.asarray(smooth, float)
-    if lengths.ndim == 0:
-        return dict(table, smooth_px=float(lengths))
-    return dict(table, smooth_px=float(np.mean(lengths)), adaptive=True,
-                smooth_px_range=[float(lengths.min()), float(lengths.max())])
+    step = image_local_step(im.f, jgx, jgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks,
+                            params.half, params.max_iter, params.tol)
+    out = aldic_stage(step, mesh, validity, sol.u, sol.v, sol.grad, zncc, reason,
+                      sub.slot >= 0, params, timing, solver_cache=solver_cache,
+                      on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
+                                                    f"ADMM iteration {k}"))
+    iters = np.where(out.reason == Reason.OK, out.iters, iters).astype(np.int32)
+    return _Solution(sub, out.u, out.v, out.grad, out.zncc, out.reason, iters, mesh,
+                     sol.u, sol.v, out.history, out.regularisation, sol.std, out.validity,
+                     out.admm)
 
 
 def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
@@ -347,51 +299,6 @@ def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPara
     return Validity(stats, image_var, gradient_noise_gain(im.g_spline.order), params)
 
 
-def _aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local):
-    """Reasons of the AL-DIC result: the local reason of untrusted nodes;
-    the last local step's, then the correlation tests of the local result,
-    the global-mismatch test and the uncertainty test for the others."""
-    reason = np.where(trusted, state.reason, reason).astype(np.int8)
-    conv = reason == Reason.OK
-    low = conv & ~(zncc >= validity.params.zncc_min)
-    poor = conv & ~low & ~(zncc >= validity.zncc_floor(zncc, conv))
-    reason[low] = Reason.LOW_CORRELATION
-    reason[poor] = Reason.POOR_MATCH
-    conv = reason == Reason.OK
-    reason[validity.global_mismatch(zncc, zncc_local, conv)] = Reason.GLOBAL_MISMATCH
-    reason[validity.uncertain(zncc_local, reason == Reason.OK)] = Reason.UNCERTAIN
-    return reason
-
-
-def _regularisation(validity: Validity, mesh: Q4Mesh, sol: _Solution,
-                    trusted: np.ndarray, params: DICParams):
-    """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
-    predicted local noise variances (n, 2) or None when nothing needs them)``;
-    the user's smoothing length, or the length (and use of the second-order
-    warp) chosen by risk."""
-    t = time.perf_counter()
-    if params.smooth != "auto" and not params.second_order_warp:
-        return float(params.smooth), False, {"mode": "fixed", "second_order_warp": False,
-                                             "seconds": 0.0}, None
-    var = validity.noise_variance(sol.zncc)
-    if params.smooth != "auto":
-        return (float(params.smooth), params.second_order_warp,
-                {"mode": "fixed", "second_order_warp": params.second_order_warp,
-                 "seconds": time.perf_counter() - t}, var)
-    curv = CURVATURE_SMOOTHING * params.half if params.second_order_warp else None
-    choice = choose_smoothing(mesh, sol.u, sol.v, trusted, var, params.step,
-                              params.subset, curv_length=curv)
-    ok = trusted & np.isfinite(var).all(axis=1)
-    noise = float(np.sqrt(np.mean(var[ok].sum(axis=1)))) if ok.any() else float("nan")
-    smooth = choice.smooth_px if choice.node_smooth_px is None else choice.node_smooth_px
-    return smooth, choice.second_order, {
-        "mode": "auto", "second_order_warp": choice.second_order,
-        "smooth_px_global": choice.smooth_px,
-        "predicted_local_noise_px": noise,
-        "undermatching_bias_px": float(np.sqrt(choice.deconvolution_gain_px2)),
-        "risk": choice.table, "seconds": time.perf_counter() - t}, var
-
-
 def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams,
              timing: dict, meta: dict) -> dict:
     """Speckle quality (SSSIG, MIG) and the standard uncertainty of the
@@ -400,10 +307,9 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
     t = time.perf_counter()
     local = sol.u_local is not None
     aldic = sol.admm
-    if aldic is not None and aldic.solver.system.method != "direct":
+    if local and aldic is None:
         # past the direct solver's size every probe solve is an iterative one
         # (16 probes x 2 components x each ADMM iteration): too slow to propagate
-        aldic = None
         meta["u_std"] = ("Local model of u_local (the AL-DIC propagation is skipped on "
                          "meshes solved iteratively; the smoothed u is usually less noisy)")
     elif aldic is not None:

@@ -134,8 +134,35 @@ def uniform_mesh(grid, roi: np.ndarray) -> Q4Mesh:
     e = e[(e >= 0).all(axis=1)]
     x = grid.x.astype(np.float64)
     y = grid.y.astype(np.float64)
-    e = e[element_inside_roi(x, y, e, roi)]
+    if roi is not None:
+        e = e[_elements_inside(x, y, e, roi)]
     return Q4Mesh(x, y, e.astype(np.int64), level=np.zeros(e.shape[0], np.int64))
+
+
+#: ROI pixels read at a time when elements are tested against a mask that is
+#: not in memory (tiled runs read the mask of a mosaic band by band)
+MESH_BAND_PIXELS = 16_000_000
+
+
+def _elements_inside(x, y, e, roi) -> np.ndarray:
+    """:func:`element_inside_roi` of lattice elements (row-major, as
+    :func:`uniform_mesh` makes them); a mask that is not an array in memory is
+    read in bands of element rows."""
+    if isinstance(roi, np.ndarray) and not isinstance(roi, np.memmap):
+        return element_inside_roi(x, y, e, roi if roi.dtype == bool else roi != 0)
+    top = y[e[:, 0]]
+    rows = np.unique(top)
+    keep = np.zeros(e.shape[0], bool)
+    height = float(np.max(y[e[:, 2]] - top)) if e.size else 1.0
+    per_band = max(1, int(MESH_BAND_PIXELS // max(1.0, height * roi.shape[1])))
+    for b in range(0, rows.size, per_band):
+        lo, hi = rows[b], rows[min(rows.size, b + per_band) - 1]
+        sel = (top >= lo) & (top <= hi)
+        r0 = int(np.rint(lo))
+        r1 = int(np.rint(y[e[sel, 2]].max())) + 1
+        band = np.asarray(roi[r0:r1, :]) != 0
+        keep[sel] = element_inside_roi(x, y - r0, e[sel], band)
+    return keep
 
 
 def element_inside_roi(x: np.ndarray, y: np.ndarray, elements: np.ndarray,
@@ -480,6 +507,27 @@ class GlobalSolver:
             self._curv = (length, CurvatureEstimator(self.mesh, length, data, self.T, self.free))
         return self._curv[1](uh, vh)
 
+    def rhs(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,
+            vu: np.ndarray, vv: np.ndarray) -> np.ndarray:
+        """Right-hand side ``Tᵀ [β Gᵀ(F - W) + μ w (u - v)]`` of the global step,
+        reduced to the free nodes.
+
+        Parameters
+        ----------
+        F, W : (N, 4) or (N, 4, K) nodal gradients and their scaled multipliers.
+        u, v, vu, vv : (N,) or (N, K) local displacements and their scaled
+            multipliers (K right-hand sides at once, one per column).
+
+        Returns
+        -------
+        (n_free, 2) or (n_free, 2K): the ``u`` column(s), then the ``v`` column(s).
+        """
+        R = (F - W) * self.wg.reshape((-1,) + (1,) * (F.ndim - 1))
+        mw = (self.mu * self.w).reshape((-1,) + (1,) * (u.ndim - 1))
+        rhs_u = self.beta * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mw * (u - vu)
+        rhs_v = self.beta * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mw * (v - vv)
+        return self.T.T @ np.column_stack([rhs_u, rhs_v])
+
     def solve(self, F: np.ndarray, W: np.ndarray, u: np.ndarray, v: np.ndarray,
               vu: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One global step.
@@ -489,11 +537,7 @@ class GlobalSolver:
         F, W : (N, 4) nodal gradients and their scaled multipliers.
         u, v : (N,) local displacements; vu, vv : (N,) their scaled multipliers.
         """
-        b, mu, w = self.beta, self.mu, self.w
-        R = (F - W) * self.wg[:, None]
-        rhs_u = b * (self.Gx.T @ R[:, 0] + self.Gy.T @ R[:, 1]) + mu * w * (u - vu)
-        rhs_v = b * (self.Gx.T @ R[:, 2] + self.Gy.T @ R[:, 3]) + mu * w * (v - vv)
-        rhs = self.T.T @ np.column_stack([rhs_u, rhs_v])
+        rhs = self.rhs(F, W, u, v, vu, vv)
         sol = self.system.solve(rhs, np.column_stack([u - vu, v - vv])[self.free])
         full = self.T @ sol
         return full[:, 0], full[:, 1]

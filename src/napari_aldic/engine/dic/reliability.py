@@ -101,19 +101,21 @@ def image_noise(image: np.ndarray, roi: np.ndarray | None = None) -> float:
     to it (an over-estimate only makes the tests more lenient). Large images
     are sampled in bands of rows (about 130,000 pixels).
     """
-    img = np.asarray(image)
+    # an image read window by window (tiled runs) is sliced band by band
+    img = image if hasattr(image, "shape") and hasattr(image, "__getitem__") else np.asarray(image)
     rows = img.shape[0]
-    every = max(1, int(np.ceil(img.size / _NOISE_PIXELS)))
+    every = max(1, int(np.ceil(rows * img.shape[1] / _NOISE_PIXELS)))
     total = 0.0
     count = 0
     for r0 in range(0, rows - 2, _BAND * every):
         r1 = min(rows, r0 + _BAND + 2)
-        band = img[r0:r1].astype(np.float32)
+        band = np.asarray(img[r0:r1, :], np.float32)
         resp = ndimage.correlate1d(band, _SECOND_DIFFERENCE, axis=0, mode="nearest")
         resp = np.abs(ndimage.correlate1d(resp, _SECOND_DIFFERENCE, axis=1,
                                           mode="nearest")[1:-1, 1:-1])
-        if roi is not None and not roi[r0:r1].all():
-            inside = ndimage.binary_erosion(roi[r0:r1], np.ones((3, 3), bool),
+        rband = None if roi is None else np.asarray(roi[r0:r1, :]) != 0
+        if rband is not None and not rband.all():
+            inside = ndimage.binary_erosion(rband, np.ones((3, 3), bool),
                                             border_value=0)[1:-1, 1:-1]
             resp = resp[inside]
         total += float(np.sum(resp, dtype=np.float64))

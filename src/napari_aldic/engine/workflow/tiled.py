@@ -1,4 +1,4 @@
-"""Local DIC of an image pair larger than memory, block by block.
+"""DIC of an image pair larger than memory, block by block.
 
 The node lattice of the whole image is cut into blocks of about
 ``tile_size`` pixels a side. Each block reads only its window of the two
@@ -28,8 +28,10 @@ Why the blocks give the untiled result:
 
 Block statistics that the validity tests take from their nodes (the median
 match residual, the image noise) are each block's own: a node near a
-threshold may be flagged differently from an untiled run. AL-DIC, seed
-propagation and mesh refinement need the whole image and are refused.
+threshold may be flagged differently from an untiled run. With
+``method="aldic"`` the Local result then goes through AL-DIC, its local step
+read block by block (:mod:`.tiled_aldic`). Seed propagation and mesh
+refinement need the whole image and are refused.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from ..dic.correlate import correlate
 from ..dic.interpolation import choose_order, speckle_scale
 from ..dic.mesh import EDGE
 from ..io.stack import open_image
+from .tiled_aldic import aldic_tiled
 
 __all__ = ["correlate_tiled", "coarse_guess", "needs_tiling", "AUTO_TILE_PIXELS",
            "DEFAULT_TILE", "NODE_HALO", "PREFILTER_MARGIN"]
@@ -129,10 +132,6 @@ def _plan(shape, params: DICParams, tile_size: int) -> _Plan:
 
 def _resolved(params: DICParams, ref, shape) -> DICParams:
     """The choices every block must share: ``search_max`` and the B-spline order."""
-    if params.method != "local":
-        raise ValueError("AL-DIC needs the whole images in memory (every ADMM iteration "
-                         "re-reads all subsets for the global solve); images larger than "
-                         "memory are correlated block by block with method='local'")
     if params.init != "fft":
         raise ValueError("seed propagation spreads over the whole image; tiled runs use the "
                          "FFT initial guess (init='fft')")
@@ -295,7 +294,8 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
                     tile_size: int = DEFAULT_TILE, workers: int = 1,
                     guess: DICResult | None = None, guess_spacing: int | None = None,
                     out_dir=None, progress=None, cancel=None, **kwargs) -> DICResult:
-    """Local DIC of a pair too large for memory, block by block.
+    """DIC of a pair too large for memory, block by block (Local, or AL-DIC
+    whose ADMM local step re-reads the blocks: :mod:`.tiled_aldic`).
 
     Parameters
     ----------
@@ -305,7 +305,8 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
         Region of interest (sliced per block: a NumPy, memory-mapped or zarr
         boolean array of the image's shape).
     subset, step, method, params, **kwargs
-        As for :func:`~napari_aldic.engine.correlate`; only ``method="local"``.
+        As for :func:`~napari_aldic.engine.correlate` (``method="local"`` or
+        ``"aldic"``).
     tile_size : int
         Owned pixels per block side (the window adds a halo).
     workers : int
@@ -338,16 +339,21 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
         raise ValueError(f"ROI mask shape {tuple(roi.shape)} differs from image shape "
                          f"{ref.shape}")
     params = _resolved(params.fitted_to(ref.shape), ref, ref.shape)
+    aldic = params.method == "aldic"
+    lparams = params.replace(method="local") if aldic else params
+    # fractions of the progress bar: initial guess, Local blocks, (AL-DIC)
+    cut1, cut2 = (0.1, 0.4) if aldic else (0.2, 1.0)
     report = progress or (lambda frac, msg: None)
     if guess is None:
-        guess = coarse_guess(ref, dfm, roi, params, tile_size=tile_size,
+        guess = coarse_guess(ref, dfm, roi, lparams, tile_size=tile_size,
                              guess_spacing=guess_spacing, workers=workers, cancel=cancel,
-                             progress=lambda f, m: report(0.2 * f, m))
+                             progress=lambda f, m: report(cut1 * f, m))
     t_guess = time.perf_counter() - t0
-    plan = _plan(ref.shape, params, tile_size)
+    plan = _plan(ref.shape, lparams, tile_size)
     arrays = _node_arrays(plan.ys.shape + plan.xs.shape, out_dir)
-    bmeta = _run_blocks(ref, dfm, roi, plan, params, guess, workers, arrays,
-                        lambda f, m: report(0.2 + 0.8 * f, m), cancel, "correlation")
+    bmeta = _run_blocks(ref, dfm, roi, plan, lparams, guess, workers, arrays,
+                        lambda f, m: report(cut1 + (cut2 - cut1) * f, m), cancel,
+                        "correlation")
     meta = {"versions": bmeta.get("versions", {}),
             "interpolation": params.interpolation,
             "tiled": {"tile_size": int(tile_size), "blocks": plan.n_blocks,
@@ -355,7 +361,11 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
                       "margin_px": plan.margin, "guess_nodes": int(guess.valid.sum()),
                       "reference": ref.name, "deformed": dfm.name},
             "timing": {"guess": t_guess, "total": time.perf_counter() - t0}}
-    res = _assemble(arrays, plan, params, meta)
+    res = _assemble(arrays, plan, lparams, meta)
     res.meta["n_nodes"] = len(res)
     res.meta["n_valid"] = res.n_valid
+    if aldic:
+        res = aldic_tiled(ref, dfm, roi, res, params, plan.per_block, workers=workers,
+                          cancel=cancel, progress=lambda f, m: report(cut2 + (1 - cut2) * f, m))
+        res.meta["timing"]["total"] = time.perf_counter() - t0
     return res
