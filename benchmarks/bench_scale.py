@@ -20,6 +20,7 @@ Images larger than memory (section 2)::
 
     python benchmarks/bench_scale.py memory [--size 10000] [--step 16] [--data /tmp/bigpair]
     python benchmarks/bench_scale.py tiled [--size 40000] [--step 32] [--data /tmp/bigpair]
+    (each also with --method aldic, --no-untiled, --keep, --workers N)
 
 ``memory``: a ``--size``² uint8 tiled-TIFF pair (``bigpair.py``: analytic
 speckle on a periodic cell, a known affine field, 0.5 GL noise) correlated
@@ -155,6 +156,10 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/tmp/bigpair"),
                     help="memory/tiled: folder of the generated pairs")
     ap.add_argument("--keep", action="store_true", help="keep the generated pairs")
+    ap.add_argument("--method", choices=["local", "aldic"], default="local",
+                    help="memory/tiled/corner: Local DIC or AL-DIC")
+    ap.add_argument("--no-untiled", action="store_false", dest="untiled",
+                    help="memory/tiled: skip the in-memory comparison run")
     args = ap.parse_args()
     if args.part == "cluster":
         print(json.dumps(cluster(args.frames, args.size, args.workers, args.step,
@@ -163,8 +168,8 @@ def main() -> None:
         from scale_tiles import corner, memory_rows, tiled_cli
 
         run = {"memory": memory_rows, "tiled": tiled_cli, "corner": corner}[args.part]
-        print(json.dumps(run(args.size, args.step, args.data, args.keep, args.workers),
-                         indent=1))
+        print(json.dumps(run(args.size, args.step, args.data, args.keep, args.workers,
+                             args.method, args.untiled), indent=1))
 
 
 if __name__ == "__main__":

@@ -23,10 +23,11 @@ from napari_aldic.engine import correlate, correlate_tiled
 from napari_aldic.engine.io import read_image
 t = time.perf_counter()
 if {tiled!r}:
-    res = correlate_tiled({ref!r}, {dfm!r}, step={step}, workers={workers})
+    res = correlate_tiled({ref!r}, {dfm!r}, step={step}, workers={workers}, method={method!r})
 else:
-    res = correlate(read_image({ref!r}), read_image({dfm!r}), step={step})
-print("RESULT", json.dumps(dict(bigpair.errors(res), seconds=time.perf_counter() - t)))
+    res = correlate(read_image({ref!r}), read_image({dfm!r}), step={step}, method={method!r})
+print("RESULT", json.dumps(dict(bigpair.errors(res), seconds=time.perf_counter() - t,
+                                timing=res.meta.get("timing", {{}}))))
 """
 
 
@@ -43,28 +44,31 @@ def _measured(cmd: list[str]) -> dict:
     return {"peak_rss_mib": round(rss / 1024, 1), "wall_s": round(wall, 1), "stdout": p.stdout}
 
 
-def _child(ref, dfm, step: int, tiled: bool, workers: int) -> dict:
+def _child(ref, dfm, step: int, tiled: bool, workers: int, method: str = "local") -> dict:
     code = _CHILD.format(here=str(HERE), ref=str(ref), dfm=str(dfm), step=step, tiled=tiled,
-                         workers=workers)
+                         workers=workers, method=method)
     out = _measured([sys.executable, "-c", code])
     line = next(ln for ln in out.pop("stdout").splitlines() if ln.startswith("RESULT"))
     return {**out, **json.loads(line.split(" ", 1)[1])}
 
 
-def memory_rows(size: int, step: int, data: Path, keep: bool, workers: int) -> dict:
+def memory_rows(size: int, step: int, data: Path, keep: bool, workers: int,
+                method: str = "local", untiled: bool = True) -> dict:
     """Peak RSS of an untiled and a tiled run of a ``size``² pair."""
     ref, dfm = bigpair.write_pair(data, size)
     try:
-        rows = {"size": size, "step": step,
-                "tiled": _child(ref, dfm, step, True, workers),
-                "untiled": _child(ref, dfm, step, False, workers)}
+        rows = {"size": size, "step": step, "method": method,
+                "tiled": _child(ref, dfm, step, True, workers, method)}
+        if untiled:
+            rows["untiled"] = _child(ref, dfm, step, False, workers, method)
     finally:
         if not keep:
             ref.unlink(), dfm.unlink()
     return rows
 
 
-def tiled_cli(size: int, step: int, data: Path, keep: bool, workers: int) -> dict:
+def tiled_cli(size: int, step: int, data: Path, keep: bool, workers: int,
+              method: str = "local", untiled: bool = True) -> dict:
     """``napari-aldic run`` on a ``size``² tiled BigTIFF pair (time, peak RSS,
     accuracy), and a 2048² pair of the same generator correlated in memory."""
     from napari_aldic.engine import load_result
@@ -76,18 +80,23 @@ def tiled_cli(size: int, step: int, data: Path, keep: bool, workers: int) -> dic
     cli = shutil.which("napari-aldic") or "napari-aldic"
     try:
         run = _measured([cli, "run", str(ref), str(dfm), "--step", str(step),
-                         "--tile-workers", str(workers), "-o", str(out)])
+                         "--method", method, "--tile-workers", str(workers), "-o", str(out)])
         res = load_result(out)
-        row = {"size": size, "step": step, "file_gb": round(ref.stat().st_size / 1e9, 2),
+        row = {"size": size, "step": step, "method": method,
+               "file_gb": round(ref.stat().st_size / 1e9, 2),
                "generated_s": round(gen, 1), "cli": {k: run[k] for k in ("peak_rss_mib",
                                                                          "wall_s")},
-               "tiled": res.meta.get("tiled"), **bigpair.errors(res)}
+               "tiled": res.meta.get("tiled"), "timing": res.meta.get("timing"),
+               "admm_iterations": len(res.meta.get("admm_history", [])),
+               **bigpair.errors(res)}
     finally:
         if not keep:
             for p in (ref, dfm, out):
                 p.unlink(missing_ok=True)
+    if not untiled:
+        return row
     small = bigpair.write_pair(data, 2048)
-    row["small_2048_in_memory"] = _child(*small, step, False, workers)
+    row["small_2048_in_memory"] = _child(*small, step, False, workers, method)
     if not keep:
         small[0].unlink(), small[1].unlink()
     return row
@@ -103,19 +112,20 @@ roi = zarr.create_array(store={{}}, shape=(n, n), chunks=(2048, 2048), dtype=boo
                         fill_value=False)
 roi[n - c:n, n - c:n] = True
 t = time.perf_counter()
-res = correlate_tiled({ref!r}, {dfm!r}, roi=roi, step={step}, workers={workers})
+res = correlate_tiled({ref!r}, {dfm!r}, roi=roi, step={step}, workers={workers},
+                      method={method!r})
 print("RESULT", json.dumps(dict(bigpair.errors(res), seconds=time.perf_counter() - t,
                                 blocks=res.meta["tiled"]["blocks"])))
 """
 
 
 def corner(size: int, step: int, data: Path, keep: bool, workers: int,
-           corner_px: int = 4096) -> dict:
+           method: str = "local", untiled: bool = True, corner_px: int = 4096) -> dict:
     """A ``corner_px``² ROI in the far corner (largest motion) of a ``size``²
     pair, tiled: every block is visited, those of the ROI correlated."""
     ref, dfm = bigpair.write_pair(data, size)
     code = _CORNER.format(here=str(HERE), size=size, corner=corner_px, ref=str(ref),
-                          dfm=str(dfm), step=step, workers=workers)
+                          dfm=str(dfm), step=step, workers=workers, method=method)
     out = _measured([sys.executable, "-c", code])
     line = next(ln for ln in out.pop("stdout").splitlines() if ln.startswith("RESULT"))
     if not keep:

@@ -357,9 +357,9 @@ def solver_method(n_unknowns: int, method: str = "auto") -> str:
 class SPDSolver:
     """Repeated solves with one sparse SPD matrix: a SuperLU factor; or
     conjugate gradients warm-started from the previous solution (or from a
-    given guess on the first call), preconditioned by a smoothed-aggregation
-    AMG hierarchy (pyamg; built once, reused by every solve with this matrix)
-    or by the diagonal (Jacobi). CG keeps memory linear in the mesh size."""
+    given guess on the first call), preconditioned by a root-node AMG
+    hierarchy (pyamg; built once, reused by every solve with this matrix) or
+    by the diagonal (Jacobi). CG keeps memory linear in the mesh size."""
 
     def __init__(self, A: sp.csc_matrix, method: str, rtol: float):
         self.method = solver_method(A.shape[0], method)
@@ -374,8 +374,11 @@ class SPDSolver:
             import pyamg
 
             self.A = A.tocsr()
-            self._M = pyamg.smoothed_aggregation_solver(self.A, symmetry="symmetric",
-                                                        max_coarse=500).aspreconditioner()
+            # root-node aggregation: on these thin-plate-dominated systems it
+            # needs half the CG iterations of plain smoothed aggregation and a
+            # fifth of its setup (benchmarks/RESULTS.md, "AL-DIC global solve")
+            self._M = pyamg.rootnode_solver(self.A, symmetry="symmetric",
+                                            max_coarse=500).aspreconditioner()
         else:
             self._M = sp.diags(1.0 / A.diagonal())
 
