@@ -94,11 +94,8 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
 
     Parameters
     ----------
-    local_step : LocalStep
-        Runs the local step on the images (:func:`image_local_step` for
-        images in memory; block-wise runs read the images block by block).
-    cut : (n,) bool
-        Nodes whose subset is cut by the ROI (their warp stays affine).
+    local_step : the local step on the images (:func:`image_local_step`, or block by block).
+    cut : (n,) bool, nodes whose subset the ROI cuts (their warp stays affine).
     half : subset half-width (pixels).
     u0, v0, grad0 : local DIC displacements and (n, 4) gradients.
     trusted : nodes whose local result is reliable (data weight 1).
