@@ -22,7 +22,7 @@ from ..kernels.bspline import PAD, sample_points, spline_gradients
 
 __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
            "speckle_scale", "choose_order", "steepest_descent_gradients", "JACOBIAN_SMOOTHING",
-           "jacobian_smoothing"]
+           "jacobian_smoothing", "PREFILTER_MARGIN"]
 
 #: below this autocorrelation half-width (pixels) the speckle is so fine that
 #: cubic B-splines leave a sub-pixel bias near 0.005-0.01 px; quintic ones
@@ -36,6 +36,12 @@ FINE_SPECKLE_PX = 1.8
 #: at 10 GL added ~15 % to the displacement noise (docs/method.md)
 JACOBIAN_SMOOTHING = 0.2
 JACOBIAN_SMOOTHING_MAX = 1.0
+
+#: pixels beyond the sampled area that make the B-spline coefficients of an
+#: image window equal the whole image's to float precision (the recursive
+#: prefilter's influence decays by a factor 0.43 or less per pixel): what
+#: block-wise runs read around each block
+PREFILTER_MARGIN = 48
 
 
 @dataclass

@@ -50,7 +50,7 @@ from ..core.progress import check_cancel
 from ..core.reasons import Reason
 from ..core.results import DICResult
 from ..dic.correlate import correlate
-from ..dic.interpolation import choose_order, speckle_scale
+from ..dic.interpolation import PREFILTER_MARGIN, choose_order, speckle_scale
 from ..dic.mesh import EDGE
 from ..io.stack import open_image
 from .tiled_aldic import aldic_tiled
@@ -65,8 +65,6 @@ AUTO_TILE_PIXELS = 40_000_000
 DEFAULT_TILE = 2048
 #: lattice nodes correlated around a block's own nodes (outlier test: 2)
 NODE_HALO = 4
-#: pixels the B-spline prefilter needs beyond the sampled area
-PREFILTER_MARGIN = 48
 #: the per-node arrays of a result written block by block (optional
 #: DICResult fields that a block may leave None are NaN)
 _FIELDS = {"u": np.float64, "v": np.float64, "dudx": np.float64, "dudy": np.float64,

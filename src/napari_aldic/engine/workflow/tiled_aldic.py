@@ -38,6 +38,7 @@ from ..dic.aldic import aldic_stage
 from ..dic.global_solve import uniform_mesh
 from ..dic.icgn import icgn_solve_translation
 from ..dic.interpolation import (
+    PREFILTER_MARGIN,
     jacobian_smoothing,
     prefilter,
     reference_gradients,
@@ -48,11 +49,8 @@ from ..dic.regularise import gradient_noise_gain
 from ..dic.reliability import SubsetStats, Validity, image_noise, subset_statistics
 from ..dic.subsets import split_subsets
 
-__all__ = ["aldic_tiled", "PREFILTER_MARGIN"]
+__all__ = ["aldic_tiled"]
 
-#: pixels the B-spline prefilter needs beyond the sampled area (as for the
-#: Local blocks: the recursive filter's influence decays by >= 0.43 per pixel)
-PREFILTER_MARGIN = 48
 #: pixels an ADMM local step may move a node beyond its current displacement
 #: and still read inside its block's window
 SLACK = 8
