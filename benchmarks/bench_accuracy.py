@@ -6,7 +6,7 @@ Usage::
         [--seeds 31 32 33] [--noise 0 5 10]
 
 Cases (256 x 256, 8-bit synthetic speckle, exact analytic truth, subset 31,
-step 8): uniform strain plus a displacement wave,
+step 8; ``smooth_cases.py``): uniform strain plus a displacement wave,
 
 * ``long_wave``: exx 0.5 %, eyy -0.2 %, u = 0.4 sin(2 pi x / 320),
   v = 0.3 sin(2 pi y / 320);
@@ -22,45 +22,17 @@ node). Printed per case and noise level as the mean over seeds.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-
-
-def fields():
-    from napari_aldic.engine import synthetic as S
-
-    return {
-        "long_wave": S.Sum([S.Affine.strain_rotation(exx=0.005, eyy=-0.002, center=(128, 128)),
-                            S.Sinusoid(0.4, 0.3, wavelength=320.0)]),
-        "short_wave": S.Sum([S.Affine.strain_rotation(exx=0.01, eyy=-0.004, center=(128, 128)),
-                             S.Sinusoid(0.5, 0.5, wavelength=128.0)]),
-    }
+from smooth_cases import fields, pyaldic_run, write_rows
 
 
 def rmse(x, y, u, v, field, sel) -> float:
     ut, vt = field.displacement(x, y)
     return float(np.sqrt(np.mean(((u - ut) ** 2 + (v - vt) ** 2)[sel])))
-
-
-def pyaldic_field(python: str, ref, dfm, method: str):
-    import tifffile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        r, d, out = Path(tmp) / "r.tif", Path(tmp) / "d.tif", Path(tmp) / "o.npz"
-        tifffile.imwrite(r, ref, photometric="minisblack")
-        tifffile.imwrite(d, dfm, photometric="minisblack")
-        subprocess.run([python, str(HERE / "pyaldic_runner.py"), str(r), str(d), "--subset", "31",
-                        "--step", "8", "--method", method, "--repeat", "1", "--no-warmup",
-                        "--out", str(out)], check=True, capture_output=True, text=True)
-        p = np.load(out)
-        return p["x"], p["y"], p["u"], p["v"]
 
 
 def main(argv=None) -> int:
@@ -90,7 +62,7 @@ def main(argv=None) -> int:
                     res["aldic"].meta["regularisation"]["smooth_px"])
                 if args.pyaldic:
                     for m in ("local", "aldic"):
-                        x, y, u, v = pyaldic_field(args.pyaldic, ref, dfm, m)
+                        x, y, u, v = pyaldic_run(args.pyaldic, ref, dfm, 31, 8, m)
                         ok = np.isfinite(u) & np.isfinite(v)
                         acc.setdefault("pyaldic_" + m, []).append(
                             rmse(x, y, u, v, field, ok))
@@ -105,9 +77,7 @@ def main(argv=None) -> int:
                 line += (f"  | pyALDIC local {row['pyaldic_local']:.4f} AL-DIC "
                          f"{row['pyaldic_aldic']:.4f}")
             print(line, flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
-    return 0
+    return write_rows(rows, args.json)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ Usage::
         [--interpolation auto] [--json OUT]
 
 Cases (256 x 256, 8-bit synthetic speckle with exact analytic truth, step 8,
-Local DIC only): the smooth fields of ``bench_accuracy.py`` (``long_wave``:
+Local DIC only): the smooth fields of ``smooth_cases.py`` (``long_wave``:
 uniform strain plus a 320 px displacement wave; ``short_wave``: 128 px wave),
 with independent Gaussian noise of the given standard deviation (grey
 levels) in both images.
@@ -24,49 +24,26 @@ per case, noise and subset as the mean over seeds; pyALDIC results are cached
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+from smooth_cases import fields, pyaldic_run, write_rows
+
 STEP = 8
-
-
-def fields():
-    from napari_aldic.engine import synthetic as S
-
-    return {
-        "long_wave": S.Sum([S.Affine.strain_rotation(exx=0.005, eyy=-0.002, center=(128, 128)),
-                            S.Sinusoid(0.4, 0.3, wavelength=320.0)]),
-        "short_wave": S.Sum([S.Affine.strain_rotation(exx=0.01, eyy=-0.004, center=(128, 128)),
-                             S.Sinusoid(0.5, 0.5, wavelength=128.0)]),
-    }
 
 
 def pyaldic_local(python: str, ref, dfm, subset: int, cache: Path | None, key: str):
     """pyALDIC's Local DIC on the pair: ``(x, y, u, v)`` (cached under ``key``)."""
-    import tifffile
-
     if cache is not None and (cache / f"{key}.npz").exists():
         p = np.load(cache / f"{key}.npz")
         return p["x"], p["y"], p["u"], p["v"]
-    with tempfile.TemporaryDirectory() as tmp:
-        r, d, out = Path(tmp) / "r.tif", Path(tmp) / "d.tif", Path(tmp) / "o.npz"
-        tifffile.imwrite(r, ref, photometric="minisblack")
-        tifffile.imwrite(d, dfm, photometric="minisblack")
-        subprocess.run([python, str(HERE / "pyaldic_runner.py"), str(r), str(d), "--subset",
-                        str(subset), "--step", str(STEP), "--method", "local", "--repeat",
-                        "1", "--no-warmup", "--out", str(out)],
-                       check=True, capture_output=True, text=True)
-        p = dict(np.load(out))
+    x, y, u, v = pyaldic_run(python, ref, dfm, subset, STEP, "local")
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
-        np.savez(cache / f"{key}.npz", x=p["x"], y=p["y"], u=p["u"], v=p["v"])
-    return p["x"], p["y"], p["u"], p["v"]
+        np.savez(cache / f"{key}.npz", x=x, y=y, u=u, v=v)
+    return x, y, u, v
 
 
 def ours_local(ref, dfm, subset: int, offset: int, **kw):
@@ -141,9 +118,7 @@ def main(argv=None) -> int:
                     line += (f"  pyALDIC {row['pyaldic']:.4f}  "
                              f"ratio {row['ours'] / row['pyaldic']:.3f}")
                 print(line, flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
-    return 0
+    return write_rows(rows, args.json)
 
 
 if __name__ == "__main__":

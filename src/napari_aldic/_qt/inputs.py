@@ -49,11 +49,6 @@ class OptionalLayer(ComboBox):
         super().__init__(nullable=True, **kwargs)
 
 
-#: the panel's layer choices: attribute -> (layer kind, what it is for)
-ROLES = {"roi_add": "Shapes", "roi_subtract": "Shapes", "roi_labels": "Labels",
-         "brush": "Labels", "seeds": "Points"}
-
-
 class InputsPanel(Panel):
     """Choose the image stack, ROI shapes, holes, ROI labels, refine region and seeds.
 

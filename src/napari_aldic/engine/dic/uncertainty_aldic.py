@@ -141,10 +141,10 @@ def _local_maps(q, k: int):
 
 class BatchSolver:
     """:meth:`GlobalSolver.solve` and ``gradients`` for many right-hand sides
-    at once (columns: noise images) with the run's matrix; the formula of the
-    right-hand side is the solver's (``test_uncertainty_aldic`` checks that
-    they agree). A conjugate-gradient solver gets its own copy of the system,
-    so the run's warm start (kept for the next frame) is left alone."""
+    at once (columns: noise images) with the run's matrix; the right-hand side
+    is the solver's own (:meth:`GlobalSolver.rhs`). A conjugate-gradient
+    solver gets its own copy of the system, so the run's warm start (kept for
+    the next frame) is left alone."""
 
     def __init__(self, solver):
         from .global_solve import SPDSolver
@@ -159,12 +159,8 @@ class BatchSolver:
 
     def solve(self, F, W, u, v, vu, vv):
         s = self.s
-        R = (F - W) * s.wg[:, None, None]
-        mw = (s.mu * s.w)[:, None]
-        rhs_u = s.beta * (s.Gx.T @ R[:, 0] + s.Gy.T @ R[:, 1]) + mw * (u - vu)
-        rhs_v = s.beta * (s.Gx.T @ R[:, 2] + s.Gy.T @ R[:, 3]) + mw * (v - vv)
         k = u.shape[1]
-        rhs = s.T.T @ np.concatenate([rhs_u, rhs_v], axis=1)
+        rhs = s.rhs(F, W, u, v, vu, vv)
         guess = np.concatenate([u - vu, v - vv], axis=1)[s.free]
         full = s.T @ self.system.solve(rhs, guess)
         return full[:, :k], full[:, k:]

@@ -8,7 +8,13 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
 * ``bspline``  B-spline weights and samplers (float64 points, float32 IC-GN taps),
   spline gradients at the pixel centres;
 * ``subset``   a node's subset: work buffers, gathering its pixels, noise model;
+* ``gauss_newton`` the Gauss-Newton step the IC-GN solvers share (chunks, one
+  iteration's sums, storing a node's outcome);
+* ``icgn_node`` the per-node pieces every IC-GN driver shares (Cholesky solve,
+  work buffers, starting a node, the step verdict);
 * ``icgn``     the affine and the penalised-translation IC-GN solvers;
+* ``icgn_quadratic`` the 12-parameter (second-order) IC-GN solver;
+* ``moments``  streaming window moments of the speckle-quality maps;
 * ``sums``     integral images and window sums;
 * ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
 * ``speckle``  the analytic speckle intensity of the synthetic images.

@@ -1,6 +1,8 @@
 """Inverse-compositional Gauss-Newton (IC-GN) kernels.
 
-Two solvers share one skeleton (:mod:`.gauss_newton`): per chunk of ``CHUNK``
+Two solvers share one skeleton (:mod:`.gauss_newton`; the affine solver
+starts, solves and judges a node with :mod:`.icgn_node`, as the quadratic one
+does): per chunk of ``CHUNK``
 nodes (one parallel task) the work buffers are allocated once; per node the
 subset is gathered (:func:`~.subset.gather_subset`), its reference sums are built once
 (inverse composition linearises the *reference* subset), and the node runs
@@ -34,70 +36,12 @@ from .gauss_newton import (
     gn_step,
     store_node,
 )
+from .icgn_node import begin_node, chol_solve, solve_buffers, step_status
 from .subset import gather_subset, subset_buffers
 
-__all__ = ["icgn_affine", "icgn_translation", "cholesky", "chol_solve",
-           "affine_reference_sums", "inverse_compose", "affine_step",
-           "translation_reference_sums", "curvature_offsets", "penalty_system",
+__all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
+           "affine_step", "translation_reference_sums", "curvature_offsets", "penalty_system",
            "translation_step"]
-
-
-@nb.njit(**INLINE)
-def cholesky(H, L):
-    """In-place lower Cholesky factor of a symmetric ``n x n`` matrix.
-
-    Parameters
-    ----------
-    H : (n, n) float64
-        Symmetric matrix (6 x 6 affine, 12 x 12 quadratic Gauss-Newton).
-    L : (n, n) float64
-        Receives the factor (lower triangle).
-
-    Returns
-    -------
-    bool
-        False if a pivot is not clearly positive (``H`` not positive
-        definite to working precision: a subset without texture).
-    """
-    for i in range(H.shape[0]):
-        for j in range(i + 1):
-            s = H[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if s <= 1e-12 * (abs(H[i, i]) + 1e-300):
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    return True
-
-
-@nb.njit(**INLINE)
-def chol_solve(L, b, x):
-    """Solve ``L L^T x = b`` by forward and back substitution.
-
-    Parameters
-    ----------
-    L : (n, n) float64
-        Factor from :func:`cholesky`.
-    b : (n,) float64
-        Right-hand side.
-    x : (n,) float64
-        Receives the solution.
-    """
-    n = b.size
-    y = np.empty(n)
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * y[k]
-        y[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for k in range(i + 1, n):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
 
 
 # ------------------------------------------------------------- affine IC-GN
@@ -243,7 +187,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     sj, bf : 6-tuples of float
         Reference sums from :func:`affine_reference_sums`.
     L : (6, 6) float64
-        Cholesky factor of the reference Hessian (:func:`cholesky`).
+        Cholesky factor of the reference Hessian (:func:`~.icgn_node.cholesky`).
     b, dp : (6,) float64
         Work arrays.
     h, span : int
@@ -287,11 +231,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     dvy = -dp[5]
     p = inverse_compose(p, du, dux, duy, dv, dvx, dvy)
     nrm = du * du + dv * dv + h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
-    if abs(p[0] - start[0]) > span or abs(p[3] - start[1]) > span or not np.isfinite(nrm):
-        return DIVERGED, zn_k, p
-    if nrm < tol * tol:
-        return OK, zn_k, p
-    return NOT_CONVERGED, zn_k, p
+    return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn_k, p
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
@@ -300,9 +240,10 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     Per node: gather the subset, build the reference Hessian and its Cholesky
-    factor (a node without texture is stored as ``NO_TEXTURE`` with its
-    initial parameters), then iterate :func:`affine_step` while it reports
-    ``NOT_CONVERGED`` and ``max_iter`` allows.
+    factor (:func:`~.icgn_node.begin_node`; a node without texture is stored
+    as ``NO_TEXTURE`` with its initial parameters), then iterate
+    :func:`affine_step` while it reports ``NOT_CONVERGED`` and ``max_iter``
+    allows.
 
     Parameters
     ----------
@@ -331,10 +272,8 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
     for c in nb.prange(nchunks):
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        L, b, dp = solve_buffers(6)
         H = np.empty((6, 6))
-        L = np.zeros((6, 6))
-        b = np.empty(6)
-        dp = np.empty(6)
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
@@ -344,19 +283,10 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
                 dxs, dys, gx, gy, fs, m, fm, H)
             sj = (sj0, sj1, sj2, sj3, sj4, sj5)
             bf = (b00, b01, b02, b03, b04, b05)
-            stats_out[k, 0] = m
-            stats_out[k, 1] = df2 / m
-            stats_out[k, 2] = H[0, 0]
-            stats_out[k, 3] = H[3, 0]
-            stats_out[k, 4] = H[3, 3]
             p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
                  p_init[k, 5])
-            if df2 <= 1e-6 * m or not cholesky(H, L):
-                store_node(k, p, np.nan, 0, NO_TEXTURE, p_out, zncc_out, iters_out, reason_out)
-                continue
-            dfn = np.sqrt(df2)
+            status, zn, it, dfn = begin_node(k, m, df2, H, L, stats_out)
             start = (p[0], p[3])
-            status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,

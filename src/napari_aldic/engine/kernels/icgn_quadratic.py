@@ -9,14 +9,14 @@ subset pixel at offset ``(dx, dy)`` maps to
 likewise in ``y``). A subset can then follow a displacement that bends over
 its width, which an affine subset averages away.
 
-The skeleton is the affine solver's (:mod:`.icgn`, :mod:`.gauss_newton`): the
-reference Hessian (12 x 12) is built and factorised once per node, and every
-step warps the subset (the second-order part as the fixed offsets that
-:func:`~.gauss_newton.gn_step` already adds), samples the deformed image
-once and forms the right-hand side. The inverse composition of second-order
-warps is not closed; the increment is composed to first order in the
-increment and truncated at second order in the offsets
-(:func:`compose_quadratic`). Gauss-Newton stops where the increment
+The skeleton is the affine solver's (:mod:`.icgn`, :mod:`.gauss_newton`,
+:mod:`.icgn_node`): the reference Hessian (12 x 12) is built and factorised
+once per node, and every step warps the subset (the second-order part as
+the fixed offsets that :func:`~.gauss_newton.gn_step` already adds), samples
+the deformed image once and forms the right-hand side. The inverse
+composition of second-order warps is not closed; the increment is composed
+to first order in the increment and truncated at second order in the
+offsets (:func:`compose_quadratic`). Gauss-Newton stops where the increment
 vanishes, so the truncation changes the path, not the solution.
 
 References: H. Lu, P. D. Cary, "Deformation measurements by digital image
@@ -32,17 +32,8 @@ import numba as nb
 import numpy as np
 
 from .flags import FASTMATH, INLINE, PARALLEL
-from .gauss_newton import (
-    CHUNK,
-    DIVERGED,
-    NO_TEXTURE,
-    NOT_CONVERGED,
-    OK,
-    chunk_layout,
-    gn_step,
-    store_node,
-)
-from .icgn import chol_solve, cholesky
+from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
+from .icgn_node import begin_node, chol_solve, solve_buffers, step_status
 from .subset import gather_subset, subset_buffers
 
 __all__ = ["NPAR", "quadratic_jacobian", "quadratic_reference_sums", "quadratic_offsets",
@@ -93,12 +84,8 @@ def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf):
 
     Parameters
     ----------
-    dxs, dys, gx, gy, fs : 1-D float64
-        The gathered subset.
-    m : int
-        Subset pixels.
-    fm : float
-        Mean of the reference subset.
+    dxs, dys, gx, gy, fs, m, fm
+        As :func:`~.icgn.affine_reference_sums`.
     Jm : (>= m, 12) float64
         Work array: receives the steepest-descent image of each pixel.
     sj, bf : (12,) float64
@@ -212,10 +199,8 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
         Cholesky factor of the reference Hessian.
     b, dp : (12,) float64
         Work arrays.
-    h, span : int
-        Subset half-width and width.
-    start : (float, float)
-        Starting ``(u, v)`` (divergence test).
+    h, span, start
+        As :func:`~.icgn.affine_step`.
     tol : float
         Convergence tolerance (pixels) on the increment's largest
         displacement at the subset edge.
@@ -258,11 +243,7 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
            + h2 * (dp[1] * dp[1] + dp[2] * dp[2] + dp[4] * dp[4] + dp[5] * dp[5])
            + h4 * (dp[6] * dp[6] + dp[7] * dp[7] + dp[8] * dp[8] + dp[9] * dp[9]
                    + dp[10] * dp[10] + dp[11] * dp[11]))
-    if abs(p[0] - start[0]) > span or abs(p[3] - start[1]) > span or not np.isfinite(nrm):
-        return DIVERGED, zn
-    if nrm < tol * tol:
-        return OK, zn
-    return NOT_CONVERGED, zn
+    return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
@@ -271,8 +252,9 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
     """Quadratic IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     As :func:`~.icgn.icgn_affine` with twelve parameters: per node gather the
-    subset, build and factorise the 12 x 12 reference Hessian (a node without
-    texture is stored as ``NO_TEXTURE`` with its initial parameters), then
+    subset, build and factorise the 12 x 12 reference Hessian
+    (:func:`~.icgn_node.begin_node`; a node without texture is stored as
+    ``NO_TEXTURE`` with its initial parameters), then
     iterate :func:`quadratic_step` while it reports ``NOT_CONVERGED`` and
     ``max_iter`` allows.
 
@@ -294,30 +276,19 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
         qx = np.empty(npx)
         qy = np.empty(npx)
         Jm = np.empty((npx, NPAR))
-        L = np.zeros((NPAR, NPAR))
         sj = np.empty(NPAR)
         bf = np.empty(NPAR)
-        b = np.empty(NPAR)
-        dp = np.empty(NPAR)
         p = np.empty(NPAR)
+        L, b, dp = solve_buffers(NPAR)
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
             H = quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf)
-            stats_out[k, 0] = m
-            stats_out[k, 1] = df2 / m
-            stats_out[k, 2] = H[0, 0]
-            stats_out[k, 3] = H[3, 0]
-            stats_out[k, 4] = H[3, 3]
             p[:] = p_init[k]
-            if df2 <= 1e-6 * m or not cholesky(H, L):
-                store_node(k, p, np.nan, 0, NO_TEXTURE, p_out, zncc_out, iters_out, reason_out)
-                continue
-            dfn = np.sqrt(df2)
+            status, zn, it, dfn = begin_node(k, m, df2, H, L, stats_out)
             start = (p[0], p[3])
-            status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, z = quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
