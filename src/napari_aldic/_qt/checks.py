@@ -14,9 +14,15 @@ from typing import Any
 import numpy as np
 
 from .._roi import labels_mask, points_xy
+from ..engine import needs_tiling
 from ..i18n import tr
 
-__all__ = ["Choices", "problems"]
+__all__ = ["Choices", "problems", "IN_MEMORY_BYTES_PER_PIXEL"]
+
+#: peak memory of an in-memory correlate per image pixel, measured at 10,000²
+#: (about 6 GB at step 8: both images, gradients, spline coefficients, quality
+#: sums; benchmarks/RESULTS.md)
+IN_MEMORY_BYTES_PER_PIXEL = 60
 
 
 @dataclass(frozen=True)
@@ -70,11 +76,24 @@ def problems(c: Choices) -> tuple[list[str], list[str]]:
             errors.append(tr("Refine region: {exc}").format(exc=exc))
         if c.reference != "accumulative":
             errors.append(tr("A painted refine region needs 'accumulative' tracking."))
-    warnings = []
+    warnings = _size_warnings(rows, cols)
     if c.step > c.subset:
         warnings.append(tr("Step {step} px is larger than the subset: pixels between "
                            "subsets are not used.").format(step=c.step))
     return errors, warnings
+
+
+def _size_warnings(rows: int, cols: int) -> list[str]:
+    """Frames so large that an in-memory analysis may not fit: point to the
+    block-by-block path of the command line."""
+    if not needs_tiling((rows, cols)):
+        return []
+    gb = rows * cols * IN_MEMORY_BYTES_PER_PIXEL / 1e9
+    return [tr("Frames of {cols} x {rows} px: an analysis in napari holds them whole and "
+               "needs about {gb:.0f} GB of memory. Images larger than memory are "
+               "correlated block by block from the command line: napari-aldic run REF.tif "
+               "DEF.tif --step 32 -o out.npz (see the large-images guide).").format(
+                   cols=cols, rows=rows, gb=gb)]
 
 
 def _stack_problem(img, shape) -> str | None:
