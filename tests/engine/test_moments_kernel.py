@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
+from napari_aldic.engine.kernels import moments
 from napari_aldic.engine.kernels.moments import (
     HYPOT,
     ONES,
+    centre_moments,
     moment_terms,
     window_moments,
 )
@@ -97,6 +99,36 @@ def test_moments_about_each_node():
     products = [(1, 2, 4), (ONES, ONES, 4), (0, 0, 2)]
     res = window_moments(images, products, x, y, 8, mask=mask, centre=True)
     _check(res, images, products, mask, x, y, 8, None, tol=1e-8)
+
+
+def test_row_bands_change_nothing(monkeypatch):
+    """The nodes are split into bands of rows run in parallel; a band starts
+    where the accumulator restarts anyway, so any number of bands gives the
+    same bits (windows wholly above or below the image included), and the
+    centring done inside the kernel is :func:`centre_moments` of the raw
+    moments."""
+    rng = np.random.default_rng(5)
+    h, w = 400, 90  # several epochs
+    images = _images(rng, h, w)
+    mask = rng.random((h, w)) > 0.2
+    xx, yy = np.meshgrid(np.arange(-4, w + 6, 5), np.arange(-20, h + 25, 6))
+    x, y = xx.ravel(), yy.ravel()
+    runs = []
+    monkeypatch.setattr(moments, "PARALLEL_WORK", 0)  # split even this small job
+    for bands in (1, 3, 50):
+        monkeypatch.setattr(moments, "BANDS_PER_THREAD", bands)
+        runs.append([window_moments(images, PRODUCTS, x, y, 9, mask=mask, centre=c)
+                     for c in (False, True)])
+    for raw, centred in runs[1:]:
+        for a, b in zip(runs[0][0] + runs[0][1], raw + centred):
+            np.testing.assert_array_equal(a, b)
+    _check(runs[0][0], images, PRODUCTS, mask, x, y, 9, ((w - 1) / 2, (h - 1) / 2))
+    dx, dy = x - (w - 1) / 2, y - (h - 1) / 2.0
+    for raw, centred, (*_, order) in zip(runs[0][0], runs[0][1],
+                                         [p[:3] for p in PRODUCTS]):
+        want = centre_moments(np.ascontiguousarray(raw), dx.astype(float), dy, order)
+        np.testing.assert_allclose(centred, want, rtol=1e-12,
+                                   atol=1e-12 * np.abs(want).max())
 
 
 def test_single_node_and_order_zero():

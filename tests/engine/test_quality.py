@@ -60,6 +60,39 @@ def test_gauss_newton_matrix_equals_a_brute_force_sum(shape_function):
         np.testing.assert_allclose(q.sssig_x[k], np.sum(gx[win][m] ** 2), rtol=1e-6)
 
 
+def test_smoothed_jacobian_matrices_equal_brute_force_sums():
+    """``cross`` = Σ J ∇fᵀ of the smoothed steepest-descent images against
+    the plain gradients, and the noise parts = gain x Σ t tᵀ on the diagonal
+    blocks (quadratic, with a ROI)."""
+    from napari_aldic.engine.dic.interpolation import steepest_descent_gradients
+    from napari_aldic.engine.dic.quality import filter_gains
+
+    img, _ = S.speckle_pair((120, 130), S.Translation(0, 0), noise=2.0, seed=4)
+    img = img.astype(float)
+    roi = np.ones(img.shape, bool)
+    roi[:, 70:74] = False
+    x, y, sub, sigma = np.array([30, 66, 95]), np.array([40, 60, 75]), 25, 0.8
+    jx, jy = steepest_descent_gradients(img, 3, sigma)
+    q = speckle_quality(img, x, y, sub, roi, shape_function="quadratic",
+                        jacobian=(jx, jy, sigma))
+    gx, gy = (a.astype(float) for a in reference_gradients(prefilter(img, 3)))
+    _, gain_j, gain_c = filter_gains(sigma, 3)
+    h = sub // 2
+    dy, dx = np.mgrid[-h:h + 1, -h:h + 1].astype(float)
+    for k in range(3):
+        win = (slice(y[k] - h, y[k] + h + 1), slice(x[k] - h, x[k] + h + 1))
+        m = roi[win]
+        mono = np.array([dx**p * dy**q_ for p, q_ in SHAPE_TERMS["quadratic"]])
+        jj = np.concatenate([jx[win] * mono, jy[win] * mono])[:, m]
+        jg = np.concatenate([gx[win] * mono, gy[win] * mono])[:, m]
+        tt = mono[:, m] @ mono[:, m].T
+        zero = np.zeros_like(tt)
+        ones = np.block([[tt, zero], [zero, tt]])
+        for got, want in ((q.cross[k], jj @ jg.T), (q.hessian[k], jj @ jj.T),
+                          (q.noise[k], gain_j * ones), (q.cross_noise[k], gain_c * ones)):
+            np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6 * np.abs(want).max())
+
+
 def test_interpolated_noise_factor_is_the_variance_of_interpolated_noise():
     rng = np.random.default_rng(0)
     noise = rng.normal(size=(400, 400))
@@ -175,3 +208,55 @@ def test_smoothed_jacobian_of_zero_width_is_the_plain_model():
     # the same up to the gain's two evaluations (impulse response vs. spectrum)
     np.testing.assert_allclose(static_uncertainty(same, 3.0), static_uncertainty(plain, 3.0),
                                rtol=1e-4)
+
+
+def _covariance_by_numpy(q, var):
+    """The model of ``node_uncertainty`` written out with np.linalg on the
+    matrices of ``q``: ``2 σ² M⁻¹ (A - t E_A / 2) M⁻ᵀ`` at u and v."""
+    k = q.hessian.shape[1] // 2
+    a, ea = q.hessian, q.noise * var
+    c, ec = (a, ea) if q.cross is None else (q.cross, q.cross_noise * var)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.diagonal(c, axis1=1, axis2=2) / np.diagonal(ec, axis1=1, axis2=2)
+    t = np.minimum(0.9 * np.min(np.where(np.isfinite(r) & (r > 0), r, np.inf), axis=1), 1.0)
+    spk = c - t[:, None, None] * ec
+    out, cond = np.full((q.m.size, 2), np.nan), np.full(q.m.size, np.inf)
+    for i in np.flatnonzero(q.m > 2 * k):  # (singular ones outside the ROI)
+        cond[i] = np.linalg.cond(spk[i])
+        if cond[i] < 1e12 and np.linalg.det(spk[i]) > 0:
+            inv = np.linalg.inv(spk[i])
+            cov = inv @ (a[i] - 0.5 * t[i] * ea[i]) @ inv.T
+            out[i] = 2 * var * cov[0, 0], 2 * var * cov[k, k]
+    return out, cond
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in sqrt")
+@pytest.mark.parametrize("shape_function", ["affine", "quadratic"])
+@pytest.mark.parametrize("smoothed", [False, True])
+def test_uncertainty_from_the_moments_is_the_matrix_model(shape_function, smoothed):
+    """The uncertainty is computed from the window moments without building
+    the matrices: it equals the model evaluated on the matrices (built on
+    first access), with and without a ROI and smoothed steepest-descent
+    images; assigning a matrix replaces it."""
+    from napari_aldic.engine.dic.interpolation import steepest_descent_gradients
+
+    img, _ = S.speckle_pair((160, 170), S.Translation(0, 0), noise=2.0, seed=8)
+    img = img.astype(float)
+    yy, xx = np.mgrid[:160, :170]
+    roi = (xx - 85) ** 2 + (yy - 80) ** 2 < 70**2
+    x, y = (a.ravel() for a in np.meshgrid(np.arange(10, 170, 9), np.arange(10, 160, 9)))
+    jac = (*steepest_descent_gradients(img, 3, 0.8), 0.8) if smoothed else None
+    for mask in (None, roi):
+        q = speckle_quality(img, x, y, 21, mask, shape_function=shape_function, jacobian=jac)
+        direct = static_uncertainty(q, 3.0) ** 2  # before any matrix exists
+        want, cond = _covariance_by_numpy(q, 9.0)
+        ok = cond < 1e9  # beyond, two solvers differ by more than 1e-9
+        assert ok.sum() > 0.5 * x.size
+        np.testing.assert_allclose(direct[ok], want[ok], rtol=1e-9)
+        assert (q.cross is None) == (not smoothed)
+        # once built, the matrices are used: the same numbers
+        np.testing.assert_allclose(static_uncertainty(q, 3.0) ** 2, direct, rtol=1e-12)
+        q.noise = 0.5 * q.noise
+        half, _ = _covariance_by_numpy(q, 9.0)
+        np.testing.assert_allclose(static_uncertainty(q, 3.0)[ok] ** 2, half[ok], rtol=1e-9)
+        assert np.nanmax(np.abs(half[ok] / want[ok] - 1)) > 1e-3  # and it made a difference

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from ..kernels.covariance import covariance_diag, gather_matrices, mean_noise_factor
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms, window_moments
 from .interpolation import (
     jacobian_smoothing,
@@ -60,10 +61,6 @@ __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_unce
 #: component: the affine one has 3, the quadratic one 6
 SHAPE_TERMS = {"affine": ((0, 0), (1, 0), (0, 1)),
                "quadratic": ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))}
-#: the speckle part S of the Gauss-Newton matrix is kept at least this
-#: fraction of H (extreme noise would otherwise make it singular)
-_MIN_SPECKLE_FRACTION = 0.1
-_CHUNK = 4096  # nodes per batch of small matrix inversions
 
 
 def _ones_moments(shape, x, y, half: int, order: int) -> np.ndarray:
@@ -84,22 +81,69 @@ def _ones_moments(shape, x, y, half: int, order: int) -> np.ndarray:
                           order)
 
 
-def _matrices(moms, layout, terms, order: int) -> np.ndarray:
-    """(n, 2k, 2k) matrix whose block ``(i, j)`` is ``Σ a t tᵀ`` of the
-    monomials ``terms``, ``a``'s centred moments being ``moms[layout[i][j]]``
-    ((n, M) in ``moment_terms(order)`` order; None: a zero block)."""
+def _table(layout, terms, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the entries of a (2k, 2k) matrix sit in the moment arrays: block
+    ``(i, j)`` is ``Σ a t tᵀ`` of the monomials ``terms``, ``a``'s centred
+    moments (in ``moment_terms(order)`` order) starting at column ``c`` of
+    array ``s`` for ``layout[i][j] = (s, c)`` (None: a zero block). Returns
+    ``(src, col)`` as :func:`~napari_aldic.engine.kernels.covariance.gather_matrices`
+    takes them."""
     col = {pq: c for c, pq in enumerate(moment_terms(order))}
-    nm, k = len(col), len(terms)
-    table = np.full((2 * k, 2 * k), len(moms) * nm)  # the zero column
+    k = len(terms)
+    src = np.full((2 * k, 2 * k), -1, np.int64)
+    cols = np.zeros((2 * k, 2 * k), np.int64)
     for bi in range(2):
         for bj in range(2):
             if layout[bi][bj] is None:
                 continue
+            arr, first = layout[bi][bj]
             for i, (p1, q1) in enumerate(terms):
                 for j, (p2, q2) in enumerate(terms):
-                    table[bi * k + i, bj * k + j] = layout[bi][bj] * nm + col[p1 + p2, q1 + q2]
-    flat = np.column_stack([*moms, np.zeros(moms[0].shape[0])])
-    return np.take(flat, table, axis=1)
+                    src[bi * k + i, bj * k + j] = arr
+                    cols[bi * k + i, bj * k + j] = first + col[p1 + p2, q1 + q2]
+    return src, cols
+
+
+#: the matrices of a SpeckleQuality, in the order of their gather tables
+MATRICES = ("hessian", "noise", "cross", "cross_noise")
+
+
+@dataclass
+class _NormalSums:
+    """The window moments behind the matrices of :class:`SpeckleQuality`:
+    entry ``(p, q)`` of matrix ``j`` (:data:`MATRICES`) is ``scale[j] *
+    arrays[src[j, p, q]][:, col[j, p, q]]`` (``src < 0``: zero). Without
+    smoothed steepest-descent images (``has_cross`` False) tables 2 and 3
+    repeat 0 and 1."""
+
+    arrays: tuple
+    src: np.ndarray
+    col: np.ndarray
+    scale: np.ndarray
+    has_cross: bool
+
+    def matrix(self, j: int) -> np.ndarray | None:
+        if j >= 2 and not self.has_cross:
+            return None
+        return gather_matrices(*self.arrays, self.src[j], self.col[j], float(self.scale[j]))
+
+
+class _Matrix:
+    """A (n, 2k, 2k) matrix of :class:`SpeckleQuality`, gathered from the
+    window moments on first use and then kept; it may be assigned."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, q, owner=None):
+        if q is None:
+            return self
+        if self.name not in q.__dict__:
+            q.__dict__[self.name] = q.sums.matrix(MATRICES.index(self.name))
+        return q.__dict__[self.name]
+
+    def __set__(self, q, value):
+        q.__dict__[self.name] = value
 
 
 @dataclass
@@ -118,6 +162,8 @@ class SpeckleQuality:
         Pixels of the subset inside the ROI.
     var_f : (n,) float
         Grey-level variance of the subset.
+    sums : _NormalSums
+        The window moments the matrices below are gathered from.
     hessian, noise : (n, 2k, 2k) float
         ``Σ J Jᵀ`` of the steepest-descent images ``J`` of the shape function
         and its expected noise part per unit noise variance (``E / σ²``).
@@ -125,6 +171,10 @@ class SpeckleQuality:
         ``Σ J ∇fᵀ`` (``J`` against the plain spline gradients) and its noise
         part per unit variance, when ``J`` is built from smoothed gradients;
         None: ``J`` is the plain gradient (``cross = hessian``).
+
+    The four matrices are built on first access (the uncertainty is
+    computed from the moments without them: at 4096², quadratic, they take
+    1.2 GB); assigning one replaces it.
     """
 
     mig: np.ndarray
@@ -132,10 +182,11 @@ class SpeckleQuality:
     sssig_y: np.ndarray
     m: np.ndarray
     var_f: np.ndarray
-    hessian: np.ndarray = field(repr=False)
-    noise: np.ndarray = field(repr=False)
-    cross: np.ndarray | None = field(default=None, repr=False)
-    cross_noise: np.ndarray | None = field(default=None, repr=False)
+    sums: _NormalSums = field(repr=False)
+    hessian = _Matrix()
+    noise = _Matrix()
+    cross = _Matrix()
+    cross_noise = _Matrix()
 
     @property
     def sssig(self) -> np.ndarray:
@@ -166,34 +217,36 @@ def filter_gains(sigma: float, order: int) -> tuple[float, float, float]:
     return float(np.sum(d * d)), float(np.sum(dj * dj)), float(np.sum(d * dj))
 
 
-def _subset_sums(img, gx, gy, jac, mask, x, y, half: int, deg: int) -> dict:
+def _subset_sums(img, gx, gy, jac, mask, x, y, half: int, deg: int):
     """Every window sum :func:`speckle_quality` needs, in one pass of the
     moment kernel (no product image is formed): the moments about the node
-    up to ``deg`` of the ROI and of ``J Jᵀ`` (``J = jac`` or the gradients)
-    and, when ``jac`` is given, ``J ∇fᵀ``; the sums of ``f``, ``f²``,
-    ``|∇f|``, ``f_x²`` and ``f_y²`` (all within the ROI)."""
+    up to ``deg`` of ``J Jᵀ`` (``J = jac`` or the gradients) and, when
+    ``jac`` is given, ``J ∇fᵀ``; the sums of ``f``, ``f²``, ``|∇f|``,
+    ``f_x²`` and ``f_y²`` (all within the ROI). Returns the moments side by
+    side (n, F), the first column of each product's in it by name, and the
+    moments of the ROI (n, M) (with a ROI: the columns named ``roi`` of the
+    first)."""
     F, GX, GY, JX, JY = range(5)
     jx, jy = (GX, GY) if jac is None else (JX, JY)
-    prods = {"jj": [(jx, jx, deg), (jx, jy, deg), (jy, jy, deg)],
-             "s": [(F, ONES, 0), (F, F, 0), (GX, GY, 0, HYPOT)]}
+    prods = {"jxjx": (jx, jx, deg), "jxjy": (jx, jy, deg), "jyjy": (jy, jy, deg),
+             "f": (F, ONES, 0), "ff": (F, F, 0), "grad": (GX, GY, 0, HYPOT)}
     if jac is not None:
-        prods["jg"] = [(JX, GX, deg), (JX, GY, deg), (JY, GX, deg), (JY, GY, deg)]
-        prods["s"] += [(GX, GX, 0), (GY, GY, 0)]
+        prods.update(jxgx=(JX, GX, deg), jxgy=(JX, GY, deg), jygx=(JY, GX, deg),
+                     jygy=(JY, GY, deg), gxgx=(GX, GX, 0), gygy=(GY, GY, 0))
     if mask is not None:
-        prods["m"] = [(ONES, ONES, deg)]
+        prods["roi"] = (ONES, ONES, deg)
     images = [img, gx, gy] + ([] if jac is None else list(jac))
-    flat = window_moments(images, [t for v in prods.values() for t in v], x, y, half,
-                          mask=mask, centre=True)
-    out, k = {}, 0
-    for key, v in prods.items():
-        out[key] = flat[k:k + len(v)]
-        k += len(v)
+    flat = window_moments(images, list(prods.values()), x, y, half, mask=mask, centre=True,
+                          joined=True)
+    sizes = [(t[2] + 1) * (t[2] + 2) // 2 for t in prods.values()]
+    start = dict(zip(prods, np.cumsum([0] + sizes[:-1]).tolist()))
+    if jac is None:  # Σ f_x², Σ f_y²: moment (0, 0) of J Jᵀ
+        start["gxgx"], start["gygy"] = start["jxjx"], start["jyjy"]
     if mask is None:
-        out["m"] = [_ones_moments(img.shape, x, y, half, deg)]
-    if jac is None:
-        out["s"] += [out["jj"][0], out["jj"][2]]  # Σ f_x², Σ f_y²
-    out["s"] = [r[:, 0] for r in out["s"]]  # moment (0, 0) comes first
-    return out
+        roi = _ones_moments(img.shape, x, y, half, deg)
+    else:
+        roi = flat[:, start["roi"]:start["roi"] + len(moment_terms(deg))]
+    return flat, start, roi
 
 
 def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str = "affine",
@@ -239,62 +292,51 @@ def speckle_quality(image, x, y, subset: int, roi=None, *, shape_function: str =
         gain = gradient_noise_gain(order)
     terms = SHAPE_TERMS[shape_function]
     deg = 2 * max(p + q for p, q in terms)
-    sums = _subset_sums(img, gx, gy, None if jacobian is None else jacobian[:2], mask, x, y,
-                        subset // 2, deg)
-    # Σ ay ax t tᵀ = Σ ax ay t tᵀ: the lower-left block repeats the upper-right one
-    hess = _matrices(sums["jj"], ((0, 1), (1, 2)), terms, deg)
-    noise = _matrices(sums["m"], ((0, None), (None, 0)), terms, deg)
-    cross = cross_noise = None
+    flat, at, roi = _subset_sums(img, gx, gy, None if jacobian is None else jacobian[:2], mask,
+                                 x, y, subset // 2, deg)
+    # Σ ay ax t tᵀ = Σ ax ay t tᵀ: the lower-left block repeats the upper-right one;
+    # the noise part is the window's pixel moments (of the ROI) times a gain
+    hess = _table((((0, at["jxjx"]), (0, at["jxjy"])), ((0, at["jxjy"]), (0, at["jyjy"]))),
+                  terms, deg)
+    ones = (0, at["roi"]) if mask is not None else (1, 0)
+    noise = _table(((ones, None), (None, ones)), terms, deg)
     if jacobian is None:
-        noise *= gain
+        tables, scales = [hess, noise, hess, noise], [1.0, gain, 1.0, gain]
     else:
         _, gain_j, gain_c = filter_gains(float(jacobian[2]), order)
-        cross = _matrices(sums["jg"], ((0, 1), (2, 3)), terms, deg)
-        cross_noise = noise * gain_c
-        noise *= gain_j
-    m = sums["m"][0][:, 0]
-    s1, s2, grad_abs, sx, sy = sums["s"]
+        cross = _table((((0, at["jxgx"]), (0, at["jxgy"])), ((0, at["jygx"]), (0, at["jygy"]))),
+                       terms, deg)
+        tables, scales = [hess, noise, cross, noise], [1.0, gain_j, 1.0, gain_c]
+    sums = _NormalSums((flat, flat if mask is not None else roi),
+                       np.stack([t[0] for t in tables]), np.stack([t[1] for t in tables]),
+                       np.array(scales), jacobian is not None)
+    m = roi[:, 0]
+    s1, s2, grad_abs, sx, sy = (flat[:, at[k]] for k in ("f", "ff", "grad", "gxgx", "gygy"))
     with np.errstate(invalid="ignore", divide="ignore"):
         mig = grad_abs / m
         var_f = np.maximum(s2 / m - (s1 / m) ** 2, 0.0)
-    return SpeckleQuality(mig, sx, sy, m, var_f, hess, noise, cross, cross_noise)
-
-
-def _noise_scale(m: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """Per node, the fraction (<= 1) of the expected noise part ``e`` taken
-    out of ``m``: never more than ``1 - _MIN_SPECKLE_FRACTION`` of a diagonal."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.diagonal(m, axis1=1, axis2=2) / np.diagonal(e, axis1=1, axis2=2)
-        lim = np.min(np.where(np.isfinite(ratio) & (ratio > 0), ratio, np.inf), axis=1)
-    return np.clip(np.nan_to_num((1 - _MIN_SPECKLE_FRACTION) * lim, nan=0.0), 0.0, 1.0)
+    return SpeckleQuality(mig, sx, sy, m, var_f, sums)
 
 
 def _covariance_diag(q: SpeckleQuality, var_e: np.ndarray) -> np.ndarray:
     """``diag(2 var_e M⁻¹ (A - E_J / 2) M⁻ᵀ)`` at the u and v entries, ``(n, 2)``
     px²: ``A = Σ J Jᵀ`` with noise part ``E_J``, ``M = Σ J ∇fᵀ`` less its noise
-    part (for plain gradients ``M = S = H - E`` and the middle is ``S + E/2``)."""
-    k = q.hessian.shape[1] // 2
-    out = np.full((q.m.size, 2), np.nan)
-    for s in range(0, q.m.size, _CHUNK):
-        sl = slice(s, s + _CHUNK)
-        var = var_e[sl, None, None]
-        a, ea = q.hessian[sl], q.noise[sl] * var
-        cm, em = (a, ea) if q.cross is None else (q.cross[sl], q.cross_noise[sl] * var)
-        t = _noise_scale(cm, em)[:, None, None]
-        spk = cm - t * em
-        # the reference's gradient noise is anti-correlated with its own noise at
-        # the neighbouring pixels: it adds E_J / 2, not E_J, to the data term
-        mid = a - 0.5 * t * ea
-        ok = np.isfinite(spk).all(axis=(1, 2)) & (q.m[sl] > 2 * k) & np.isfinite(var_e[sl])
-        ok &= np.linalg.det(np.where(ok[:, None, None], spk, np.eye(2 * k))) > 0
-        idx = np.flatnonzero(ok)
-        if idx.size == 0:
-            continue
-        inv = np.linalg.inv(spk[idx])
-        cov = inv @ mid[idx] @ inv.transpose(0, 2, 1)
-        out[s + idx, 0] = 2.0 * var_e[sl][idx] * cov[:, 0, 0]
-        out[s + idx, 1] = 2.0 * var_e[sl][idx] * cov[:, k, k]
-    return out
+    part (for plain gradients ``M = S = H - E`` and the middle is ``S + E/2``;
+    :func:`~napari_aldic.engine.kernels.covariance.covariance_diag`). Straight
+    from the window moments unless a matrix was built or assigned."""
+    sums = q.sums
+    if sums is None or any(name in q.__dict__ for name in MATRICES):
+        a, ea = q.hessian, q.noise
+        c, ec = (a, ea) if q.cross is None else (q.cross, q.cross_noise)
+        n, size = a.shape[0], a.shape[1]
+        flat = np.concatenate([np.reshape(v, (n, size * size)) for v in (a, ea, c, ec)],
+                              axis=1).astype(np.float64)
+        col = np.arange(4 * size * size).reshape(4, size, size)
+        sums = _NormalSums((flat, flat), np.zeros_like(col), col, np.ones(4), True)
+    arrays = tuple(np.ascontiguousarray(v, np.float64) for v in sums.arrays)
+    return covariance_diag(*arrays, sums.src, sums.col, sums.scale,
+                           np.ascontiguousarray(var_e, np.float64),
+                           np.ascontiguousarray(q.m, np.float64))
 
 
 @functools.lru_cache(maxsize=4)
@@ -314,10 +356,22 @@ def interpolated_noise_factor(u, v, order: int = 3) -> np.ndarray:
     B-spline interpolation at the sub-pixel offsets ``(u mod 1, v mod 1)``:
     the product of the 1-D factors (1 at whole pixels, about 0.6-0.7 at half
     a pixel for cubic splines)."""
+    u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
+    n = u.size
+    return _mean_noise_factor(u.ravel(), v.ravel(), np.zeros((n, 4)), np.zeros(n), (0.0,),
+                              order).reshape(u.shape)
+
+
+def _mean_noise_factor(u, v, grad, half, offsets, order: int) -> np.ndarray:
+    """:func:`interpolated_noise_factor` averaged over the grid ``offsets x
+    offsets`` (times ``half`` px) of positions in each subset, the
+    displacement moved there by the gradient ``grad`` (n, 4)."""
     t, rho = _interp_variance_table(int(order))
-    fu = np.interp(np.mod(np.asarray(u, float), 1.0), t, rho)
-    fv = np.interp(np.mod(np.asarray(v, float), 1.0), t, rho)
-    return fu * fv
+    return mean_noise_factor(np.ascontiguousarray(u, np.float64),
+                             np.ascontiguousarray(v, np.float64),
+                             np.ascontiguousarray(grad, np.float64),
+                             np.ascontiguousarray(half, np.float64),
+                             np.asarray(offsets, np.float64), t, rho)
 
 
 def node_uncertainty(q: SpeckleQuality, zncc, u, v, grad=None, order: int = 3) -> np.ndarray:
@@ -334,15 +388,12 @@ def node_uncertainty(q: SpeckleQuality, zncc, u, v, grad=None, order: int = 3) -
     zncc = np.minimum(np.asarray(zncc, float), 1.0)
     u = np.asarray(u, float)
     v = np.asarray(v, float)
-    rho = interpolated_noise_factor(u, v, order)
-    if grad is not None:
+    if grad is None:
+        rho = interpolated_noise_factor(u, v, order)
+    else:
         h = np.sqrt(np.maximum(q.m, 1.0)) / 2  # about the subset half-width
-        off = np.linspace(-1.0, 1.0, 5) * h[:, None]
-        g = np.nan_to_num(np.asarray(grad, float))
-        rho = np.mean([interpolated_noise_factor(u + g[:, 0] * off[:, i] + g[:, 1] * off[:, j],
-                                                 v + g[:, 2] * off[:, i] + g[:, 3] * off[:, j],
-                                                 order)
-                       for i in range(5) for j in range(5)], axis=0)
+        rho = _mean_noise_factor(u, v, np.nan_to_num(np.asarray(grad, float)), h,
+                                 np.linspace(-1.0, 1.0, 5), order)
     var_e = 2.0 * (1.0 - zncc) * q.var_f / (1.0 + rho)
     var_e = np.where(np.isfinite(zncc), var_e, np.nan)
     with np.errstate(invalid="ignore"):  # degenerate (untrusted) nodes: NaN

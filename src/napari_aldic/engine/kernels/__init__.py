@@ -15,6 +15,8 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
 * ``icgn``     the affine and the penalised-translation IC-GN solvers;
 * ``icgn_quadratic`` the 12-parameter (second-order) IC-GN solver;
 * ``moments``  streaming window moments of the speckle-quality maps;
+* ``covariance`` per-node uncertainty from those moments (covariance diagonal,
+  interpolated-noise factors);
 * ``sums``     integral images and window sums;
 * ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
 * ``speckle``  the analytic speckle intensity of the synthetic images.

@@ -19,9 +19,11 @@ differences local (as small as the sums of one window, not of a whole row
 or column), the running sums over segments restart every :data:`SBLOCK`
 segments and the accumulators every :data:`EPOCH` rows (the windows open
 across a restart carry the accumulator over). Memory:
-``O(nodes x moments + distinct columns x moments + width)``. Moments about
-each node follow from these by the binomial expansion
-(:func:`centre_moments`).
+``O(nodes x moments + threads x (distinct columns x moments + width))``.
+Moments about each node follow from these by the binomial expansion
+(:func:`centre_moments`). Bands of rows that start where the accumulators
+restart anyway run in parallel, each on the nodes whose windows start in
+it (and shifted to them there): the same bits as one pass over all rows.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH
+from .flags import CACHED, FASTMATH, INLINE, PARALLEL
 
 __all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "moment_terms",
            "moments_kernel", "centre_moments", "window_moments"]
@@ -46,6 +48,12 @@ MAX_ORDER = 4
 SBLOCK = 16
 #: ... and the column accumulators every EPOCH rows
 EPOCH = 64
+#: row bands per thread in :func:`window_moments` (more balance the load, each
+#: costs one window height of rows read twice) ...
+BANDS_PER_THREAD = 2
+#: ... for at least this many pixel products (fewer: one band, one thread; a
+#: parallel launch on a busy machine can cost tens of milliseconds)
+PARALLEL_WORK = 1 << 24
 
 _ONES_ROW = MAX_IMAGES
 _MASK_ROW = MAX_IMAGES + 1
@@ -206,7 +214,7 @@ def _offsets(products):
 def _close_windows(b, r0, r1, by1, p1, col_of, out, acc):
     """Nodes whose window ends before row ``b`` (``by1``: nodes by ``r1``,
     from position ``p1``) take the accumulator; the next position."""
-    n = r0.size
+    n = by1.size
     while p1 < n and r1[by1[p1]] == b:
         nd = by1[p1]
         if r0[nd] < b:
@@ -220,7 +228,7 @@ def _restart(b, r0, r1, by0, lo, tall, col_of, out, acc):
     """Restart the accumulator at row ``b`` (bounds its cancellation): the
     windows open across ``b`` keep what they have so far. Windows taller
     than ``tall`` do not exist, so the scan starts at ``lo``; its update."""
-    n = r0.size
+    n = by0.size
     while lo < n and r0[by0[lo]] <= b - tall:
         lo += 1
     t = lo
@@ -237,7 +245,7 @@ def _restart(b, r0, r1, by0, lo, tall, col_of, out, acc):
 def _open_windows(b, r0, r1, by0, p0, col_of, out, acc):
     """Nodes whose window starts at row ``b`` give back what the accumulator
     holds so far; the next position in ``by0`` (nodes by ``r0``)."""
-    n = r0.size
+    n = by0.size
     while p0 < n and r0[by0[p0]] == b:
         nd = by0[p0]
         if r1[nd] > b:
@@ -268,9 +276,9 @@ def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0,
         _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
 def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0, r1, xs,
-                   ys):
+                   ys, dx, dy, nband):
     """Window moments of pixel products per node, streaming over the rows.
 
     For each node ``n`` and product ``k`` (base images ``b_i``, ``b_j``;
@@ -284,7 +292,10 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     restarted every SBLOCK segments) give the row's sums over the distinct
     column windows, accumulated per
     column (restarted every EPOCH rows, the open windows carrying over);
-    each node takes the accumulator at ``r1`` less that at ``r0``.
+    each node takes the accumulator at ``r1`` less that at ``r0``. About
+    ``nband`` bands of rows (whole epochs, by the nodes' first rows) run in
+    parallel: a band starts where the accumulator restarts anyway, so each
+    node comes out as from one pass over all rows.
 
     Parameters
     ----------
@@ -304,6 +315,11 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
         Row window ``[r0, r1)`` of each node, within the image.
     xs, ys : (W,), (H,) float64
         Coordinate ``X`` of each column and ``Y`` of each row.
+    dx, dy : (N,) or (0,) float64
+        When given, each node's position: its moments are returned about
+        it (:func:`centre_moments`) instead of about the origin.
+    nband : int
+        Bands of rows to split the nodes into (a few per thread).
 
     Returns
     -------
@@ -311,33 +327,116 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
         Per node, the moments of product 0, then those of product 1, ...
         (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
     """
-    h = ys.size
+    offs, used, out, by0, tall, height, cut = _layout(products, r0, r1, ys.size, nband)
+    if cut.size == 2:  # one band: no parallel launch (it costs more than a small job)
+        _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
+              xs, ys, by0, 0, tall, dx, dy, out)
+        return out
+    for k in nb.prange(cut.size - 1):  # threads write disjoint rows of out
+        _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
+              xs, ys, by0[cut[k]:cut[k + 1]], k * height, tall, dx, dy, out)
+    return out
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _layout(products, r0, r1, h, nband):
+    """Set-up of :func:`moments_kernel` (compiled apart: in the parallel
+    kernel every array expression would be a parallel launch of its own):
+    the products' offsets and base images, the zeroed output, the nodes by
+    first row, the tallest window, the band height and where each band's
+    nodes start in that order."""
     offs, used = _offsets(products)
     n = r0.size
-    nseg = max(edges.size - 1, 0)
     out = np.zeros((n, offs[-1]))
+    by0 = np.argsort(r0)
+    tall = np.max(r1 - r0) if n else 0
+    height = EPOCH * max(1, -(-h // (EPOCH * max(nband, 1))))
+    cut = np.searchsorted(r0[by0], np.arange(0, h + height, height))
+    cut[-1] = n
+    return offs, used, out, by0, tall, height, cut
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1, xs,
+          ys, nodes, start, tall, dx, dy, out):
+    """The moments of one band's nodes (:func:`_stream_band`), shifted to
+    each node when ``dx`` is given."""
+    if nodes.size:
+        _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
+                     r0, r1, xs, ys, nodes, start, tall, out)
+        if dx.size:
+            _centre_rows(out, nodes, products[:, 3], offs, dx, dy)
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
+                 r0, r1, xs, ys, by0, start, tall, out):
+    """The moments of the nodes ``by0`` (sorted by ``r0``, all ``r0 >=
+    start``; ``start`` a multiple of :data:`EPOCH`) from rows ``start`` on."""
+    nseg = max(edges.size - 1, 0)
     acc = np.zeros((offs[-1], e0.size))
     work = (np.ones((MAX_IMAGES + 2, xs.size)), np.empty(xs.size),
             np.zeros((MAX_ORDER + 1, nseg)), np.zeros((MAX_ORDER + 1, nseg + 1)),
             np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1)), np.empty((MAX_ORDER + 1, e0.size)),
             np.empty(MAX_ORDER + 1))
-    by0 = np.argsort(r0)
-    by1 = np.argsort(r1)
-    tall = np.max(r1 - r0) if n else 0
+    by1 = by0[np.argsort(r1[by0])]
+    stop = r1[by1[-1]]
     p0 = p1 = lo = 0
-    for b in range(h + 1):
+    for b in range(start, stop + 1):
         p1 = _close_windows(b, r0, r1, by1, p1, col_of, out, acc)
-        if b % EPOCH == 0 and 0 < b < h:
+        if b == stop:  # every window of the band is closed
+            break
+        if b % EPOCH == 0 and b > start:
             lo = _restart(b, r0, r1, by0, lo, tall, col_of, out, acc)
         p0 = _open_windows(b, r0, r1, by0, p0, col_of, out, acc)
-        if b == h:
-            break
         _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1,
                        xs, ys[b], acc, work)
-    return out
+
+
+@nb.njit(**CACHED)
+def _binomials():
+    """Binomial coefficients ``C(p, i)``, ``p, i <= MAX_ORDER``."""
+    binom = np.zeros((MAX_ORDER + 1, MAX_ORDER + 1))
+    for p in range(MAX_ORDER + 1):
+        binom[p, 0] = 1.0
+        for i in range(1, p + 1):
+            binom[p, i] = binom[p - 1, i - 1] + binom[p - 1, i]
+    return binom
+
+
+@nb.njit(**INLINE)
+def _centre_node(raw, out, dx, dy, order, binom, px, py):
+    """``out``: the moments ``raw`` (one node, one product, up to ``order``)
+    about the point ``(dx, dy)``, by the binomial expansion."""
+    px[0] = py[0] = 1.0
+    for i in range(1, order + 1):
+        px[i] = -dx * px[i - 1]
+        py[i] = -dy * py[i - 1]
+    for p in range(order + 1):
+        for q in range(order + 1 - p):
+            m = 0.0
+            for i in range(p + 1):
+                si = i * (order + 1) - i * (i - 1) // 2  # column of (i, 0)
+                for j in range(q + 1):
+                    m += binom[p, i] * binom[q, j] * px[p - i] * py[q - j] * raw[si + j]
+            out[p * (order + 1) - p * (p - 1) // 2 + q] = m
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
+def _centre_rows(out, nodes, orders, offs, dx, dy):
+    """Rows ``nodes`` of ``out`` (the moments of each product, ``orders``,
+    from column ``offs``) taken about each node, in place."""
+    binom = _binomials()
+    px, py = np.empty(MAX_ORDER + 1), np.empty(MAX_ORDER + 1)
+    raw = np.empty(offs[-1])
+    for nd in nodes:
+        raw[:] = out[nd]
+        for k in range(orders.size):
+            a, b = offs[k], offs[k + 1]
+            _centre_node(raw[a:b], out[nd, a:b], dx[nd], dy[nd], orders[k], binom, px, py)
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
 def centre_moments(raw, dx, dy, order):
     """Moments about each node from moments about the origin.
 
@@ -359,36 +458,18 @@ def centre_moments(raw, dx, dy, order):
         The moments about each node.
     """
     n = raw.shape[0]
-    start = np.empty(order + 2, np.int64)  # column of (p, 0)
-    start[0] = 0
-    for p in range(order + 1):
-        start[p + 1] = start[p] + order + 1 - p
-    binom = np.zeros((order + 1, order + 1))
-    for p in range(order + 1):
-        binom[p, 0] = 1.0
-        for i in range(1, p + 1):
-            binom[p, i] = binom[p - 1, i - 1] + binom[p - 1, i]
-    out = np.zeros((n, raw.shape[1]))
-    px = np.empty(order + 1)
-    py = np.empty(order + 1)
-    for k in range(n):
-        px[0] = py[0] = 1.0
-        for i in range(1, order + 1):
-            px[i] = -dx[k] * px[i - 1]
-            py[i] = -dy[k] * py[i - 1]
-        for p in range(order + 1):
-            for q in range(order + 1 - p):
-                m = 0.0
-                for i in range(p + 1):
-                    for j in range(q + 1):
-                        m += binom[p, i] * binom[q, j] * px[p - i] * py[q - j] * \
-                            raw[k, start[i] + j]
-                out[k, start[p] + q] = m
+    out = np.empty((n, raw.shape[1]))  # every entry is written
+    binom = _binomials()
+    chunk = 1024  # nodes per parallel task
+    for c in nb.prange((n + chunk - 1) // chunk):
+        px, py = np.empty(order + 1), np.empty(order + 1)
+        for k in range(c * chunk, min(n, c * chunk + chunk)):
+            _centre_node(raw[k], out[k], dx[k], dy[k], order, binom, px, py)
     return out
 
 
 def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
-                   centre: bool = False) -> list:
+                   centre: bool = False, joined: bool = False):
     """Window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
 
     Parameters
@@ -410,6 +491,8 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
     centre : bool
         Return the moments about each node instead (``X - x``, ``Y - y``;
         :func:`centre_moments` of the raw ones).
+    joined : bool
+        Return the one (N, Σ M_k) array the list below is made of.
 
     Returns
     -------
@@ -440,17 +523,21 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
     yi = np.asarray(y, np.int64).ravel()
     c0, c1 = np.clip(cols - half, 0, w), np.clip(cols + half + 1, 0, w)
     edges = np.unique(np.concatenate([c0, c1]))
+    dx = dy = np.zeros(0)
+    if centre:
+        dx = np.asarray(x, np.float64).ravel() - float(cx)
+        dy = yi - float(cy)
     out = moments_kernel(*images, m, prod, edges, np.searchsorted(edges, c0),
                          np.searchsorted(edges, c1), col_of.ravel().astype(np.int64),
                          np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h),
-                         np.arange(w) - float(cx), np.arange(h) - float(cy))
+                         np.arange(w) - float(cx), np.arange(h) - float(cy), dx, dy,
+                         BANDS_PER_THREAD * nb.get_num_threads()
+                         if h * w * len(prod) >= PARALLEL_WORK else 1)
+    if joined:
+        return out
     res, k = [], 0
     for o in prod[:, 3]:
         m = (o + 1) * (o + 2) // 2
         res.append(out[:, k:k + m])
         k += m
-    if centre:
-        dx = np.asarray(x, np.float64).ravel() - float(cx)
-        dy = yi - float(cy)
-        res = [centre_moments(r, dx, dy, int(o)) for r, o in zip(res, prod[:, 3])]
     return res
