@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import operator
+import threading
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -247,15 +251,80 @@ def load_result(path) -> DICResult:
                      meta=header["meta"])
 
 
+class LazyFrames(Sequence):
+    """The frames of a run folder, each read from its file when asked for.
+
+    A read-only sequence of ``DICResult`` (``None`` for a frame not on disk),
+    so a finished run of thousands of frames can be read and exported with
+    memory flat in the number of frames: indexing (an int, negative too, or
+    a slice, which gives a list) reads the file; iterating reads one frame at
+    a time. Only the last ``keep`` frames read stay in memory (a consecutive
+    pair, e.g. a frame and the one before it for velocities, is read once).
+    :attr:`present` tells which frames exist without reading any.
+    """
+
+    def __init__(self, paths, keep: int = 2):
+        self.paths = tuple(None if p is None else Path(p) for p in paths)
+        self.keep = max(int(keep), 1)
+        self._recent: OrderedDict[int, DICResult] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @property
+    def present(self) -> tuple[bool, ...]:
+        """Per frame: True where its result file is there (nothing is read)."""
+        return tuple(p is not None for p in self.paths)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        i = operator.index(k)
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(f"frame position {k} out of range for {len(self)} frames")
+        if self.paths[i] is None:
+            return None
+        with self._lock:
+            hit = self._recent.get(i)
+            if hit is not None:
+                self._recent.move_to_end(i)
+                return hit
+        res = load_result(self.paths[i])
+        with self._lock:
+            self._recent[i] = res
+            while len(self._recent) > self.keep:
+                self._recent.popitem(last=False)
+        return res
+
+    def __iter__(self) -> Iterator[DICResult | None]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return f"LazyFrames({len(self)} frames, {sum(self.present)} on disk)"
+
+    def __getstate__(self):  # the cache and the lock stay behind (e.g. when pickled)
+        return {"paths": self.paths, "keep": self.keep}
+
+    def __setstate__(self, state):
+        self.__init__(state["paths"], state["keep"])
+
+
 @dataclass
 class SequenceResult:
     """Per-frame results, all in frame-0 (Lagrangian) coordinates.
 
     ``seq[0]`` is the reference frame (zero displacement); ``seq[k]`` is frame
     k against frame 0. Frames not computed (cancelled run) are ``None``.
+    ``frames`` is a list, or for a run read back from its folder
+    (:func:`~napari_aldic.engine.io.load_run`) a :class:`LazyFrames` that
+    reads each frame when it is used.
     """
 
-    frames: list
+    frames: Sequence
     params: DICParams
     reference: str
     meta: dict = field(default_factory=dict)
@@ -268,4 +337,7 @@ class SequenceResult:
 
     @property
     def complete(self) -> bool:
+        present = getattr(self.frames, "present", None)  # LazyFrames: no frame is read
+        if present is not None:
+            return all(present)
         return all(r is not None for r in self.frames)

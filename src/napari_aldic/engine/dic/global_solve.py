@@ -193,33 +193,34 @@ def gradient_operator(mesh: Q4Mesh) -> tuple[sp.csr_matrix, sp.csr_matrix, np.nd
         return z, z, np.zeros(n, bool)
     s = (mesh.x[e[:, 1]] - mesh.x[e[:, 0]]).astype(float)
     t = (mesh.y[e[:, 3]] - mesh.y[e[:, 0]]).astype(float)
-    # corner c of a Q4 element: at (x0, y0) d/dx = (s1 - s0)/s, d/dy = (s3 - s0)/t, etc.
-    # (neighbour along x, neighbour along y) for corners 0..3, and their signs
-    nx_ = [1, 0, 3, 2]
-    ny_ = [3, 2, 1, 0]
-    sx = [1, -1, -1, 1]
-    sy = [1, 1, -1, -1]
-    rows, cols, vx, vy = [], [], [], []
-    for c in range(4):
-        i = e[:, c]
-        # ds/dx at corner c: sx * (s[nx] - s[c]) / s
-        rows += [i, i]
-        cols += [e[:, nx_[c]], i]
-        vx += [sx[c] / s, -sx[c] / s]
-        vy += [np.zeros(E), np.zeros(E)]
-        rows += [i, i]
-        cols += [e[:, ny_[c]], i]
-        vx += [np.zeros(E), np.zeros(E)]
-        vy += [sy[c] / t, -sy[c] / t]
-    r = np.concatenate(rows)
-    cidx = np.concatenate(cols)
     count = np.bincount(e.ravel(), minlength=n).astype(float)
     inv = np.divide(1.0, count, out=np.zeros(n), where=count > 0)
-    Gx = sp.csr_matrix((np.concatenate(vx) * inv[r], (r, cidx)), shape=(n, n))
-    Gy = sp.csr_matrix((np.concatenate(vy) * inv[r], (r, cidx)), shape=(n, n))
-    Gx.eliminate_zeros()
-    Gy.eliminate_zeros()
+    # corner c of a Q4 element: at (x0, y0) d/dx = (s1 - s0)/s, d/dy = (s3 - s0)/t, etc.:
+    # (neighbour along x, its sign) and (neighbour along y, its sign) of corners 0..3
+    Gx = _corner_differences(e, n, (1, 0, 3, 2), (1, -1, -1, 1), s, inv)
+    Gy = _corner_differences(e, n, (3, 2, 1, 0), (1, 1, -1, -1), t, inv)
     return Gx, Gy, count > 0
+
+
+def _corner_differences(e, n: int, neighbour, sign, length, inv) -> sp.csr_matrix:
+    """One axis of :func:`gradient_operator`: at each corner ``c`` of every
+    element ``sign[c] * (s[neighbour[c]] - s[c]) / length``, averaged over the
+    node's elements (``inv``: 1 / their number). Filled in place, two entries
+    per corner: on a 1.5 M-node mesh the triplets are the peak memory."""
+    E = e.shape[0]
+    rows = np.empty(8 * E, np.int64)
+    cols = np.empty(8 * E, np.int64)
+    vals = np.empty(8 * E)
+    for c in range(4):
+        a, b = slice(2 * c * E, (2 * c + 1) * E), slice((2 * c + 1) * E, (2 * c + 2) * E)
+        rows[a] = rows[b] = cols[b] = e[:, c]
+        cols[a] = e[:, neighbour[c]]
+        vals[a] = sign[c] / length
+        vals[b] = -vals[a]
+    vals *= inv[rows]
+    G = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+    G.eliminate_zeros()
+    return G
 
 
 def _cached(mesh: Q4Mesh, key: str, build):
@@ -373,7 +374,7 @@ class SPDSolver:
         elif self.method == "amg":
             import pyamg
 
-            self.A = A.tocsr()
+            self.A = A = A.tocsr()  # CG and the hierarchy use rows; the CSC copy goes
             # root-node aggregation: on these thin-plate-dominated systems it
             # needs half the CG iterations of plain smoothed aggregation and a
             # fifth of its setup (benchmarks/RESULTS.md, "AL-DIC global solve")
@@ -482,20 +483,29 @@ class GlobalSolver:
         # unknown, and their displacement is still tied in through the
         # neighbours' rows (central differences include it)
         self.wg = np.asarray(weights, float)
-        Wg = sp.diags(self.wg)
-        L = (self.Gx.T @ Wg @ self.Gx + self.Gy.T @ Wg @ self.Gy)
-        A = self.beta * L + self.mu * sp.diags(self.w)
-        if kappa.ndim:
-            A = A + curvature_operator(mesh, kappa)
-        elif self.curvature > 0:
-            A = A + self.curvature * curvature_operator(mesh)
-        self.A = (self.T.T @ A @ self.T).tocsc()
         if direct is not None:
             method = "direct" if direct else "jacobi"
-        self.system = SPDSolver(self.A, method, rtol=1e-7)
+        self.system = SPDSolver(self._assemble(mesh, kappa), method, rtol=1e-7)
+        self.A = self.system.A  # one copy (a 1.5 M-node matrix holds ~250 MB)
         self.method = self.system.method
         self.direct = self.method == "direct"
         self._curv = None  # (length, CurvatureEstimator) of second_gradients
+
+    def _assemble(self, mesh: Q4Mesh, kappa: np.ndarray) -> sp.csc_matrix:
+        """The system matrix on the free nodes, each temporary released as soon
+        as it is summed (on large meshes they set the peak memory)."""
+        Wg = sp.diags(self.wg)
+        A = self.Gx.T @ Wg @ self.Gx
+        A += self.Gy.T @ Wg @ self.Gy
+        A *= self.beta
+        A += self.mu * sp.diags(self.w)
+        if kappa.ndim:
+            A += curvature_operator(mesh, kappa)
+        elif self.curvature > 0:
+            A += self.curvature * curvature_operator(mesh)
+        if self.free.size < mesh.n_nodes:  # hanging nodes: reduce to the free ones
+            A = self.T.T @ A @ self.T
+        return A.tocsc()
 
     def gradients(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
         """Nodal displacement gradients (N, 4): du/dx, du/dy, dv/dx, dv/dy."""

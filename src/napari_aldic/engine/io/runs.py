@@ -5,15 +5,18 @@ from __future__ import annotations
 import json
 import os
 import re
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..core.npzfile import npz_headers
 from ..core.params import DICParams
-from ..core.results import DICResult, SequenceResult, load_result
+from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
 from ..core.settings import STRAIN_DEFAULTS
 from ..core.units import Units
 from .stack import natural_key
@@ -39,12 +42,70 @@ class Frame:
     prev: Frame | None = None
 
 
-def _frame_of(res: DICResult, default: int) -> int:
-    meta = res.meta or {}
+class LazyFrame(Frame):
+    """A :class:`Frame` of a run read back from its folder: its result is read
+    from its file when used (the run keeps only the last few frames read, see
+    :class:`~napari_aldic.engine.core.results.LazyFrames`) and its strain is
+    computed when used (the last few kept), so an export goes through
+    thousands of frames with memory flat in their number."""
+
+    def __init__(self, index: int, load, prev: Frame | None = None):
+        self.index, self.prev = int(index), prev
+        self._load = load  # () -> DICResult
+        self._pinned = None  # a result set by assignment
+        self._strain_set, self._strain_value = False, None  # a strain set by assignment
+        self._given = self._compute = None  # () -> strain given; result -> strain
+        self._strains: OrderedDict = OrderedDict()
+
+    @property
+    def result(self) -> DICResult:
+        return self._pinned if self._pinned is not None else self._load()
+
+    @result.setter
+    def result(self, value: DICResult) -> None:
+        self._pinned = value
+
+    @property
+    def strain(self):
+        if self._strain_set:
+            return self._strain_value
+        if self._given is None and self._compute is None:
+            return None
+        cache = self._strains  # shared by the frames of one collect_frames call
+        if id(self) in cache:
+            cache.move_to_end(id(self))
+            return cache[id(self)]
+        s = self._given() if self._given is not None else None
+        if s is None and self._compute is not None:
+            s = self._compute(self.result)
+        cache[id(self)] = s
+        while len(cache) > _STRAINS_KEPT:
+            cache.popitem(last=False)
+        return s
+
+    @strain.setter
+    def strain(self, value) -> None:
+        self._strain_set, self._strain_value = True, value
+
+    def __repr__(self) -> str:
+        return f"LazyFrame(index={self.index})"
+
+
+#: strain results a collection of lazy frames keeps (a frame and the one before it)
+_STRAINS_KEPT = 3
+
+
+def _frame_of(meta: dict | None, default: int) -> int:
+    meta = meta or {}
     for k in (meta.get("frame"), (meta.get("inputs") or {}).get("frame")):
         if isinstance(k, (int, np.integer)) and not isinstance(k, bool):
             return int(k)
     return default
+
+
+def _result_of(r) -> DICResult:
+    """A result of :func:`_as_results`' pairs: itself, or read when asked for."""
+    return r if isinstance(r, DICResult) else r()
 
 
 def load_run(folder):
@@ -56,6 +117,12 @@ def load_run(folder):
     ``frame###.npz`` of older ``napari-aldic run`` versions). Frames are
     ordered by their frame number (stored in each result, else the digits of
     the file name). Frames not on disk (not computed yet) are ``None``.
+
+    The frames are read when used (``seq[k]``, iterating, an export), not
+    all at once: ``seq.frames`` is a
+    :class:`~napari_aldic.engine.core.results.LazyFrames`. Every file's
+    structure is checked here (an empty, truncated or foreign file is
+    refused now); its arrays are checked when its frame is read.
     """
     folder = Path(os.fspath(folder)).expanduser()
     if not folder.is_dir():
@@ -67,40 +134,69 @@ def load_run(folder):
         except (OSError, json.JSONDecodeError) as exc:
             raise ValueError(f"cannot read {manifest}: {exc}") from None
         idx = [int(k) for k in info.get("frames") or []]
-        frames = []
-        for k in idx:
-            p = folder / f"frame_{k:05d}.npz"
-            frames.append(load_result(p) if p.exists() else None)
-        if not any(f is not None for f in frames):
+        paths = [folder / f"frame_{k:05d}.npz" for k in idx]
+        paths = [p if p.exists() else None for p in paths]
+        for p in paths:
+            if p is not None:
+                npz_headers(p)  # a damaged file is refused now, not midway through an export
+        frames = LazyFrames(paths)
+        if not any(frames.present):
             raise ValueError(f"{folder} holds no frame results yet (frame_#####.npz)")
         params = DICParams.from_dict(info["params"]) if info.get("params") else \
             next(f for f in frames if f is not None).params
         meta = {"frames": idx, "source": info.get("source"),
                 "update_every": info.get("update_every"), "folder": str(folder)}
         return SequenceResult(frames, params, info.get("reference", "accumulative"), meta)
+    return _result_folder(folder)
+
+
+def _result_folder(folder: Path) -> SequenceResult:
+    """:func:`load_run` of a folder of result ``.npz`` files (no manifest)."""
     files = sorted(folder.glob("*.npz"), key=lambda p: natural_key(p.name))
     if not files:
         raise FileNotFoundError(f"{folder} holds no result files (.npz) and no sequence.json")
     found = {}
     for pos, p in enumerate(files):
-        res = load_result(p)
+        meta, params = _result_header(p)
         digits = re.findall(r"\d+", p.stem)
-        k = _frame_of(res, int(digits[-1]) if digits else pos + 1)
+        k = _frame_of(meta, int(digits[-1]) if digits else pos + 1)
         if k in found:
             raise ValueError(f"{folder}: two result files for frame {k} ({found[k][0].name}, "
                              f"{p.name}); keep one run per folder")
-        found[k] = (p, res)
+        found[k] = (p, params)
     idx = sorted(found)
+    first = found[idx[0]][1]
     if idx[0] != 0:
         idx = [0] + idx
-    frames = [found[k][1] if k in found else None for k in idx]
-    first = next(f for f in frames if f is not None)
+    frames = LazyFrames([found[k][0] if k in found else None for k in idx])
     meta = {"frames": idx, "source": str(folder), "folder": str(folder)}
-    return SequenceResult(frames, first.params, "accumulative", meta)
+    return SequenceResult(frames, first, "accumulative", meta)
 
 
-def _as_results(data) -> tuple[list[tuple[int, DICResult]], dict]:
-    """(frame number, result) pairs and info about the source."""
+def _result_header(path: Path) -> tuple[dict, DICParams]:
+    """``meta`` and ``params`` of a result file from its JSON header alone (no
+    array is decompressed). A file whose header is not sound is read whole,
+    so that the reader's error names the problem."""
+    try:
+        shape, dtype = npz_headers(path)["header"]
+        if shape == () and dtype.kind == "U" and dtype.itemsize <= _MAX_HEADER_BYTES:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["header"]))
+            if isinstance(header, dict) and isinstance(header.get("meta", {}), dict):
+                return header.get("meta") or {}, DICParams.from_dict(header.get("params") or {})
+    except (KeyError, TypeError, ValueError, OSError):
+        pass
+    res = load_result(path)  # raises the reader's error for a file that is not a result
+    return res.meta, res.params
+
+
+#: largest JSON header read to order the frames of a folder (bytes)
+_MAX_HEADER_BYTES = 64 << 20
+
+
+def _as_results(data) -> tuple[list[tuple[int, Any]], dict]:
+    """(frame number, result) pairs and info about the source; the result of
+    a lazy sequence is a function that reads it (see :func:`_result_of`)."""
     if isinstance(data, (str, os.PathLike)):
         p = Path(os.fspath(data)).expanduser()
         if p.is_dir():
@@ -110,9 +206,9 @@ def _as_results(data) -> tuple[list[tuple[int, DICResult]], dict]:
         if p.suffix.lower() == ".mat":
             return _as_results(load_mat(p))
         res = load_result(p)
-        return [(_frame_of(res, 1), res)], {"source": str(p)}
+        return [(_frame_of(res.meta, 1), res)], {"source": str(p)}
     if isinstance(data, DICResult):
-        return [(_frame_of(data, 1), data)], {}
+        return [(_frame_of(data.meta, 1), data)], {}
     if isinstance(data, Frame):
         return [(data.index, data.result)], {}
     if hasattr(data, "frames") and hasattr(data, "params"):  # SequenceResult
@@ -120,7 +216,12 @@ def _as_results(data) -> tuple[list[tuple[int, DICResult]], dict]:
         idx = meta.get("frames")
         if not idx or len(idx) != len(data.frames):
             idx = list(range(len(data.frames)))
-        pairs = [(int(k), r) for k, r in zip(idx, data.frames) if r is not None]
+        present = getattr(data.frames, "present", None)
+        if present is not None:  # LazyFrames: each frame read when used
+            pairs = [(int(k), partial(data.frames.__getitem__, i))
+                     for i, (k, ok) in enumerate(zip(idx, present)) if ok]
+        else:
+            pairs = [(int(k), r) for k, r in zip(idx, data.frames) if r is not None]
         info = {"source": meta.get("source"), "folder": meta.get("folder"),
                 "reference": getattr(data, "reference", None)}
         if not pairs:
@@ -135,9 +236,9 @@ def _as_results(data) -> tuple[list[tuple[int, DICResult]], dict]:
                 pairs.append((item.index, item.result))
             elif isinstance(item, (str, os.PathLike)):
                 res = load_result(item)
-                pairs.append((_frame_of(res, pos), res))
+                pairs.append((_frame_of(res.meta, pos), res))
             elif isinstance(item, DICResult):
-                pairs.append((_frame_of(item, pos), item))
+                pairs.append((_frame_of(item.meta, pos), item))
             else:
                 raise TypeError(f"item {pos} is a {type(item).__name__}, not a DICResult")
         if not pairs:
@@ -186,11 +287,16 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
     Returns
     -------
     (frames, units, info)
+        The frames of a run folder (or of a ``SequenceResult`` read back
+        with :func:`load_run`) are :class:`LazyFrame`: each reads its
+        result and computes its strain when used.
     """
     if isinstance(data, FrameSet):  # already collected: keep the strain computed
-        pairs = [(f.index, f.result) for f in data]
+        pairs = [(f.index, partial(getattr, f, "result") if isinstance(f, LazyFrame)
+                  else f.result) for f in data]
         info = dict(data.info)
-        given = {f.index: f.strain for f in data}
+        given = {f.index: partial(getattr, f, "strain") if isinstance(f, LazyFrame)
+                 else f.strain for f in data}
         units = data.units if units is None else units
     else:
         pairs, info = _as_results(data)
@@ -203,17 +309,15 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
     if isinstance(units, dict):
         units = Units.from_dict(units)
     if units is None:
-        units = Units.from_meta(pairs[0][1].meta) or Units()
+        units = Units.from_meta(_result_of(pairs[0][1]).meta) or Units()
     if not isinstance(units, Units):
         raise TypeError("units must be a Units object or a dictionary of its fields")
     if isinstance(strain, (list, tuple)) and len(strain) != len(pairs):
         raise ValueError(f"{len(strain)} strain results for {len(pairs)} frames")
-    all_frames = [Frame(k, r) for k, r in pairs]
+    all_frames = [Frame(k, r) if isinstance(r, DICResult) else LazyFrame(k, r)
+                  for k, r in pairs]
     for a, b in zip(all_frames, all_frames[1:]):
         b.prev = a
-    if strain is not None and strain is not False:
-        for f in all_frames:
-            f.strain = given.get(f.index)
     keep = all_frames
     if frames is not None:
         want = [int(k) for k in frames]
@@ -225,9 +329,7 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
     if units.has_time:  # strain rates need the previous frame's strain too
         need |= {id(f.prev) for f in keep if f.prev is not None}
     if strain is not None and strain is not False:
-        for i, f in enumerate(all_frames):
-            if id(f) in need and f.strain is None:
-                f.strain = _strain_for(f.result, strain, i)
+        _attach_strain(all_frames, need, strain, given)
     first = keep[0].result
     s = next((f.strain for f in keep if f.strain is not None), None)
     info = {**info, "params": first.params, "image_shape": tuple(first.image_shape),
@@ -235,6 +337,25 @@ def collect_frames(data, *, frames: Iterable[int] | None = None, strain=True,
                                               "window": s.window, "vsg_px": s.vsg},
             "frames_all": ks}
     return FrameSet(keep, units, info), units, info
+
+
+def _attach_strain(all_frames: list[Frame], need: set, strain, given: dict) -> None:
+    """The strain of every frame: the one ``given`` (a value, or a function
+    for a lazy frame), else computed for the frames in ``need`` -- at once
+    for results in memory, when used for a :class:`LazyFrame`."""
+    shared: OrderedDict = OrderedDict()
+    for i, f in enumerate(all_frames):
+        g = given.get(f.index)
+        if isinstance(f, LazyFrame):
+            f._given = g if callable(g) else None
+            if g is not None and not callable(g):
+                f.strain = g
+            f._compute = partial(_strain_for, strain=strain, i=i) if id(f) in need else None
+            f._strains = shared
+            continue
+        f.strain = g() if callable(g) else g
+        if id(f) in need and f.strain is None:
+            f.strain = _strain_for(f.result, strain, i)
 
 
 class FrameSet(list):
