@@ -12,6 +12,7 @@ import pytest
 from napari_aldic.cli import main as cli_main
 from napari_aldic.engine import export_result, load_run, synthetic as S, track
 from napari_aldic.engine.core import results as results_module
+from napari_aldic.engine.core.results import LazyFrames, SequenceResult
 from napari_aldic.engine.io import read_csv, runs as runs_module
 
 N_FRAMES = 12
@@ -31,7 +32,12 @@ def run(tmp_path_factory):
     stack = np.stack([S.render(pat, SHAPE, None if k == 0 else _field(k), n_quad=2,
                                seed=30 + k) for k in range(N_FRAMES)])
     folder = tmp_path_factory.mktemp("lazy_run")
-    return track(stack, subset=21, step=12, out_dir=folder), folder
+    seq = track(stack, subset=21, step=12, out_dir=folder)
+    # track with a run folder reads its frames back when used too: held here
+    # in memory, before any test counts the reads
+    held = SequenceResult(list(seq.frames), seq.params, seq.reference, seq.meta)
+    assert isinstance(seq.frames, LazyFrames) and all(held.frames)
+    return held, folder
 
 
 @pytest.fixture

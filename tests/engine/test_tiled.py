@@ -217,3 +217,17 @@ def test_bad_files_are_named(tmp_path):
         open_lazy(stack)
     with pytest.raises(ValueError, match="broken.tif"):
         correlate_tiled(bad, bad)
+
+
+def test_coarse_guess_skips_the_quality_maps():
+    """The shared initial guess only starts the nodes: its blocks skip the
+    speckle-quality stage (``extra={"quality": False}``), which would cost as
+    much as their correlation."""
+    ref, dfm = _pair(256)
+    params = DICParams(search=10, search_max=40, interpolation="cubic")
+    guess = coarse_guess(ref, dfm, params=params, tile_size=128)
+    assert guess.valid.mean() > 0.9 and np.isnan(guess.sssig).all()
+    full = correlate(ref, dfm, params=params)
+    bare = correlate(ref, dfm, params=params.replace(extra={"quality": False}))
+    assert "quality" in full.meta["timing"] and "quality" not in bare.meta["timing"]
+    assert bare.sssig is None and np.array_equal(bare.u, full.u)

@@ -150,6 +150,12 @@ class DICParams:
     n_threads : int or None, default None
         Threads for the Numba kernels; ``None`` uses Numba's default (all
         cores).
+    extra : dict
+        Run-time settings that are not analysis parameters (not compared,
+        not saved): ``"speckle_scale"`` (px, measured once for a whole tiled
+        pair) and ``"quality": False`` (skip the speckle-quality and
+        uncertainty maps, e.g. for a tiled run's coarse initial guess, whose
+        only use is to start the nodes).
 
     Raises
     ------

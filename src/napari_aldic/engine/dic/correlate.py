@@ -131,7 +131,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         if ref_spec is not None and ref_spec.error:
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
-    quality = _quality(im, mask, grid, sol, params, timing, meta)
+    quality = (_quality(im, mask, grid, sol, params, timing, meta)
+               if params.extra.get("quality", True) else None)
     _record(meta, sol, ref_spec, grid, timing, t_start)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +37,7 @@ from ..core.images import validate_roi
 from ..core.params import DICParams
 from ..core.progress import Cancelled
 from ..core.reasons import Reason
-from ..core.results import DICResult, SequenceResult, load_result
+from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
 from ..dic.roi_warp import carry_roi
 from ..io.stack import frame_numbers, open_stack
@@ -49,26 +49,6 @@ __all__ = ["track", "TrackError", "RunFolderError"]
 
 _ON_DISK = object()  # a finished frame kept only in the run folder
 
-
-class _StoredFrames(Sequence):
-    """The frames of a run with a run folder: results still needed for
-    composition are in memory, the others are read from their file when
-    asked for (client memory does not grow with the number of frames)."""
-
-    def __init__(self, items: list, load: Callable[[int], DICResult]):
-        self._items, self._load = items, load
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self[j] for j in range(*i.indices(len(self)))]
-        r = self._items[i]
-        return self._load(i % len(self)) if r is _ON_DISK else r
-
-    def __repr__(self) -> str:
-        return f"<{len(self)} frames, read from the run folder when used>"
 
 def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
     """Bilinear interpolation of a node field at points (NaN where not possible)."""
@@ -370,8 +350,9 @@ class _SequenceRun:
 
     def partial(self, **meta) -> SequenceResult:
         frames = list(self.results)
-        if self.out is not None:
-            frames = _StoredFrames(frames, self.load_frame)
+        if self.out is not None:  # every finished frame is in its file: read when used
+            frames = LazyFrames([None if r is None else self.path_of(k)
+                                 for r, k in zip(frames, self.idx)])
         return SequenceResult(frames, self.params, self.reference,
                               {"frames": self.idx, "update_every": self.update_every,
                                "source": self.src.name, **meta})

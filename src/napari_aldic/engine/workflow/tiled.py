@@ -259,7 +259,9 @@ def coarse_guess(reference, deformed, roi=None, params: DICParams | None = None,
     ref, dfm = open_image(reference), open_image(deformed)
     spacing = guess_spacing or max(params.resolved_init_spacing(), 4 * params.step)
     spacing = max(params.step, spacing // params.step * params.step)
-    cparams = params.replace(step=spacing, init_spacing=spacing)
+    # the coarse result only starts the nodes: no speckle-quality maps
+    cparams = params.replace(step=spacing, init_spacing=spacing,
+                             extra={**params.extra, "quality": False})
     plan = _plan(ref.shape, cparams, max(tile_size, 4 * spacing))
     arrays = _node_arrays(plan.ys.shape + plan.xs.shape, None)
     _run_blocks(ref, dfm, roi, plan, cparams, None, workers, arrays, progress, cancel,
