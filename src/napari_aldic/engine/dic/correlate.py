@@ -131,8 +131,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         if ref_spec is not None and ref_spec.error:
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
-    quality = (_quality(im, mask, grid, sol, params, timing, meta)
-               if params.extra.get("quality", True) else None)
+    quality = _quality(im, mask, grid, sol, params, timing, meta)
     _record(meta, sol, ref_spec, grid, timing, t_start)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
@@ -301,10 +300,13 @@ def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPara
 
 
 def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams,
-             timing: dict, meta: dict) -> dict:
+             timing: dict, meta: dict) -> dict | None:
     """Speckle quality (SSSIG, MIG) and the standard uncertainty of the
     displacements (``dic.quality``; for AL-DIC: of the smoothed ``u``, ``v``,
-    which ``meta["u_std"]`` names)."""
+    which ``meta["u_std"]`` names); None when ``params.extra["quality"]`` is
+    False (the IC-GN model's ``u_std`` only)."""
+    if not params.extra.get("quality", True):
+        return None
     t = time.perf_counter()
     local = sol.u_local is not None
     aldic = sol.admm
