@@ -170,3 +170,32 @@ def test_cli_export_of_a_run_folder_reads_one_frame_at_a_time(run, loads, tmp_pa
     assert max(alive) <= 4 and len(alive) >= N_FRAMES
     cols = read_csv(dst / "export.csv")["columns"]
     assert sorted(set(cols["frame"])) == list(range(N_FRAMES))
+
+
+def test_probes_of_a_run_folder_read_each_frame_once(run, loads, monkeypatch):
+    """measure_probes goes frame by frame (every probe at once): a run folder
+    is read once, a few frames alive at a time, with the in-memory values."""
+    from napari_aldic.engine.probes import (
+        AreaProbe,
+        LineProbe,
+        PointProbe,
+        ProbeSet,
+        measure_probes,
+    )
+
+    eager, folder = run
+    probes = ProbeSet(lines=[LineProbe(30.0, 48.0, 66.0, 48.0)], points=[PointProbe(48.0, 40.0)],
+                      areas=[AreaProbe("rectangle", (36.0, 36.0, 60.0, 60.0))])
+    want = measure_probes(eager, probes)
+    assert loads == []
+    alive = _watch(monkeypatch, loads)
+    got = measure_probes(folder, probes)
+    paths = [path for path, _ in loads]
+    assert len(paths) == N_FRAMES and len(set(paths)) == N_FRAMES  # each frame read once
+    assert max(alive) <= 4
+    assert list(got.columns) == list(want.columns)
+    for name, col in want.columns.items():
+        np.testing.assert_array_equal(got.columns[name].values, col.values, err_msg=name)
+    # the line gauge follows the imposed strain (exx = 0.004 k)
+    strain = got.columns["line1_strain"].values
+    assert np.allclose(strain[1:], 0.004 * np.arange(1, N_FRAMES), atol=2e-3)

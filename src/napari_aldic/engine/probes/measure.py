@@ -133,25 +133,30 @@ def measure_probes(data, probes: ProbeSet, *, fields=DEFAULT_FIELDS, strain=None
     table = ProbeTable([f.index for f in fr_list], units=units, probes=probes,
                        info={"source": info.get("source"), "strain": info.get("strain"),
                              "fields": list(fields)})
-    samplers = _samplers(fr_list)
-    for i, line in enumerate(probes.lines, 1):
-        for col in _line_columns(f"line{i}", line, fr_list, samplers, units):
-            table.add(col)
-    for i, pt in enumerate(probes.points, 1):
-        for col in _point_columns(f"point{i}", pt, fields, fr_list, samplers, units):
-            table.add(col)
-    for i, area in enumerate(probes.areas, 1):
-        for col in _area_columns(f"area{i}", area, fields, fr_list, units):
+    n = len(fr_list)
+    probed = ([_LineGauge(f"line{i}", line, n, units) for i, line in enumerate(probes.lines, 1)]
+              + [_PointProbe(f"point{i}", pt, fields, n, units)
+                 for i, pt in enumerate(probes.points, 1)]
+              + [_AreaProbe(f"area{i}", area, fields, n, units)
+                 for i, area in enumerate(probes.areas, 1)])
+    # frame by frame, every probe at once: a run read from its folder is then
+    # read once, one frame at a time (memory flat in the number of frames)
+    for k, (fr, smp) in enumerate(zip(fr_list, _samplers(fr_list))):
+        for probe in probed:
+            probe.add(k, fr, smp)
+    for probe in probed:
+        for col in probe.columns():
             table.add(col)
     return table
 
 
-def _samplers(fr_list) -> list[FrameSampler]:
-    out, prev = [], None
+def _samplers(fr_list):
+    """A :class:`FrameSampler` per frame, made when needed (each reuses the
+    previous one's cells and search tree when the nodes are the same)."""
+    prev = None
     for f in fr_list:
         prev = FrameSampler(f.result, like=prev)
-        out.append(prev)
-    return out
+        yield prev
 
 
 def _field_unit(name: str, units: Units) -> str:
@@ -159,25 +164,30 @@ def _field_unit(name: str, units: Units) -> str:
 
 
 # ------------------------------------------------------------------ line gauges
-def _line_columns(label: str, line: LineProbe, fr_list, samplers, units: Units) -> list:
-    n = len(fr_list)
-    vals = {q: np.full(n, np.nan) for q in LINE_QUANTITIES}
-    status = np.full(n, MISSING, np.int8)
-    reasons = [""] * n
-    gauge_status = np.full(n, MISSING, np.int8)
-    gauge_reasons = [""] * n
-    e, nrm, L = line.direction, line.normal, line.length
-    px, py = np.array([line.x0, line.x1]), np.array([line.y0, line.y1])
-    px_units = Units()
-    for k, (fr, smp) in enumerate(zip(fr_list, samplers)):
-        su = smp.sample(field_values(fr, "u", px_units), px, py)
-        sv = smp.sample(field_values(fr, "v", px_units), px, py)
+class _LineGauge:
+    """A line gauge's six quantities, filled frame by frame."""
+
+    def __init__(self, label: str, line: LineProbe, n: int, units: Units):
+        self.label, self.line, self.units = label, line, units
+        self.vals = {q: np.full(n, np.nan) for q in LINE_QUANTITIES}
+        self.status = np.full(n, MISSING, np.int8)
+        self.reasons = [""] * n
+        self.gauge_status = np.full(n, MISSING, np.int8)
+        self.gauge_reasons = [""] * n
+        self.px = np.array([line.x0, line.x1])
+        self.py = np.array([line.y0, line.y1])
+
+    def add(self, k: int, fr, smp: FrameSampler) -> None:
+        line, units, px, py, vals = self.line, self.units, self.px, self.py, self.vals
+        e, nrm, L = line.direction, line.normal, line.length
+        su = smp.sample(field_values(fr, "u", Units()), px, py)
+        sv = smp.sample(field_values(fr, "v", Units()), px, py)
         st, why = worst(su, sv)
         for j, name in enumerate(("start point", "end point")):
             if why[j]:
                 why[j] = f"{name}: {why[j]}"
-        status[k] = st.max()
-        reasons[k] = "; ".join(w for w in why if w)
+        self.status[k] = st.max()
+        self.reasons[k] = "; ".join(w for w in why if w)
         d = np.array([su.values[1] - su.values[0], sv.values[1] - sv.values[0]])
         chord = np.array([px[1] - px[0], py[1] - py[0]]) + d
         ell = float(np.hypot(*chord))
@@ -187,35 +197,47 @@ def _line_columns(label: str, line: LineProbe, fr_list, samplers, units: Units) 
         vals["cod_opening"][k] = float(d @ e) * units.pixel_size
         vals["cod_sliding"][k] = float(d @ nrm) * units.pixel_size
         vals["cod_magnitude"][k] = float(np.hypot(*d)) * units.pixel_size
-        gauge_status[k], gauge_reasons[k] = status[k], reasons[k]
-        if status[k] != MISSING and not segment_in_roi(smp.roi, px[0], py[0], px[1], py[1]) \
-                and fr.index > 0:
-            gauge_status[k] = max(gauge_status[k], DEGRADED)
-            gauge_reasons[k] = "; ".join(filter(None, [
-                reasons[k], "a crack or hole (outside the ROI) lies between the gauge points: "
-                "the strain includes its opening"]))
-    cols = []
-    for q, (kind, desc) in LINE_QUANTITIES.items():
-        gauge = q in ("strain", "true_strain", "elongation")
-        cols.append(Column(f"{label}_{q}", label, vals[q],
-                           units.unit if kind == "length" else "",
-                           gauge_status if gauge else status,
-                           gauge_reasons if gauge else reasons, desc))
-    return cols
+        self.gauge_status[k], self.gauge_reasons[k] = self.status[k], self.reasons[k]
+        if self.status[k] != MISSING and fr.index > 0 and \
+                not segment_in_roi(smp.roi, px[0], py[0], px[1], py[1]):
+            self.gauge_status[k] = max(self.gauge_status[k], DEGRADED)
+            self.gauge_reasons[k] = "; ".join(filter(None, [
+                self.reasons[k], "a crack or hole (outside the ROI) lies between the gauge "
+                "points: the strain includes its opening"]))
+
+    def columns(self) -> list:
+        cols = []
+        for q, (kind, desc) in LINE_QUANTITIES.items():
+            gauge = q in ("strain", "true_strain", "elongation")
+            cols.append(Column(f"{self.label}_{q}", self.label, self.vals[q],
+                               self.units.unit if kind == "length" else "",
+                               self.gauge_status if gauge else self.status,
+                               self.gauge_reasons if gauge else self.reasons, desc))
+        return cols
 
 
 # ------------------------------------------------------------------ points
-def _point_columns(label, pt, fields, fr_list, samplers, units) -> list:
-    n = len(fr_list)
-    out = []
-    for name in fields:
-        vals, status, reasons = np.full(n, np.nan), np.full(n, MISSING, np.int8), [""] * n
-        for k, (fr, smp) in enumerate(zip(fr_list, samplers)):
-            s = smp.sample(field_values(fr, name, units), [pt.x], [pt.y])
-            vals[k], status[k], reasons[k] = s.values[0], s.status[0], s.reasons[0]
-        out.append(Column(f"{label}_{name}", label, vals, _field_unit(name, units), status,
-                          reasons, f"{FIELD_INFO[name][0]} at ({pt.x:g}, {pt.y:g})"))
-    return out
+class _PointProbe:
+    """A point probe's fields, filled frame by frame."""
+
+    def __init__(self, label: str, pt, fields, n: int, units: Units):
+        self.label, self.pt, self.fields, self.units = label, pt, fields, units
+        self.vals = {f: np.full(n, np.nan) for f in fields}
+        self.status = {f: np.full(n, MISSING, np.int8) for f in fields}
+        self.reasons = {f: [""] * n for f in fields}
+
+    def add(self, k: int, fr, smp: FrameSampler) -> None:
+        for name in self.fields:
+            s = smp.sample(field_values(fr, name, self.units), [self.pt.x], [self.pt.y])
+            self.vals[name][k], self.status[name][k] = s.values[0], s.status[0]
+            self.reasons[name][k] = s.reasons[0]
+
+    def columns(self) -> list:
+        pt = self.pt
+        return [Column(f"{self.label}_{name}", self.label, self.vals[name],
+                       _field_unit(name, self.units), self.status[name], self.reasons[name],
+                       f"{FIELD_INFO[name][0]} at ({pt.x:g}, {pt.y:g})")
+                for name in self.fields]
 
 
 # ------------------------------------------------------------------ areas
@@ -237,26 +259,37 @@ def _area_stats(values: np.ndarray, inside: np.ndarray) -> tuple[dict, int, str]
     return stats, OK, ""
 
 
-def _area_columns(label, area, fields, fr_list, units) -> list:
-    n = len(fr_list)
-    out = []
-    for name in fields:
-        stats = {s: np.full(n, np.nan) for s in STATISTICS}
-        status, reasons = np.full(n, MISSING, np.int8), [""] * n
-        for k, fr in enumerate(fr_list):
-            inside = area.contains(fr.result.x, fr.result.y)
-            st, status[k], reasons[k] = _area_stats(field_values(fr, name, units), inside)
+class _AreaProbe:
+    """An area probe's statistics of each field, filled frame by frame."""
+
+    def __init__(self, label: str, area, fields, n: int, units: Units):
+        self.label, self.area, self.fields, self.units = label, area, fields, units
+        self.stats = {f: {s: np.full(n, np.nan) for s in STATISTICS} for f in fields}
+        self.status = {f: np.full(n, MISSING, np.int8) for f in fields}
+        self.reasons = {f: [""] * n for f in fields}
+
+    def add(self, k: int, fr, smp: FrameSampler) -> None:
+        inside = self.area.contains(fr.result.x, fr.result.y)
+        for name in self.fields:
+            st, self.status[name][k], self.reasons[name][k] = _area_stats(
+                field_values(fr, name, self.units), inside)
             for s in STATISTICS:
-                stats[s][k] = st[s]
-        unit = _field_unit(name, units)
-        for s in STATISTICS:
-            # the trusted fraction is known even when no value is (0 of n nodes)
-            col_status = np.where(np.isfinite(stats[s]), np.minimum(status, DEGRADED),
-                                  MISSING) if s == "valid_fraction" else status
-            out.append(Column(f"{label}_{name}_{s}", label, stats[s],
-                              "" if s == "valid_fraction" else unit, col_status, reasons,
-                              f"{s} of {FIELD_INFO[name][0]} in the area"))
-    return out
+                self.stats[name][s][k] = st[s]
+
+    def columns(self) -> list:
+        out = []
+        for name in self.fields:
+            unit, status = _field_unit(name, self.units), self.status[name]
+            for s in STATISTICS:
+                values = self.stats[name][s]
+                # the trusted fraction is known even when no value is (0 of n nodes)
+                col_status = np.where(np.isfinite(values), np.minimum(status, DEGRADED),
+                                      MISSING) if s == "valid_fraction" else status
+                out.append(Column(f"{self.label}_{name}_{s}", self.label, values,
+                                  "" if s == "valid_fraction" else unit, col_status,
+                                  self.reasons[name],
+                                  f"{s} of {FIELD_INFO[name][0]} in the area"))
+        return out
 
 
 # ------------------------------------------------------------------ profiles
