@@ -199,3 +199,18 @@ def test_probes_of_a_run_folder_read_each_frame_once(run, loads, monkeypatch):
     # the line gauge follows the imposed strain (exx = 0.004 k)
     strain = got.columns["line1_strain"].values
     assert np.allclose(strain[1:], 0.004 * np.arange(1, N_FRAMES), atol=2e-3)
+
+
+def test_a_list_of_result_files_is_read_when_used(run, loads, tmp_path, monkeypatch):
+    """Result files given as a list (``napari-aldic export a.npz b.npz ...``)
+    are ordered by the frame number in their headers and read one at a time."""
+    eager, folder = run
+    files = sorted(folder.glob("frame_*.npz"), reverse=True)  # any order: headers decide
+    alive = _watch(monkeypatch, loads)
+    lazy_csv = export_result([str(p) for p in files], tmp_path / "list.csv", units=UNITS)
+    assert len(alive) >= N_FRAMES and max(alive) <= 4
+    eager_csv = export_result(eager, tmp_path / "eager.csv", units=UNITS)
+    a, b = read_csv(eager_csv)["columns"], read_csv(lazy_csv)["columns"]
+    assert list(a) == list(b)
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)

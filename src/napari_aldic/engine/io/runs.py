@@ -229,14 +229,18 @@ def _as_results(data) -> tuple[list[tuple[int, Any]], dict]:
         return pairs, info
     if isinstance(data, (list, tuple)):
         pairs = []
+        files = LazyFrames([Path(os.fspath(it)).expanduser()
+                            if isinstance(it, (str, os.PathLike)) else None for it in data])
         for pos, item in enumerate(data):
             if item is None:
                 continue
             if isinstance(item, Frame):
                 pairs.append((item.index, item.result))
             elif isinstance(item, (str, os.PathLike)):
-                res = load_result(item)
-                pairs.append((_frame_of(res.meta, pos), res))
+                # the frame number from the file's JSON header: the arrays are
+                # read when the frame is used (exports go one frame at a time)
+                meta, _ = _result_header(files.paths[pos])
+                pairs.append((_frame_of(meta, pos), partial(files.__getitem__, pos)))
             elif isinstance(item, DICResult):
                 pairs.append((_frame_of(item.meta, pos), item))
             else:
