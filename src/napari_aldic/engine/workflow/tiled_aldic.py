@@ -22,6 +22,7 @@ reasons of the result are the in-memory run's.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -100,6 +101,11 @@ class _Blocks:
             return None, x, y
 
 
+def _order(params: DICParams) -> int:
+    """The B-spline order ``correlate_tiled`` fixed for the whole pair."""
+    return {"cubic": 3, "quintic": 5}[params.interpolation]
+
+
 def _map(fn, items, workers: int, cancel):
     """``fn`` over ``items``, ``workers`` threads at a time (the Numba threads
     shared among them), in order."""
@@ -125,7 +131,7 @@ def _statistics(ref, dfm, roi, blocks: _Blocks, workers: int, cancel):
     cut = np.zeros(n, bool)
     usable = np.zeros(n, bool)
     p = blocks.params
-    order = {"cubic": 3, "quintic": 5}[p.interpolation]
+    order = _order(p)
 
     def one(ids):
         r0, r1, c0, c1 = blocks.window(ids, 0.0)
@@ -153,7 +159,7 @@ class _TiledLocalStep:
         self.ref, self.dfm, self.roi, self.blocks = ref, dfm, roi, blocks
         self.workers, self.cancel, self.report = workers, cancel, report
         p = blocks.params
-        self.order = {"cubic": 3, "quintic": 5}[p.interpolation]
+        self.order = _order(p)
         self.speckle = p.extra.get("speckle_scale")
         self.passes = 0
 
@@ -165,12 +171,11 @@ class _TiledLocalStep:
         rs = np.full(n, Reason.NOT_CONVERGED, np.int8)
         self.passes += 1
         self.report(self.passes, 0.0)
-        done = [0]
+        done = itertools.count(1)  # next() is atomic: blocks finish in worker threads
 
         def one(ids):
             out = self._block(ids, start, F, target, mu, active, curvature)
-            done[0] += 1
-            self.report(self.passes, done[0] / len(self.blocks))
+            self.report(self.passes, next(done) / len(self.blocks))
             return ids, out
 
         for ids, out in _map(one, self.blocks.ids, self.workers, self.cancel):
