@@ -68,9 +68,15 @@ def test_run_tiled_bad_inputs(run_cli, tmp_path):
     assert rc == 2 and "ROI mask shape (100, 100)" in err
 
 
-def test_run_tiled_aldic_with_lazy_roi(run_cli, tmp_path):
+def test_run_tiled_aldic_with_lazy_roi(run_cli, tmp_path, monkeypatch):
     """AL-DIC of a pair read block by block, the ROI a tiled TIFF mask that is
     sliced block by block as well (never read whole)."""
+    from napari_aldic.cli import masks
+
+    def whole(path):
+        raise AssertionError(f"{path} read whole")
+
+    monkeypatch.setattr(masks, "read_image", whole)
     ref, dfm = _write_pair(tmp_path)
     mask = np.full((400, 400), 255, np.uint8)
     mask[150:260, 120:300] = 0  # a hole across block borders

@@ -11,9 +11,6 @@ from ..engine.io import open_lazy, read_image
 from ..i18n import tr
 from .console import CLIError
 
-#: mask files that can be read window by window (others are read whole)
-_LAZY = {".tif", ".tiff", ".btf", ".tf8"}
-
 
 def read_mask(path: Path) -> np.ndarray:
     """ROI mask from a ``.npy`` array or an image file (nonzero = analysed)."""
@@ -42,11 +39,12 @@ def open_mask(path: Path):
         if m.ndim != 2:  # e.g. an RGB mask saved as an array
             return read_mask(path)
         return m
-    if path.is_dir() or path.suffix.lower() in _LAZY:
+    try:
         m = open_lazy(path)  # colour samples become grey: nonzero stays nonzero
-        _check_2d(path, m.shape)
-        return m
-    return read_mask(path)
+    except ValueError:  # not TIFF or zarr (or unreadable as such): read whole, or say why
+        return read_mask(path)
+    _check_2d(path, m.shape)
+    return m
 
 
 def _load_npy(path: Path, mmap_mode):

@@ -27,7 +27,7 @@ from .regularise import choose_smoothing
 from .reliability import Validity
 from .uncertainty_aldic import ADMMLinearisation, linearise_admm
 
-__all__ = ["ALDICOutcome", "aldic_stage", "regularisation", "aldic_reasons"]
+__all__ = ["ALDICOutcome", "aldic_stage"]
 
 
 @dataclass
@@ -66,8 +66,8 @@ def aldic_stage(local_step: LocalStep, mesh: Q4Mesh, validity: Validity, u, v, g
     """
     # noisy but correct matches are data for the global step too
     trusted = (reason == Reason.OK) | (reason == Reason.UNCERTAIN)
-    smooth, second_order, table, noise_var = regularisation(validity, mesh, u, v, zncc,
-                                                            trusted, params)
+    smooth, second_order, table, noise_var = _regularisation(validity, mesh, u, v, zncc,
+                                                             trusted, params)
     key = cached = None
     if solver_cache is not None:
         key = _solver_key(mesh, trusted, params, smooth)
@@ -86,7 +86,7 @@ def aldic_stage(local_step: LocalStep, mesh: Q4Mesh, validity: Validity, u, v, g
     for k, val in state.timing.items():
         timing["admm_" + k] = timing.get("admm_" + k, 0.0) + val
     zncc_aldic = np.where(np.isfinite(state.zncc), state.zncc, zncc)
-    out_reason = aldic_reasons(validity, state, trusted, reason, zncc_aldic, zncc)
+    out_reason = _aldic_reasons(validity, state, trusted, reason, zncc_aldic, zncc)
     iters = np.where(out_reason == Reason.OK, state.iterations, 0).astype(np.int32)
     lin = None
     if solver.system.method == "direct":
@@ -121,7 +121,7 @@ def _smoothing_record(table: dict, smooth) -> dict:
                 smooth_px_range=[float(lengths.min()), float(lengths.max())])
 
 
-def aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local):
+def _aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local):
     """Reasons of the AL-DIC result: the local reason of untrusted nodes;
     the last local step's, then the correlation tests of the local result,
     the global-mismatch test and the uncertainty test for the others."""
@@ -137,7 +137,7 @@ def aldic_reasons(validity: Validity, state, trusted, reason, zncc, zncc_local):
     return reason
 
 
-def regularisation(validity: Validity, mesh: Q4Mesh, u, v, zncc, trusted: np.ndarray,
+def _regularisation(validity: Validity, mesh: Q4Mesh, u, v, zncc, trusted: np.ndarray,
                    params: DICParams):
     """The AL-DIC regularisation: ``(smooth_px, second_order, record for meta,
     predicted local noise variances (n, 2) or None when nothing needs them)``;

@@ -141,17 +141,18 @@ def _local_maps(q, k: int):
 
 class BatchSolver:
     """:meth:`GlobalSolver.solve` and ``gradients`` for many right-hand sides
-    at once (columns: noise images) with the run's matrix; the right-hand side
-    is the solver's own (:meth:`GlobalSolver.rhs`). A conjugate-gradient
-    solver gets its own copy of the system, so the run's warm start (kept for
-    the next frame) is left alone."""
+    at once (columns: noise images) with the run's factorised matrix; the
+    right-hand side is the solver's own (:meth:`GlobalSolver.rhs`). Only
+    factorised systems are propagated: past the direct solver's size every
+    probe would need its own conjugate-gradient solves, and AL-DIC reports
+    the Local model instead (:func:`~.aldic.aldic_stage`)."""
 
     def __init__(self, solver):
-        from .global_solve import SPDSolver
-
-        self.s = solver
-        self.system = (solver.system if solver.system.method == "direct"
-                       else SPDSolver(solver.A, solver.system.method, rtol=1e-4))
+        if solver.system.method != "direct":
+            raise ValueError("the AL-DIC noise propagation needs the factorised global "
+                             f"system, not {solver.system.method!r} (meshes up to "
+                             "DIRECT_MAX_UNKNOWNS free nodes)")
+        self.s, self.system = solver, solver.system
 
     def gradients(self, uh, vh):
         s = self.s

@@ -372,8 +372,6 @@ class FrameSet(list):
         self.info = info or {}
 
 
-
-
 #: fields of every element of the ``frames`` struct array that load_mat needs
 _MAT_NODE_FIELDS = ("x_px", "y_px", "u_px", "v_px", "dudx", "dudy", "dvdx", "dvdy", "valid",
                     "zncc", "reason", "iterations", "grid_ix", "grid_iy")
