@@ -54,15 +54,16 @@ LocalStep = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
 def image_local_step(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half: int,
-                     max_iter: int, tol: float) -> LocalStep:
+                     max_iter: int, tol: float, lin=None) -> LocalStep:
     """The local step on a pair held in memory: translation-only IC-GN of every
     active node with its gradient fixed (``fgx, fgy``: the steepest-descent
-    gradients; ``slot, masks``: the subsets cut by the ROI)."""
+    gradients; ``lin``: the exact ones, :func:`~.icgn.icgn_solve`; ``slot,
+    masks``: the subsets cut by the ROI)."""
 
     def step(start, F, target, mu, active, curvature):
         return icgn_solve_translation(f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F,
                                       target, mu, active, slot, masks, half, max_iter, tol,
-                                      curvature=curvature)
+                                      curvature=curvature, lin=lin)
 
     return step
 

@@ -277,7 +277,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
         mesh = uniform_mesh(grid, roi)
     jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)  # method.md 5.1
     step = image_local_step(im.f, jgx, jgy, im.g_spline, grid.x, grid.y, sub.slot, sub.masks,
-                            params.half, params.max_iter, params.tol)
+                            params.half, params.max_iter, params.tol, lin=(im.fgx, im.fgy))
     out = aldic_stage(step, mesh, validity, sol.u, sol.v, sol.grad, zncc, reason,
                       sub.slot >= 0, params, timing, solver_cache=solver_cache,
                       on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,

@@ -21,6 +21,20 @@ The second-order (quadratic) shape function adds the six second derivatives
 which keeps the amplitude of displacements that vary over a subset width
 (H. Lu, P. D. Cary, Exp. Mech. 40, 2000).
 
+Steepest-descent images and linearisation. Each step solves
+``M dp = -Σ J r`` with ``M = Σ J eᵀ``: ``e`` is the steepest-descent image
+built from the exact spline gradient of the reference (the true
+linearisation of the warped residual) and ``J`` the one the residual is
+projected on. With ``J = e`` this is plain Gauss-Newton; with ``J`` from a
+smoothed reference (less noise) it is an instrumental-variable
+Gauss-Newton step: the iteration still converges like Newton's (the model
+of how the residual moves is exact), while it solves ``Σ J r = 0``, whose
+noise is lower. Smoothing ``J`` and keeping the symmetric ``Σ J Jᵀ``
+instead leaves the step too long by the ratio of the unsmoothed to the
+smoothed gradient energy: on fine speckle that ratio passes 2 and the
+iteration no longer converges (issue 22: 83 % of a real coupon at the
+iteration cap).
+
 The Numba kernels are in :mod:`napari_aldic.engine.kernels.icgn` and
 :mod:`~napari_aldic.engine.kernels.gauss_newton`; the functions here prepare
 their inputs and outputs.
@@ -51,13 +65,15 @@ _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
 
 
 def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, masks,
-               half, max_iter=40, tol=1e-3, out=None, stats=None, shape="affine"):
+               half, max_iter=40, tol=1e-3, out=None, stats=None, shape="affine", lin=None):
     """Run IC-GN at the ``active`` nodes.
 
     Parameters
     ----------
     f, fgx, fgy : (H, W) float32
-        Reference image and its spline gradients.
+        Reference image and the gradients of the steepest-descent images
+        (the spline gradients, or smoothed ones:
+        :func:`~.interpolation.steepest_descent_gradients`).
     spline : SplineImage
         Deformed-image B-spline coefficients.
     nodes_x, nodes_y : (n,) int64
@@ -79,6 +95,10 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         Subset shape function. ``"quadratic"`` starts every node with zero
         second derivatives and returns only the affine part in ``p`` (the
         displacement and its gradient at the node).
+    lin : (egx, egy) or None
+        The reference's exact spline gradients, which linearise the warp
+        (None: ``fgx, fgy`` themselves). With smoothed ``fgx, fgy`` each step
+        is an instrumental-variable Gauss-Newton step (module docstring).
 
     Returns
     -------
@@ -91,8 +111,9 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     p, zn, it, rs = out
     if stats is None:
         stats = np.empty((n, 5))
+    egx, egy = (fgx, fgy) if lin is None else lin
     if shape == "affine":
-        icgn_affine(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
+        icgn_affine(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y,
                     np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
                     int(half), int(max_iter), float(tol), p, zn, it, rs, stats)
     elif shape == "quadratic":
@@ -100,8 +121,9 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         p12[:, :6] = p_init
         q = np.zeros((n, NPAR))
         q[:, :6] = p
-        icgn_quadratic(f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y, p12, active,
-                       slot, masks, int(half), int(max_iter), float(tol), q, zn, it, rs, stats)
+        icgn_quadratic(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y, p12,
+                       active, slot, masks, int(half), int(max_iter), float(tol), q, zn, it, rs,
+                       stats)
         p[active] = q[active, :6]
     else:
         raise ValueError(f"shape={shape!r} must be one of {SHAPE_FUNCTIONS}")
@@ -110,7 +132,7 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
 
 def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad, target,
                            mu, active, slot, masks, half, max_iter=40, tol=1e-3,
-                           curvature=None):
+                           curvature=None, lin=None):
     """AL-DIC local step: IC-GN on the displacement only, with the gradient fixed.
 
     Minimises, per node, ``SSD(u; F fixed) + mu' / 2 |u - target|^2`` where
@@ -127,6 +149,8 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     curvature : (n, 6) or None
         Fixed second derivatives ``(uxx, uxy, uyy, vxx, vxy, vyy)`` (1/px)
         added to the warp as ``0.5 dXᵀ ∇∇u dX``; None keeps the warp affine.
+    lin : (egx, egy) or None
+        Exact reference gradients (as :func:`icgn_solve`).
 
     Returns
     -------
@@ -139,8 +163,9 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     zn = np.full(n, np.nan)
     it = np.zeros(n, np.int32)
     rs = np.full(n, _NOT_CONVERGED, np.int8)
+    egx, egy = (fgx, fgy) if lin is None else lin
     icgn_translation(
-        f, fgx, fgy, spline.coef, spline.order, nodes_x, nodes_y,
+        f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y,
         np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64), curv,
         np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks, int(half),
         int(max_iter), float(tol), uv, zn, it, rs)

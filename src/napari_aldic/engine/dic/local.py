@@ -124,7 +124,8 @@ class _State:
         jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
         res = icgn_solve(im.f, jgx, jgy, im.g_spline, g.x, g.y, p_init, active,
                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
-                         out=out, stats=self._stats_scratch, shape=prm.shape_function)
+                         out=out, stats=self._stats_scratch, shape=prm.shape_function,
+                         lin=(im.fgx, im.fgy))
         self._fill_stats(active)
         return res
 

@@ -36,8 +36,8 @@ from .gauss_newton import (
     gn_step,
     store_node,
 )
-from .icgn_node import begin_node, chol_solve, solve_buffers, step_status
-from .subset import gather_subset, subset_buffers
+from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
+from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
            "affine_step", "translation_reference_sums", "curvature_offsets", "penalty_system",
@@ -46,23 +46,29 @@ __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_
 
 # ------------------------------------------------------------- affine IC-GN
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def affine_reference_sums(dxs, dys, gx, gy, fs, m, fm, H):
-    """Gauss-Newton Hessian and sums of the reference subset (affine warp).
+def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
+    """Gauss-Newton matrix and sums of the reference subset (affine warp).
 
     With the steepest-descent images ``J = (gx, gx dx, gx dy, gy, gy dx,
-    gy dy)`` one pass accumulates ``H = sum J J^T`` (lower triangle, then
-    mirrored), ``sum J`` and ``sum J (f - fm)``.
+    gy dy)`` and the exact linearisation ``e`` (the same with ``ex, ey``) one
+    pass accumulates the instrumental-variable matrix ``H = sum J e^T``,
+    ``sum J`` and ``sum J (f - fm)``. With ``J = e`` it is the symmetric
+    Gauss-Newton Hessian; with smoothed ``J`` the step ``H^-1 sum J r`` is
+    still Newton's (the warp is linearised with the true gradient), so the
+    iteration converges as fast while it solves ``sum J r = 0``.
 
     Parameters
     ----------
     dxs, dys, gx, gy, fs : 1-D float64
-        The gathered subset.
+        The gathered subset (``gx, gy``: the steepest-descent gradients).
+    ex, ey : 1-D float64
+        The exact reference gradients of the same pixels.
     m : int
         Subset pixels.
     fm : float
         Mean of the reference subset.
     H : (6, 6) float64
-        Receives the Hessian.
+        Receives the matrix.
 
     Returns
     -------
@@ -76,54 +82,41 @@ def affine_reference_sums(dxs, dys, gx, gy, fs, m, fm, H):
             H[i, j] = 0.0
     sj0 = sj1 = sj2 = sj3 = sj4 = sj5 = 0.0
     b00 = b01 = b02 = b03 = b04 = b05 = 0.0
+    jv = np.empty(6)
+    ev = np.empty(6)
     for q in range(m):
         dx = dxs[q]
         dy = dys[q]
         ja = gx[q]
         jd = gy[q]
-        J0 = ja
-        J1 = ja * dx
-        J2 = ja * dy
-        J3 = jd
-        J4 = jd * dx
-        J5 = jd * dy
+        jv[0] = ja
+        jv[1] = ja * dx
+        jv[2] = ja * dy
+        jv[3] = jd
+        jv[4] = jd * dx
+        jv[5] = jd * dy
+        ev[0] = ex[q]
+        ev[1] = ex[q] * dx
+        ev[2] = ex[q] * dy
+        ev[3] = ey[q]
+        ev[4] = ey[q] * dx
+        ev[5] = ey[q] * dy
         fv = fs[q] - fm
-        sj0 += J0
-        sj1 += J1
-        sj2 += J2
-        sj3 += J3
-        sj4 += J4
-        sj5 += J5
-        b00 += J0 * fv
-        b01 += J1 * fv
-        b02 += J2 * fv
-        b03 += J3 * fv
-        b04 += J4 * fv
-        b05 += J5 * fv
-        H[0, 0] += J0 * J0
-        H[1, 0] += J1 * J0
-        H[1, 1] += J1 * J1
-        H[2, 0] += J2 * J0
-        H[2, 1] += J2 * J1
-        H[2, 2] += J2 * J2
-        H[3, 0] += J3 * J0
-        H[3, 1] += J3 * J1
-        H[3, 2] += J3 * J2
-        H[3, 3] += J3 * J3
-        H[4, 0] += J4 * J0
-        H[4, 1] += J4 * J1
-        H[4, 2] += J4 * J2
-        H[4, 3] += J4 * J3
-        H[4, 4] += J4 * J4
-        H[5, 0] += J5 * J0
-        H[5, 1] += J5 * J1
-        H[5, 2] += J5 * J2
-        H[5, 3] += J5 * J3
-        H[5, 4] += J5 * J4
-        H[5, 5] += J5 * J5
-    for i in range(6):
-        for j in range(i + 1, 6):
-            H[i, j] = H[j, i]
+        sj0 += jv[0]
+        sj1 += jv[1]
+        sj2 += jv[2]
+        sj3 += jv[3]
+        sj4 += jv[4]
+        sj5 += jv[5]
+        b00 += jv[0] * fv
+        b01 += jv[1] * fv
+        b02 += jv[2] * fv
+        b03 += jv[3] * fv
+        b04 += jv[4] * fv
+        b05 += jv[5] * fv
+        for i in range(6):
+            for j in range(6):
+                H[i, j] += jv[i] * ev[j]
     return sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05
 
 
@@ -169,12 +162,12 @@ def inverse_compose(p, du, dux, duy, dv, dvx, dvy):
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
 def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm, dfn,
-                xw, yw, gv, xmax, ymax, sj, bf, L, b, dp, h, span, start, tol, zn):
+                xw, yw, gv, xmax, ymax, sj, bf, fac, b, dp, h, span, start, tol, zn):
     """One affine IC-GN step of a node.
 
     Samples the warped subset (:func:`~.gauss_newton.gn_step`), forms
     ``b = sum J [(f - fm) - (df/dg)(g - gm)]``, solves ``H dp = -b`` with the
-    Cholesky factor ``L`` and composes the inverse increment into ``p``.
+    factors ``fac`` and composes the inverse increment into ``p``.
 
     Parameters
     ----------
@@ -186,8 +179,9 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
         Current parameters.
     sj, bf : 6-tuples of float
         Reference sums from :func:`affine_reference_sums`.
-    L : (6, 6) float64
-        Cholesky factor of the reference Hessian (:func:`~.icgn_node.cholesky`).
+    fac : ((6, 6) float64, (6,) int64)
+        Factors of the reference matrix and their row swaps
+        (:func:`~.icgn_node.lu_factor`).
     b, dp : (6,) float64
         Work arrays.
     h, span : int
@@ -222,7 +216,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     b[3] = bf[3] - r * (t3 - gm * sj[3])
     b[4] = bf[4] - r * (t4 - gm * sj[4])
     b[5] = bf[5] - r * (t5 - gm * sj[5])
-    chol_solve(L, b, dp)
+    lu_solve(fac[0], fac[1], b, dp)
     du = -dp[0]
     dux = -dp[1]
     duy = -dp[2]
@@ -235,12 +229,12 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
+def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
                 h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
-    Per node: gather the subset, build the reference Hessian and its Cholesky
-    factor (:func:`~.icgn_node.begin_node`; a node without texture is stored
+    Per node: gather the subset, build the reference matrix and its LU
+    factors (:func:`~.icgn_node.begin_node`; a node without texture is stored
     as ``NO_TEXTURE`` with its initial parameters), then iterate
     :func:`affine_step` while it reports ``NOT_CONVERGED`` and ``max_iter``
     allows.
@@ -248,7 +242,11 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     Parameters
     ----------
     f, fgx, fgy : (H, W) float32
-        Reference image and its spline gradients.
+        Reference image and the gradients of its steepest-descent images
+        (possibly smoothed).
+    egx, egy : (H, W) float32
+        The reference's exact spline gradients (the warp's linearisation;
+        the same arrays as ``fgx, fgy`` for plain Gauss-Newton).
     coef : (H + 2 PAD, W + 2 PAD) float32
         Deformed-image B-spline coefficients; ``order`` 3 or 5.
     nx, ny : (n,) int64
@@ -272,38 +270,43 @@ def icgn_affine(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
     c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
     for c in nb.prange(nchunks):
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
-        L, b, dp = solve_buffers(6)
+        ex = np.empty(npx)
+        ey = np.empty(npx)
+        LU, piv, b, dp = solve_buffers(6)
         H = np.empty((6, 6))
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
+            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
             sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05 = affine_reference_sums(
-                dxs, dys, gx, gy, fs, m, fm, H)
+                dxs, dys, gx, gy, ex, ey, fs, m, fm, H)
             sj = (sj0, sj1, sj2, sj3, sj4, sj5)
             bf = (b00, b01, b02, b03, b04, b05)
             p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
                  p_init[k, 5])
-            status, zn, it, dfn = begin_node(k, m, df2, H, L, stats_out)
+            status, zn, it, dfn = begin_node(k, m, df2, H, LU, piv, stats_out)
             start = (p[0], p[3])
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
                                             gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
-                                            bf, L, b, dp, h, span, start, tol, zn)
+                                            bf, (LU, piv), b, dp, h, span, start, tol, zn)
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
 
 
 # ------------------------------------------------------------- translation IC-GN
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def translation_reference_sums(gx, gy, fs, m, fm):
+def translation_reference_sums(gx, gy, ex, ey, fs, m, fm):
     """Gauss-Newton sums of the reference subset for the displacement only.
 
     Parameters
     ----------
     gx, gy, fs : 1-D float64
-        Reference gradients and values of the gathered subset.
+        Steepest-descent gradients and values of the gathered subset.
+    ex, ey : 1-D float64
+        Its exact reference gradients (the linearisation).
     m : int
         Subset pixels.
     fm : float
@@ -311,26 +314,28 @@ def translation_reference_sums(gx, gy, fs, m, fm):
 
     Returns
     -------
-    h00, h01, h11 : float
-        The 2 x 2 Hessian ``sum [gx gy]^T [gx gy]``.
+    h00, h01, h10, h11 : float
+        The 2 x 2 matrix ``sum [gx gy]^T [ex ey]`` (instrumental variables,
+        as :func:`affine_reference_sums`).
     sj0, sj3 : float
         ``sum gx``, ``sum gy``.
     b0, b3 : float
         ``sum gx (f - fm)``, ``sum gy (f - fm)``.
     """
-    h00 = h01 = h11 = sj0 = sj3 = b0 = b3 = 0.0
+    h00 = h01 = h10 = h11 = sj0 = sj3 = b0 = b3 = 0.0
     for q in range(m):
         a1 = gx[q]
         a2 = gy[q]
         fv = fs[q] - fm
-        h00 += a1 * a1
-        h01 += a1 * a2
-        h11 += a2 * a2
+        h00 += a1 * ex[q]
+        h01 += a1 * ey[q]
+        h10 += a2 * ex[q]
+        h11 += a2 * ey[q]
         sj0 += a1
         sj3 += a2
         b0 += a1 * fv
         b3 += a2 * fv
-    return h00, h01, h11, sj0, sj3, b0, b3
+    return h00, h01, h10, h11, sj0, sj3, b0, b3
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -360,16 +365,16 @@ def curvature_offsets(curv, k, dxs, dys, m, qx, qy):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def penalty_system(h00, h01, h11, ux, uy, vx, vy, mu):
-    """Normal matrix of the penalised displacement step, constant per node.
+def penalty_system(h00, h01, h10, h11, ux, uy, vx, vy, mu):
+    """Matrix of the penalised displacement step, constant per node.
 
     ``A = I + F`` maps a reference-frame shift to a deformed-frame shift; the
     penalty stiffness ``mu (h00 + h11) / 2`` scales ``mu`` to the data term.
 
     Parameters
     ----------
-    h00, h01, h11 : float
-        Reference 2 x 2 Hessian.
+    h00, h01, h10, h11 : float
+        Reference 2 x 2 matrix (:func:`translation_reference_sums`).
     ux, uy, vx, vy : float
         The fixed displacement gradient.
     mu : float
@@ -381,8 +386,8 @@ def penalty_system(h00, h01, h11, ux, uy, vx, vy, mu):
         ``A``.
     pen : float
         Penalty stiffness.
-    m00, m01, m11 : float
-        ``H + pen A^T A`` (symmetric).
+    m00, m01, m10, m11 : float
+        ``H + pen A^T A``.
     det : float
         Its determinant.
     """
@@ -391,12 +396,14 @@ def penalty_system(h00, h01, h11, ux, uy, vx, vy, mu):
     a21 = vx
     a22 = 1.0 + vy
     pen = mu * 0.5 * (h00 + h11)  # penalty stiffness, scaled to the data term
-    # normal matrix (H + pen A^T A), constant over the iterations
+    # (H + pen A^T A), constant over the iterations
+    c01 = pen * (a11 * a12 + a21 * a22)
     m00 = h00 + pen * (a11 * a11 + a21 * a21)
-    m01 = h01 + pen * (a11 * a12 + a21 * a22)
+    m01 = h01 + c01
+    m10 = h10 + c01
     m11 = h11 + pen * (a12 * a12 + a22 * a22)
-    det = m00 * m11 - m01 * m01
-    return a11, a12, a21, a22, pen, m00, m01, m11, det
+    det = m00 * m11 - m01 * m10
+    return a11, a12, a21, a22, pen, m00, m01, m10, m11, det
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -436,7 +443,7 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
     u, v : float
         Updated displacement (unchanged if the step failed).
     """
-    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m11, det,
+    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
      tu, tv, u0, v0) = node
     st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
         c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
@@ -451,7 +458,7 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
     r0 = -g0 + pen * (a11 * eu + a21 * ev)
     r1 = -g3 + pen * (a12 * eu + a22 * ev)
     d0 = (m11 * r0 - m01 * r1) / det
-    d1 = (m00 * r1 - m01 * r0) / det
+    d1 = (m00 * r1 - m10 * r0) / det
     du = a11 * d0 + a12 * d1
     dv = a21 * d0 + a22 * d1
     u -= du
@@ -464,8 +471,8 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_translation(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, target, mu,
-                     active, slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out,
+def icgn_translation(f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv, target,
+                     mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out,
                      reason_out):
     """Penalised IC-GN of the displacement at the ``active`` nodes (AL-DIC).
 
@@ -478,7 +485,7 @@ def icgn_translation(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, targ
 
     Parameters
     ----------
-    f, fgx, fgy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+    f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
         As :func:`icgn_affine`.
     uv_init : (n, 2) float64
         Starting displacements.
@@ -498,6 +505,8 @@ def icgn_translation(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, targ
     quad = curv.shape[0] == n
     for c in nb.prange(nchunks):
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        ex = np.empty(npx)
+        ey = np.empty(npx)
         qx = np.zeros(npx)
         qy = np.zeros(npx)
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
@@ -505,21 +514,23 @@ def icgn_translation(f, fgx, fgy, coef, order, nx, ny, uv_init, grad, curv, targ
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
+            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
             if quad:
                 curvature_offsets(curv, k, dxs, dys, m, qx, qy)
-            h00, h01, h11, sj0, sj3, b0, b3 = translation_reference_sums(gx, gy, fs, m, fm)
+            h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(
+                gx, gy, ex, ey, fs, m, fm)
             start = (uv_init[k, 0], uv_init[k, 1])
-            if df2 <= 1e-6 * m or h00 * h11 - h01 * h01 <= 1e-12 * (h00 + h11) ** 2:
+            if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
                 store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
                            reason_out)
                 continue
             dfn = np.sqrt(df2)
             ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
-            a11, a12, a21, a22, pen, m00, m01, m11, det = penalty_system(
-                h00, h01, h11, ux, uy, vx, vy, mu)
+            a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
+                h00, h01, h10, h11, ux, uy, vx, vy, mu)
             u, v = start
-            node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m11,
-                    det, target[k, 0], target[k, 1], u, v)
+            node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
+                    m11, det, target[k, 0], target[k, 1], u, v)
             status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1

@@ -1,9 +1,9 @@
 """One node of the local IC-GN solvers (:mod:`.icgn`, :mod:`.icgn_quadratic`).
 
 The affine and the quadratic solver differ in their parameters, not in how
-they run a node: the reference Hessian is factorised once
-(:func:`cholesky`, in the work arrays of :func:`solve_buffers`) and solved at
-every step (:func:`chol_solve`); a node starts the same way
+they run a node: the reference Gauss-Newton matrix is factorised once
+(:func:`lu_factor`, in the work arrays of :func:`solve_buffers`) and solved
+at every step (:func:`lu_solve`); a node starts the same way
 (:func:`begin_node`: record the reference statistics, set aside a subset
 without texture) and every step is judged by the same rule
 (:func:`step_status`).
@@ -17,65 +17,92 @@ import numpy as np
 from .flags import INLINE
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK
 
-__all__ = ["cholesky", "chol_solve", "solve_buffers", "begin_node", "step_status"]
+__all__ = ["lu_factor", "lu_solve", "solve_buffers", "begin_node", "step_status"]
 
 
 @nb.njit(**INLINE)
-def cholesky(H, L):
-    """In-place lower Cholesky factor of a symmetric ``n x n`` matrix.
+def lu_factor(M, LU, piv):
+    """LU factor with partial pivoting of an ``n x n`` matrix.
+
+    The instrumental-variable Gauss-Newton matrix ``M = sum J e^T``
+    (steepest-descent images ``J`` against the exact linearisation ``e``) is
+    not symmetric unless ``J = e``, so it is factorised by elimination, not
+    Cholesky.
 
     Parameters
     ----------
-    H : (n, n) float64
-        Symmetric matrix (6 x 6 affine, 12 x 12 quadratic Gauss-Newton).
-    L : (n, n) float64
-        Receives the factor (lower triangle).
+    M : (n, n) float64
+        Matrix (6 x 6 affine, 12 x 12 quadratic Gauss-Newton).
+    LU : (n, n) float64
+        Receives the factors: unit lower triangle below the diagonal, upper
+        triangle on and above it.
+    piv : (n,) int64
+        Receives the row swapped with row ``c`` at column ``c``.
 
     Returns
     -------
     bool
-        False if a pivot is not clearly positive (``H`` not positive
-        definite to working precision: a subset without texture).
+        False if a pivot is not clearly non-zero against its column's
+        diagonal entry (a subset without texture).
     """
-    for i in range(H.shape[0]):
-        for j in range(i + 1):
-            s = H[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if s <= 1e-12 * (abs(H[i, i]) + 1e-300):
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
+    n = M.shape[0]
+    for i in range(n):
+        for j in range(n):
+            LU[i, j] = M[i, j]
+    for c in range(n):
+        p = c
+        big = abs(LU[c, c])
+        for r in range(c + 1, n):
+            if abs(LU[r, c]) > big:
+                big = abs(LU[r, c])
+                p = r
+        piv[c] = p
+        if big <= 1e-12 * (abs(M[c, c]) + 1e-300):
+            return False
+        if p != c:
+            for j in range(n):
+                LU[c, j], LU[p, j] = LU[p, j], LU[c, j]
+        inv = 1.0 / LU[c, c]
+        for r in range(c + 1, n):
+            f = LU[r, c] * inv
+            LU[r, c] = f
+            for j in range(c + 1, n):
+                LU[r, j] -= f * LU[c, j]
     return True
 
 
 @nb.njit(**INLINE)
-def chol_solve(L, b, x):
-    """Solve ``L L^T x = b`` by forward and back substitution.
+def lu_solve(LU, piv, b, x):
+    """Solve ``M x = b`` with the factors of :func:`lu_factor`.
 
     Parameters
     ----------
-    L : (n, n) float64
-        Factor from :func:`cholesky`.
+    LU : (n, n) float64
+        Factors from :func:`lu_factor`.
+    piv : (n,) int64
+        Its row swaps.
     b : (n,) float64
-        Right-hand side.
+        Right-hand side (left unchanged).
     x : (n,) float64
         Receives the solution.
     """
     n = b.size
-    y = np.empty(n)
     for i in range(n):
-        s = b[i]
+        x[i] = b[i]
+    for c in range(n):
+        p = piv[c]
+        if p != c:
+            x[c], x[p] = x[p], x[c]
+    for i in range(n):
+        s = x[i]
         for k in range(i):
-            s -= L[i, k] * y[k]
-        y[i] = s / L[i, i]
+            s -= LU[i, k] * x[k]
+        x[i] = s
     for i in range(n - 1, -1, -1):
-        s = y[i]
+        s = x[i]
         for k in range(i + 1, n):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
+            s -= LU[i, k] * x[k]
+        x[i] = s / LU[i, i]
 
 
 @nb.njit(**INLINE)
@@ -89,17 +116,19 @@ def solve_buffers(npar):
 
     Returns
     -------
-    L : (npar, npar) float64
-        Zeros; receives the Cholesky factor (its upper triangle stays zero).
+    LU : (npar, npar) float64
+        Receives the factors (:func:`lu_factor`).
+    piv : (npar,) int64
+        Receives their row swaps.
     b, dp : (npar,) float64
         Right-hand side and increment of a step.
     """
-    return np.zeros((npar, npar)), np.empty(npar), np.empty(npar)
+    return np.zeros((npar, npar)), np.zeros(npar, np.int64), np.empty(npar), np.empty(npar)
 
 
 @nb.njit(**INLINE)
-def begin_node(k, m, df2, H, L, stats_out):
-    """Record node ``k``'s reference statistics and factorise its Hessian.
+def begin_node(k, m, df2, H, LU, piv, stats_out):
+    """Record node ``k``'s reference statistics and factorise its matrix.
 
     Parameters
     ----------
@@ -109,10 +138,12 @@ def begin_node(k, m, df2, H, L, stats_out):
         Subset pixels and ``sum (f - fm)^2``
         (:func:`~.subset.gather_subset`).
     H : (npar, npar) float64
-        Reference Hessian; parameters 0 and 3 are ``u`` and ``v``, so
-        ``H[0, 0], H[3, 0], H[3, 3]`` are ``sum gx^2, sum gx gy, sum gy^2``.
-    L : (npar, npar) float64
-        Receives the Cholesky factor of ``H``.
+        Reference Gauss-Newton matrix ``sum J e^T``; parameters 0 and 3 are
+        ``u`` and ``v``, so ``H[0, 0], H[3, 0], H[3, 3]`` are ``sum jx ex,
+        sum jy ex, sum jy ey`` (``sum gx^2, sum gx gy, sum gy^2`` when the
+        steepest-descent images are the exact gradients).
+    LU, piv : (npar, npar) float64, (npar,) int64
+        Receive the factors of ``H`` (:func:`lu_factor`).
     stats_out : (n, 5) float64
         Receives ``(m, var_f, hxx, hxy, hyy)`` in row ``k``, as
         :func:`~.subset.subset_stats` computes them.
@@ -121,7 +152,7 @@ def begin_node(k, m, df2, H, L, stats_out):
     -------
     status : int
         ``NOT_CONVERGED`` to start iterating, ``NO_TEXTURE`` for a flat
-        subset or a Hessian that is not positive definite.
+        subset or a singular matrix.
     zn, it : float, int
         ZNCC (NaN) and iterations (0) before the first step.
     dfn : float
@@ -132,7 +163,7 @@ def begin_node(k, m, df2, H, L, stats_out):
     stats_out[k, 2] = H[0, 0]
     stats_out[k, 3] = H[3, 0]
     stats_out[k, 4] = H[3, 3]
-    if df2 <= 1e-6 * m or not cholesky(H, L):
+    if df2 <= 1e-6 * m or not lu_factor(H, LU, piv):
         return NO_TEXTURE, np.nan, 0, 0.0
     return NOT_CONVERGED, np.nan, 0, np.sqrt(df2)
 

@@ -33,8 +33,8 @@ import numpy as np
 
 from .flags import FASTMATH, INLINE, PARALLEL
 from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
-from .icgn_node import begin_node, chol_solve, solve_buffers, step_status
-from .subset import gather_subset, subset_buffers
+from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
+from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["NPAR", "quadratic_jacobian", "quadratic_reference_sums", "quadratic_offsets",
            "compose_quadratic", "quadratic_step", "icgn_quadratic"]
@@ -75,38 +75,41 @@ def quadratic_jacobian(dx, dy, gx, gy, J):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf):
-    """Gauss-Newton Hessian and sums of the reference subset (quadratic warp).
+def quadratic_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, Jm, Em, sj, bf):
+    """Gauss-Newton matrix and sums of the reference subset (quadratic warp).
 
-    The steepest-descent images of the ``m`` pixels fill the rows of ``Jm``;
-    ``H = Jm^T Jm`` is then one matrix product (BLAS), faster than
-    accumulating the 78 products of every pixel one by one.
+    The steepest-descent images of the ``m`` pixels fill the rows of ``Jm``
+    and their exact linearisations those of ``Em``; ``H = Jm^T Em`` (the
+    instrumental-variable matrix of :func:`~.icgn.affine_reference_sums`) is
+    then one matrix product (BLAS), faster than accumulating the products of
+    every pixel one by one.
 
     Parameters
     ----------
-    dxs, dys, gx, gy, fs, m, fm
+    dxs, dys, gx, gy, ex, ey, fs, m, fm
         As :func:`~.icgn.affine_reference_sums`.
-    Jm : (>= m, 12) float64
-        Work array: receives the steepest-descent image of each pixel.
+    Jm, Em : (>= m, 12) float64
+        Work arrays: receive the steepest-descent image and the exact
+        linearisation of each pixel.
     sj, bf : (12,) float64
         Receive ``sum J`` and ``sum J (f - fm)``.
 
     Returns
     -------
     (12, 12) float64
-        ``H = sum J J^T``.
+        ``H = sum J e^T``.
     """
     sj[:] = 0.0
     bf[:] = 0.0
     for q in range(m):
         row = Jm[q]
         quadratic_jacobian(dxs[q], dys[q], gx[q], gy[q], row)
+        quadratic_jacobian(dxs[q], dys[q], ex[q], ey[q], Em[q])
         fv = fs[q] - fm
         for i in range(NPAR):
             sj[i] += row[i]
             bf[i] += row[i] * fv
-    J = Jm[:m]
-    return np.dot(J.T, J)
+    return np.dot(Jm[:m].T, Em[:m])
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -177,13 +180,13 @@ def compose_quadratic(p, d):
 
 @nb.njit(fastmath=FASTMATH, nogil=True)
 def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm, dfn,
-                   xw, yw, gv, xmax, ymax, qx, qy, sj, bf, L, b, dp, h, span, start, tol):
+                   xw, yw, gv, xmax, ymax, qx, qy, sj, bf, fac, b, dp, h, span, start, tol):
     """One quadratic IC-GN step of a node.
 
     Warps the subset (affine part plus :func:`quadratic_offsets`), samples
     it (:func:`~.gauss_newton.gn_step`), adds the six second-order sums of
-    ``J g`` from the sampled values, solves ``H d = b`` with the Cholesky
-    factor ``L`` and composes ``d`` into ``p`` (:func:`compose_quadratic`).
+    ``J g`` from the sampled values, solves ``H d = b`` with the factors
+    ``fac`` and composes ``d`` into ``p`` (:func:`compose_quadratic`).
 
     Parameters
     ----------
@@ -195,8 +198,9 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
         Current parameters, updated in place on success.
     sj, bf : (12,) float64
         Reference sums (:func:`quadratic_reference_sums`).
-    L : (12, 12) float64
-        Cholesky factor of the reference Hessian.
+    fac : ((12, 12) float64, (12,) int64)
+        Factors of the reference matrix and their row swaps
+        (:func:`~.icgn_node.lu_factor`).
     b, dp : (12,) float64
         Work arrays.
     h, span, start
@@ -235,7 +239,7 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
     t = (t0, t1, t2, t3, t4, t5, s6, s7, s8, s9, s10, s11)
     for i in range(NPAR):  # b = sum J [(f - fm) - (df/dg)(g - gm)]
         b[i] = bf[i] - r * (t[i] - gm * sj[i])
-    chol_solve(L, b, dp)
+    lu_solve(fac[0], fac[1], b, dp)
     compose_quadratic(p, dp)
     h2 = h * h
     h4 = 0.25 * h2 * h2
@@ -247,12 +251,12 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks,
+def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
                    h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Quadratic IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     As :func:`~.icgn.icgn_affine` with twelve parameters: per node gather the
-    subset, build and factorise the 12 x 12 reference Hessian
+    subset, build and factorise the 12 x 12 reference matrix
     (:func:`~.icgn_node.begin_node`; a node without texture is stored as
     ``NO_TEXTURE`` with its initial parameters), then
     iterate :func:`quadratic_step` while it reports ``NOT_CONVERGED`` and
@@ -260,7 +264,7 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
 
     Parameters
     ----------
-    f, fgx, fgy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+    f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
         As :func:`~.icgn.icgn_affine`.
     p_init : (n, 12) float64
         Initial parameters (layout in the module docstring).
@@ -276,24 +280,28 @@ def icgn_quadratic(f, fgx, fgy, coef, order, nx, ny, p_init, active, slot, masks
         qx = np.empty(npx)
         qy = np.empty(npx)
         Jm = np.empty((npx, NPAR))
+        Em = np.empty((npx, NPAR))
+        ex = np.empty(npx)
+        ey = np.empty(npx)
         sj = np.empty(NPAR)
         bf = np.empty(NPAR)
         p = np.empty(NPAR)
-        L, b, dp = solve_buffers(NPAR)
+        LU, piv, b, dp = solve_buffers(NPAR)
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
-            H = quadratic_reference_sums(dxs, dys, gx, gy, fs, m, fm, Jm, sj, bf)
+            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+            H = quadratic_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, Jm, Em, sj, bf)
             p[:] = p_init[k]
-            status, zn, it, dfn = begin_node(k, m, df2, H, L, stats_out)
+            status, zn, it, dfn = begin_node(k, m, df2, H, LU, piv, stats_out)
             start = (p[0], p[3])
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, z = quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
                                            gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, qx, qy,
-                                           sj, bf, L, b, dp, h, span, start, tol)
+                                           sj, bf, (LU, piv), b, dp, h, span, start, tol)
                 if np.isfinite(z):
                     zn = z
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .flags import INLINE, PARALLEL
 
-__all__ = ["subset_buffers", "gather_subset", "subset_stats"]
+__all__ = ["subset_buffers", "gather_subset", "gather_gradients", "subset_stats"]
 
 
 @nb.njit(**INLINE)
@@ -92,6 +92,37 @@ def gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h, dxs, dys, gx, gy, fs):
             m += 1
     fm = sf / m
     return x0, y0, m, fm, sff - m * fm * fm
+
+
+@nb.njit(**INLINE)
+def gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey):
+    """Copy the gradients ``egx, egy`` of node ``k``'s subset pixels into
+    buffers, in the order of :func:`gather_subset`.
+
+    The IC-GN solvers linearise the warp with the exact spline gradients
+    while their steepest-descent images may use smoothed ones (gathered by
+    :func:`gather_subset`): the instrumental-variable step needs both.
+
+    Parameters
+    ----------
+    egx, egy : (H, W) float32
+        Reference gradients.
+    masks, slot, nx, ny, k, h
+        As :func:`gather_subset`.
+    ex, ey : (>= S^2,) float64
+        Receive the gradients of the used pixels.
+    """
+    x0 = nx[k]
+    y0 = ny[k]
+    sl = slot[k]
+    m = 0
+    for a in range(-h, h + 1):
+        for bb in range(-h, h + 1):
+            if sl >= 0 and masks[sl, a + h, bb + h] == 0:
+                continue
+            ex[m] = egx[y0 + a, x0 + bb]
+            ey[m] = egy[y0 + a, x0 + bb]
+            m += 1
 
 
 @nb.njit(**PARALLEL)

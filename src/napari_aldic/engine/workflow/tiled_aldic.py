@@ -198,10 +198,11 @@ class _TiledLocalStep:
         f = as_gray_float(self.ref[r0:r1, c0:c1], "reference image")
         g = as_gray_float(self.dfm[r0:r1, c0:c1], "deformed image")
         jgx, jgy = steepest_descent_gradients(f, self.order, jacobian_smoothing(f, self.speckle))
+        lin = reference_gradients(prefilter(f, self.order))
         curv = None if curvature is None else curvature[ids]
         return icgn_solve_translation(f, jgx, jgy, prefilter(g, self.order), x, y, start[ids],
                                       F[ids], target[ids], mu, act, sub.slot, sub.masks,
-                                      p.half, p.max_iter, p.tol, curvature=curv)
+                                      p.half, p.max_iter, p.tol, curvature=curv, lin=lin)
 
 
 def aldic_tiled(ref, dfm, roi, local: DICResult, params: DICParams, per_block: int, *,
