@@ -72,6 +72,8 @@ REASON_COLORS = {
     int(Reason.BEYOND_SEARCH): (0.3, 0.6, 1.0, 1.0),
     int(Reason.UNCERTAIN): (0.8, 0.8, 0.5, 1.0),
     int(Reason.GLOBAL_MISMATCH): (0.2, 1.0, 0.4, 1.0),
+    int(Reason.STATIC_FEATURE): (0.33, 0.42, 0.18, 1.0),
+    int(Reason.AMBIGUOUS_MATCH): (1.0, 0.08, 0.58, 1.0),
 }
 
 

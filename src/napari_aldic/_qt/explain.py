@@ -31,6 +31,9 @@ REASON_TEXTS = {
     int(Reason.BEYOND_SEARCH): tr_noop("motion beyond the search range"),
     int(Reason.UNCERTAIN): tr_noop("uncertain (noise)"),
     int(Reason.GLOBAL_MISMATCH): tr_noop("global field departs from the subset match (AL-DIC)"),
+    int(Reason.STATIC_FEATURE): tr_noop("static feature (part of the subset does not move)"),
+    int(Reason.AMBIGUOUS_MATCH): tr_noop(
+        "ambiguous match (texture repeats within the search range)"),
 }
 
 #: (phrase of the engine's English message, translated explanation); first match wins

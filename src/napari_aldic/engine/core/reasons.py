@@ -39,6 +39,13 @@ class Reason(IntEnum):
     #: its own local match, beyond what noise allows (e.g. a field smoothed
     #: across an unmasked crack)
     GLOBAL_MISMATCH = 12
+    #: part of the subset is explained better by zero motion than by the
+    #: match: features that do not move with the material (an occluder, a
+    #: bar or dust fixed in the view, the black edge of the field of view)
+    STATIC_FEATURE = 13
+    #: the subset's texture repeats within the search range (a second
+    #: autocorrelation peak nearly as high as the match): aliases match too
+    AMBIGUOUS_MATCH = 14
 
     @classmethod
     def describe(cls, code: int) -> str:
@@ -57,4 +64,6 @@ class Reason(IntEnum):
             10: "motion beyond the search range",
             11: "uncertain (noise)",
             12: "global field departs from the subset match (AL-DIC)",
+            13: "static feature (part of the subset does not move)",
+            14: "ambiguous match (texture repeats within the search range)",
         }.get(int(code), f"unknown ({code})")

@@ -25,6 +25,7 @@ from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .quality import result_quality
 from .regularise import gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
+from .static import flag_static_features
 from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
 
@@ -266,6 +267,9 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason = solve_local(im, roi, grid, sub, params, timing, report,
                                          validity, guess=guess)
+    t = time.perf_counter()  # matches explained by features that do not move (issue 22)
+    reason = flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params)
+    timing["static"] = time.perf_counter() - t
     mesh = qmesh.mesh if qmesh is not None else None
     sol = _Solution(sub, p[:, 0].copy(), p[:, 3].copy(), p[:, [1, 2, 4, 5]].copy(), zncc,
                     reason, iters, mesh, std=validity.std(zncc),

@@ -256,8 +256,14 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     b = np.stack([project(rng) for _ in range(lin.probes)], axis=2)
     b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
     dp0 = np.einsum("nij,njk->nik", minv, b)
-    uh, vh = _propagate(lin, dp0, b[:, [0, k]], cinv, pen, k, _curvature_coupling(m, k),
-                        _gradient_coupling(m, k))
+    # only the nodes whose local result is data (trusted) carry noise into the
+    # run: an untrusted node's value enters with a vanishing weight, but the
+    # linearisation of its (nearly singular, e.g. textureless) subset is not
+    # what the run did, and a huge sensitivity times a tiny weight would
+    # still swamp the field
+    data = active[:, None, None]
+    uh, vh = _propagate(lin, np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0),
+                        cinv, pen, k, _curvature_coupling(m, k), _gradient_coupling(m, k))
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
     s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

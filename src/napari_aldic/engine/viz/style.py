@@ -37,7 +37,8 @@ _LIMIT_MODES = ("range", "symmetric", "from_zero")
 #: for converged)
 REASON_COLOURS = {0: "#2ca02c", 1: "#1f77b4", 2: "#ff7f0e", 3: "#d62728", 4: "#9467bd",
                   5: "#8c564b", 6: "#e377c2", 7: "#bcbd22", 8: "#17becf", 9: "#7f7f7f",
-                  10: "#000080", 11: "#ffd700", 12: "#800000"}
+                  10: "#000080", 11: "#ffd700", 12: "#800000", 13: "#556b2f",
+                  14: "#ff1493"}
 
 
 def reason_colour(code: int) -> str:

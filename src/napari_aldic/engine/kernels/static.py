@@ -1,0 +1,285 @@
+"""Per-node tests for matches that features which do not move can explain.
+
+Two kernels behind :mod:`napari_aldic.engine.dic.static`:
+
+* :func:`static_evidence` -- compares, pixel by pixel, the subset's ZNSSD
+  residual at the found warp with its residual at zero motion: how much of the
+  difference between the two explanations speaks for zero motion, and how
+  far beyond image noise that is;
+* :func:`lag_peaks` -- the reference subset's normalised correlation with
+  the reference itself around a few candidate lags: a second peak nearly as
+  high as the one at zero lag makes the match ambiguous (periodic texture).
+
+Each subset is gathered as IC-GN gathers it (the node's mask component
+only).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .bspline import PAD, sample_cubic, sample_quintic
+from .flags import FASTMATH, INLINE, PARALLEL
+
+__all__ = ["static_evidence", "lag_peaks"]
+
+_INV_SQRT_2PI = 0.3989422804014327
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _positive_part_moments(a, b):
+    """Mean and second moment of ``max(0, a X - b)``, ``X ~ N(0, 1)``, ``a > 0``:
+    with ``t = b / a``, ``E = a φ(t) - b Φ(-t)`` and
+    ``E² = (a² + b²) Φ(-t) - a b φ(t)``."""
+    t = b / a
+    phi = _INV_SQRT_2PI * math.exp(-0.5 * t * t)
+    tail = 0.5 * math.erfc(t / math.sqrt(2.0))
+    return a * phi - b * tail, (a * a + b * b) * tail - a * b * phi
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
+def static_evidence(f, g, gcoef, order, nx, ny, p, active, slot, masks, h, var_img, out):
+    """How strongly part of each subset prefers zero motion to its found warp.
+
+    With the subsets zero-normalised (ZNSSD), ``e = f̂ - ĝ_p`` the residual at
+    the found warp and ``Δ = ĝ_0 - ĝ_p`` how the deformed subset changes from
+    the warp to zero motion, a pixel's residual at zero motion minus that at
+    the warp is ``Δ² - 2 e Δ``. The sum of its negative parts,
+    ``S = Σ max(0, 2 e Δ - Δ²)``, is the evidence for zero motion; ``D = Σ Δ²``
+    is what tells the two explanations apart. Under pure noise (``e``
+    Gaussian, standard deviation ``s`` from the image noise) each term of
+    ``S`` has a known mean and variance (positive part of a Gaussian), so
+    ``z = (S - E S) / sd S`` measures how far beyond noise the evidence is.
+
+    Parameters
+    ----------
+    f, g : (H, W) float32
+        Reference and deformed images.
+    gcoef : (H + 2 PAD, W + 2 PAD) float32
+        Padded B-spline coefficients of ``g``.
+    order : int
+        3 or 5.
+    nx, ny : (n,) int64
+        Node pixels.
+    p : (n, 6) float64
+        Affine warps ``(u, du/dx, du/dy, v, dv/dx, dv/dy)``.
+    active : (n,) bool
+        Nodes to test.
+    slot, masks
+        Mask slot per node (-1: full square) and the component masks.
+    h : int
+        Subset half-width.
+    var_img : float
+        Noise variance of one image (grey levels²).
+    out : (n, 2) float64
+        Receives ``(S / D, z)``; NaN for inactive nodes, flat subsets and
+        warps that leave the image; ``(0, 0)`` when the warp is zero motion.
+    """
+    rows, cols = f.shape
+    npx = (2 * h + 1) ** 2
+    lo = -(PAD - 3.0)
+    for k in nb.prange(nx.size):
+        out[k, 0] = np.nan
+        out[k, 1] = np.nan
+        if not active[k]:
+            continue
+        fs = np.empty(npx)
+        g0 = np.empty(npx)
+        gp = np.empty(npx)
+        x0, y0, sl = nx[k], ny[k], slot[k]
+        m = 0
+        inside = True
+        for a in range(-h, h + 1):
+            for bb in range(-h, h + 1):
+                if sl >= 0 and masks[sl, a + h, bb + h] == 0:
+                    continue
+                xw = x0 + bb + p[k, 0] + p[k, 1] * bb + p[k, 2] * a
+                yw = y0 + a + p[k, 3] + p[k, 4] * bb + p[k, 5] * a
+                if xw < lo or yw < lo or xw > cols - 1 - lo or yw > rows - 1 - lo:
+                    inside = False
+                    break
+                fs[m] = f[y0 + a, x0 + bb]
+                g0[m] = g[y0 + a, x0 + bb]
+                gp[m] = sample_cubic(gcoef, xw, yw) if order == 3 else sample_quintic(gcoef, xw, yw)
+                m += 1
+            if not inside:
+                break
+        if not inside or m < 3:
+            continue
+        out[k, 0], out[k, 1] = _evidence(fs, g0, gp, m, var_img)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _evidence(fs, g0, gp, m, var_img):
+    """``(S / D, z)`` of one gathered subset (see :func:`static_evidence`)."""
+    mf = mg0 = mgp = 0.0
+    for q in range(m):
+        mf += fs[q]
+        mg0 += g0[q]
+        mgp += gp[q]
+    mf /= m
+    mg0 /= m
+    mgp /= m
+    sf = s0 = sp = 0.0
+    for q in range(m):
+        sf += (fs[q] - mf) ** 2
+        s0 += (g0[q] - mg0) ** 2
+        sp += (gp[q] - mgp) ** 2
+    if sf <= 0.0 or s0 <= 0.0 or sp <= 0.0:
+        return np.nan, np.nan
+    nf, n0, npp = 1.0 / math.sqrt(sf), 1.0 / math.sqrt(s0), 1.0 / math.sqrt(sp)
+    # noise of e per pixel, normalised like the subsets: both images' noise,
+    # at least 1 % of the subset's contrast (noise-free images still round)
+    s = math.sqrt(2.0 * (var_img + 1e-4 * sf / m)) * nf
+    evid = disc = mean = var = 0.0
+    for q in range(m):
+        fh = (fs[q] - mf) * nf
+        gph = (gp[q] - mgp) * npp
+        d = (g0[q] - mg0) * n0 - gph
+        e = fh - gph
+        y = 2.0 * e * d - d * d
+        if y > 0.0:
+            evid += y
+        disc += d * d
+        a = 2.0 * abs(d) * s
+        if a > 0.0:
+            mu, m2 = _positive_part_moments(a, d * d)
+            mean += mu
+            var += m2 - mu * mu
+    if disc <= 0.0:
+        return 0.0, 0.0
+    z = (evid - mean) / math.sqrt(var) if var > 0.0 else (np.inf if evid > mean else 0.0)
+    return evid / disc, z
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, sx, sy):
+    """NCC of a gathered reference subset with the reference shifted by
+    ``(sx, sy)`` pixels (NaN when the shifted subset leaves the image or is
+    flat)."""
+    rows, cols = f.shape
+    sg = sgg = sfg = 0.0
+    for q in range(m):
+        xx = x0 + dxs[q] + sx
+        yy = y0 + dys[q] + sy
+        if xx < 0 or yy < 0 or xx >= cols or yy >= rows:
+            return np.nan
+        gv = f[yy, xx]
+        sg += gv
+        sgg += gv * gv
+        sfg += (fs[q] - mf) * gv
+    vg = sgg - sg * sg / m
+    if vg <= 0.0:
+        return np.nan
+    return sfg * nf / math.sqrt(vg)
+
+
+@nb.njit(**PARALLEL, fastmath=FASTMATH)
+def lag_peaks(f, nx, ny, slot, masks, h, cand, ncand, w, out):
+    """The highest isolated secondary peak of each reference subset's
+    normalised autocorrelation near candidate lags.
+
+    Around each candidate lag ``c`` the NCC is evaluated on the
+    ``(2w + 1)²`` lags ``c + [-w, w]²``; its maximum counts only when it lies
+    inside that block (a local maximum, not the flank of the main lobe) and
+    the NCC at the lag halfway to it is at most half the peak's (a second,
+    separate peak, not a ridge along an edge).
+    The peak value is refined by a parabola through its neighbours along x
+    and along y.
+
+    Parameters
+    ----------
+    f : (H, W) float32
+        Reference image.
+    nx, ny : (n,) int64
+        Node pixels.
+    slot, masks
+        Mask slot per node (-1: full square) and the component masks.
+    h : int
+        Subset half-width.
+    cand : (n, K, 2) int64
+        Candidate lags ``(sx, sy)`` per node.
+    ncand : (n,) int64
+        Candidates used per node (0: the node is skipped).
+    w : int
+        Half-width of the lag block searched around a candidate.
+    out : (n, 3) float64
+        Receives ``(peak NCC, lag x, lag y)`` of the best isolated peak
+        (``-inf`` and zeros when there is none).
+    """
+    npx = (2 * h + 1) ** 2
+    nb_ = 2 * w + 1
+    for k in nb.prange(nx.size):
+        out[k, 0] = -np.inf
+        out[k, 1] = 0.0
+        out[k, 2] = 0.0
+        if ncand[k] == 0:
+            continue
+        fs = np.empty(npx)
+        dxs = np.empty(npx, np.int64)
+        dys = np.empty(npx, np.int64)
+        block = np.empty((nb_, nb_))
+        x0, y0, sl = nx[k], ny[k], slot[k]
+        m = 0
+        mf = 0.0
+        for a in range(-h, h + 1):
+            for bb in range(-h, h + 1):
+                if sl >= 0 and masks[sl, a + h, bb + h] == 0:
+                    continue
+                fs[m] = f[y0 + a, x0 + bb]
+                dxs[m] = bb
+                dys[m] = a
+                mf += fs[m]
+                m += 1
+        if m < 3:
+            continue
+        mf /= m
+        sf = 0.0
+        for q in range(m):
+            sf += (fs[q] - mf) ** 2
+        if sf <= 0.0:
+            continue
+        nf = 1.0 / math.sqrt(sf)
+        for c in range(ncand[k]):
+            _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cand[k, c, 0], cand[k, c, 1],
+                       w, block, out, k)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cx, cy, w, block, out, k):
+    """Search the lag block around candidate ``(cx, cy)`` of node ``k`` and
+    keep its peak in ``out[k]`` when isolated and higher (see :func:`lag_peaks`)."""
+    best = -np.inf
+    bi = bj = 0
+    for i in range(2 * w + 1):
+        for j in range(2 * w + 1):
+            sx, sy = cx + j - w, cy + i - w
+            v = -np.inf
+            if sx != 0 or sy != 0:
+                v = _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, sx, sy)
+                if not v == v:  # NaN: out of the image or flat
+                    v = -np.inf
+            block[i, j] = v
+            if v > best:
+                best, bi, bj = v, i, j
+    if bi == 0 or bj == 0 or bi == 2 * w or bj == 2 * w or not best > out[k, 0]:
+        return
+    sx, sy = cx + bj - w, cy + bi - w
+    if abs(sx) < 2 and abs(sy) < 2:
+        return  # next to zero lag: the main lobe
+    mid = _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, int(round(0.5 * sx)),
+                   int(round(0.5 * sy)))
+    if not mid <= 0.5 * best:
+        return  # no dip between zero lag and the peak: a ridge
+    val = best
+    for a0, a1, a2 in ((block[bi, bj - 1], best, block[bi, bj + 1]),
+                       (block[bi - 1, bj], best, block[bi + 1, bj])):
+        den = a0 - 2.0 * a1 + a2
+        if den < 0.0 and a0 > -np.inf and a2 > -np.inf:
+            val += -0.125 * (a2 - a0) ** 2 / den
+    out[k, 0] = min(val, 1.0)
+    out[k, 1] = sx
+    out[k, 2] = sy
