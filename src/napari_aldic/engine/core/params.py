@@ -152,10 +152,11 @@ class DICParams:
         cores).
     extra : dict
         Run-time settings that are not analysis parameters (not compared,
-        not saved): ``"speckle_scale"`` (px, measured once for a whole tiled
-        pair) and ``"quality": False`` (skip the speckle-quality and
-        uncertainty maps, e.g. for a tiled run's coarse initial guess, whose
-        only use is to start the nodes).
+        not saved): ``"jacobian_sigma"`` (px, the smoothing of the IC-GN
+        steepest-descent images, chosen once for a whole tiled pair) and
+        ``"quality": False`` (skip the speckle-quality and uncertainty maps,
+        e.g. for a tiled run's coarse initial guess, whose only use is to
+        start the nodes).
 
     Raises
     ------

@@ -18,6 +18,7 @@ from ..core.results import DICResult
 from .admm import image_local_step
 from .aldic import aldic_stage
 from .global_solve import Q4Mesh, uniform_mesh
+from .icgn import convergence_record, warn_iteration_cap
 from .interpolation import choose_order
 from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
@@ -133,7 +134,9 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
     quality = _quality(im, mask, grid, sol, params, timing, meta)
-    _record(meta, sol, ref_spec, grid, timing, t_start)
+    _record(meta, sol, ref_spec, grid, params, timing, t_start)
+    meta["convergence"]["jacobian_sigma_px"] = float(im.j_sigma)
+    warn_iteration_cap(meta["convergence"])
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
@@ -163,7 +166,7 @@ def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
     timing["setup"] = time.perf_counter() - t
     report(0.05, f"{grid.n} nodes")
     t = time.perf_counter()
-    im = prepare_images(f, g, params.interpolation, params.extra.get("speckle_scale"))
+    im = prepare_images(f, g, params.interpolation, params.extra.get("jacobian_sigma"))
     timing["prefilter"] = time.perf_counter() - t
     report(0.15, "interpolation ready")
     return im, base, grid, qmesh
@@ -187,7 +190,8 @@ def _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec, params, timing,
     return grid, qmesh, sol
 
 
-def _record(meta: dict, sol, ref_spec, grid, timing: dict, t_start: float) -> None:
+def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
+            t_start: float) -> None:
     """What the result's ``meta`` tells about the run (refinement, ADMM, timing)."""
     if ref_spec is not None:
         meta["refine"] = _describe(ref_spec)
@@ -199,6 +203,8 @@ def _record(meta: dict, sol, ref_spec, grid, timing: dict, t_start: float) -> No
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
     meta["n_valid"] = int(np.count_nonzero(sol.reason == Reason.OK))
+    meta["convergence"] = convergence_record(sol.reason, sol.iters, sol.sub.reason == Reason.OK,
+                                             params.max_iter)
 
 
 @dataclass

@@ -42,6 +42,8 @@ their inputs and outputs.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..core.reasons import Reason
@@ -49,7 +51,8 @@ from ..kernels import gauss_newton as status
 from ..kernels.icgn import icgn_affine, icgn_translation
 from ..kernels.icgn_quadratic import NPAR, icgn_quadratic
 
-__all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS"]
+__all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS", "convergence_record",
+           "warn_iteration_cap", "CAP_WARN_FRACTION"]
 
 #: the subset shape functions ``icgn_solve`` knows
 SHAPE_FUNCTIONS = ("affine", "quadratic")
@@ -62,6 +65,52 @@ if (status.OK, status.NOT_CONVERGED, status.OUT_OF_IMAGE, status.NO_TEXTURE,
     raise ImportError("kernels.gauss_newton status codes disagree with core.reasons.Reason")
 
 _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
+
+#: warn when more than this fraction of a run's solvable nodes ends at the
+#: iteration cap: a few such nodes are noise, many mean the solver (or its
+#: settings: ``max_iter``, ``tol``) does not suit the images
+CAP_WARN_FRACTION = 0.02
+
+
+def convergence_record(reason, iterations, usable, max_iter: int) -> dict:
+    """How IC-GN converged over a run, for ``res.meta["convergence"]``.
+
+    Parameters
+    ----------
+    reason, iterations : (n,) arrays
+        Final reason codes and IC-GN iterations per node.
+    usable : (n,) bool
+        Nodes whose subset could be solved at all (not cut away by the ROI).
+    max_iter : int
+        The iteration cap.
+
+    Returns
+    -------
+    dict
+        ``max_iter``; ``median_iterations`` and ``p95_iterations`` of the
+        trusted nodes (None without any); ``at_cap``: nodes flagged
+        ``NOT_CONVERGED``; ``fraction_at_cap``: their share of the usable ones.
+    """
+    reason = np.asarray(reason)
+    it = np.asarray(iterations)[reason == Reason.OK]
+    at_cap = int(np.count_nonzero(reason == Reason.NOT_CONVERGED))
+    n_usable = int(np.count_nonzero(usable))
+    return {"max_iter": int(max_iter),
+            "median_iterations": float(np.median(it)) if it.size else None,
+            "p95_iterations": float(np.percentile(it, 95)) if it.size else None,
+            "at_cap": at_cap, "fraction_at_cap": at_cap / n_usable if n_usable else 0.0}
+
+
+def warn_iteration_cap(record: dict, stacklevel: int = 3) -> None:
+    """A ``RuntimeWarning`` when more than :data:`CAP_WARN_FRACTION` of the
+    nodes of ``record`` (:func:`convergence_record`) hit the iteration cap."""
+    if record["fraction_at_cap"] > CAP_WARN_FRACTION:
+        warnings.warn(
+            f"{record['at_cap']} nodes ({100 * record['fraction_at_cap']:.1f} % of the "
+            f"solvable ones) hit the IC-GN iteration cap (max_iter={record['max_iter']}) "
+            "and are flagged 'not converged': check the images (blur, saturation, very "
+            "large deformation within a subset) or raise max_iter / tol",
+            RuntimeWarning, stacklevel=stacklevel)
 
 
 def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, masks,

@@ -21,7 +21,7 @@ from scipy import ndimage
 from ..kernels.bspline import PAD, sample_points, spline_gradients
 
 __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
-           "speckle_scale", "choose_order", "steepest_descent_gradients", "JACOBIAN_SMOOTHING",
+           "speckle_scale", "choose_order", "steepest_descent_gradients", "JACOBIAN_SIGMAS",
            "jacobian_smoothing", "PREFILTER_MARGIN"]
 
 #: below this autocorrelation half-width (pixels) the speckle is so fine that
@@ -29,13 +29,15 @@ __all__ = ["SplineImage", "prefilter", "sample", "reference_gradients", "PAD",
 #: cut it 2-4x (measured on Gaussian-filtered noise, sigma 0.8-1.0 px)
 FINE_SPECKLE_PX = 1.8
 
-#: Gaussian smoothing (standard deviation, as a fraction of the speckle scale,
-#: at most :data:`JACOBIAN_SMOOTHING_MAX` px) of the reference image behind
-#: the IC-GN steepest-descent images only: the spline derivative of a noisy
-#: image carries the noise at its highest frequencies (gain up to ~1.7), which
-#: at 10 GL added ~15 % to the displacement noise (docs/method.md)
-JACOBIAN_SMOOTHING = 0.2
-JACOBIAN_SMOOTHING_MAX = 1.0
+#: widths (px) of the Gaussians tried for the steepest-descent images
+#: (:func:`jacobian_smoothing`): 0 (the plain spline gradient) to 3 px
+JACOBIAN_SIGMAS = tuple(round(0.1 * i, 1) for i in range(31))
+
+#: weight of the second-order noise term (the reference's gradient noise
+#: meeting the residual's noise) in :func:`jacobian_smoothing`'s variance:
+#: with 4 the chosen width sits at the measured optimum of synthetic speckle
+#: of radius 1-4 px under 2-10 GL of noise (benchmarks/RESULTS.md)
+_NOISE_PRODUCT = 4.0
 
 #: pixels beyond the sampled area that make the B-spline coefficients of an
 #: image window equal the whole image's to float precision (the recursive
@@ -124,14 +126,75 @@ def reference_gradients(spl: SplineImage) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-def jacobian_smoothing(f: np.ndarray, scale: float | None = None) -> float:
+def _radial_spectrum(f: np.ndarray, max_size: int, bins: int = 96):
+    """Radially averaged periodogram of a central crop of at most
+    ``max_size`` pixels (Hann-windowed, so the crop's edges do not leak into
+    the high frequencies; white noise of variance ``σ²`` reads ``σ²``).
+
+    Returns ``(power, k2, count, top)``: the mean power, the mean squared
+    radial frequency (rad²/px²) and the number of Fourier bins of each ring
+    (empty rings dropped), and the mean power of the outermost full ring
+    (``0.85 π < |k| <= π``), where speckle has the least power.
+    """
+    a = np.asarray(f, np.float64)
+    h, w = a.shape
+    ch, cw = min(h, max_size), min(w, max_size)
+    y0, x0 = (h - ch) // 2, (w - cw) // 2
+    a = a[y0:y0 + ch, x0:x0 + cw]
+    win = np.outer(np.hanning(ch), np.hanning(cw))
+    a = (a - np.mean(a)) * win
+    power = (np.abs(np.fft.rfft2(a)) ** 2 / np.sum(win**2)).ravel()
+    k2 = ((2 * np.pi * np.fft.fftfreq(ch))[:, None] ** 2
+          + (2 * np.pi * np.fft.rfftfreq(cw))[None, :] ** 2).ravel()
+    k = np.sqrt(k2)
+    top = (k > 0.85 * np.pi) & (k <= np.pi)
+    ring = np.minimum((k / (np.pi * np.sqrt(2)) * bins).astype(np.int64), bins - 1)
+    count = np.bincount(ring, minlength=bins)
+    keep = count > 0
+    mean = lambda v: np.bincount(ring, v, minlength=bins)[keep] / count[keep]  # noqa: E731
+    return mean(power), mean(k2), count[keep], float(power[top].mean())
+
+
+def jacobian_smoothing(f: np.ndarray, noise: float | None = None,
+                       max_size: int = 512) -> float:
     """Standard deviation (px) of the Gaussian that smooths the reference for
-    the steepest-descent images: :data:`JACOBIAN_SMOOTHING` times the speckle
-    ``scale`` (measured on ``f`` by :func:`speckle_scale` when None; tiled
-    runs measure it once on the whole reference so every block uses the same
-    value), at most :data:`JACOBIAN_SMOOTHING_MAX`."""
-    s = speckle_scale(f) if scale is None else float(scale)
-    return min(JACOBIAN_SMOOTHING * s, JACOBIAN_SMOOTHING_MAX)
+    the IC-GN steepest-descent images (:func:`steepest_descent_gradients`).
+
+    The instrumental-variable IC-GN step (:mod:`.icgn`) solves
+    ``Σ J r = 0`` with ``J`` the gradient of the smoothed reference ``G f``.
+    With white noise of power ``N`` per Fourier bin in both images its
+    displacement variance is, per direction and to second order in the
+    noise, ``V(G) ∝ Σ G² k² (2 N S + c N²) / (Σ G k² S)²``: ``S`` the
+    speckle's power spectrum, the ``N²`` part the reference's gradient noise
+    meeting the residual's noise (``c``: :data:`_NOISE_PRODUCT`). ``G = 1``
+    is best without noise; the optimum in general is a Wiener filter. Here
+    ``G`` is a Gaussian, its width the one of :data:`JACOBIAN_SIGMAS` that
+    minimises ``V``, with ``S`` and ``N`` measured on a central crop
+    (:func:`_radial_spectrum`): ``N = σ²``, ``σ`` the image noise
+    (Immerkær's estimator, :func:`~.reliability.image_noise`, or the power
+    of the outermost ring where that is lower: fine speckle inflates the
+    former; ``noise`` overrides both), ``S`` the ring-averaged periodogram
+    less ``N``. Noise-free or strong fine speckle gets little or no
+    smoothing, coarse speckle under heavy noise the most.
+    """
+    from .reliability import image_noise
+
+    img = np.asarray(f, np.float64)
+    power, k2, count, top = _radial_spectrum(img, max_size)
+    n = min(image_noise(img) ** 2, top) if noise is None else float(noise) ** 2
+    if not n > 0:
+        return 0.0
+    signal = np.maximum(power - n, 0.0)
+    best, best_v = 0.0, np.inf
+    for s in JACOBIAN_SIGMAS:
+        g = np.exp(-0.5 * s * s * k2)
+        den = np.sum(count * g * k2 * signal)
+        if not den > 0:
+            continue
+        v = np.sum(count * g * g * k2 * (2 * n * signal + _NOISE_PRODUCT * n * n)) / den**2
+        if v < best_v * (1 - 1e-9):
+            best, best_v = s, v
+    return float(best)
 
 
 def steepest_descent_gradients(f: np.ndarray, order: int,
@@ -139,16 +202,20 @@ def steepest_descent_gradients(f: np.ndarray, order: int,
     """Reference gradients for the IC-GN steepest-descent images.
 
     The spline gradients (:func:`reference_gradients`) of ``f`` smoothed by
-    a Gaussian of :data:`JACOBIAN_SMOOTHING` times its :func:`speckle_scale`.
-    Inverse-compositional Gauss-Newton converges where ``sum J r = 0`` with
-    ``r`` the residual, which is zero at the true warp whatever ``J`` is:
-    smoothing ``J`` leaves noise-free matches where they were and only stops
-    the noise of the reference's highest frequencies from entering the
-    estimate (the matched-filter argument: the best ``J`` is the noise-free
-    gradient). The validity tests keep using the unsmoothed gradients.
+    a Gaussian of standard deviation ``sigma`` px (None:
+    :func:`jacobian_smoothing`; 0: unsmoothed). Inverse-compositional
+    Gauss-Newton converges where ``sum J r = 0`` with ``r`` the residual,
+    which is zero at the true warp whatever ``J`` is: smoothing ``J`` leaves
+    noise-free matches where they were and only stops the noise of the
+    reference's highest frequencies from entering the estimate (the
+    matched-filter argument: the best ``J`` is the noise-free gradient). The
+    warp is still linearised with the exact gradients (:mod:`.icgn`), and
+    the validity tests keep using them.
     """
     if sigma is None:
         sigma = jacobian_smoothing(f)
+    if not sigma > 0:
+        return reference_gradients(prefilter(f, order))
     smooth = ndimage.gaussian_filter(np.asarray(f, np.float64), sigma, mode="reflect")
     return reference_gradients(prefilter(smooth, order))
 

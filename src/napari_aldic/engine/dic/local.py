@@ -72,14 +72,15 @@ class Images:
 
 
 def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
-                   speckle: float | None = None) -> Images:
+                   jacobian_sigma: float | None = None) -> Images:
     """Prefilter once: reference gradients and deformed-image coefficients
     (``interpolation="auto"`` picks the order from the speckle size);
-    ``speckle``: the speckle scale (px) when measured beforehand on the whole
-    reference (tiled runs), else measured on ``f``."""
+    ``jacobian_sigma``: the smoothing of the steepest-descent images (px)
+    when chosen beforehand on the whole reference (tiled runs), else chosen
+    on ``f`` (:func:`~.interpolation.jacobian_smoothing`)."""
     order = choose_order(interpolation, f)
     fgx, fgy = reference_gradients(prefilter(f, order))
-    sigma = jacobian_smoothing(f, speckle)
+    sigma = jacobian_smoothing(f) if jacobian_sigma is None else float(jacobian_sigma)
     jgx, jgy = steepest_descent_gradients(f, order, sigma)
     return Images(f, g, fgx, fgy, prefilter(g, order), jgx, jgy, sigma)
 
@@ -199,10 +200,11 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     st = _State(im, roi, grid, sub, params, validity)
     t = time.perf_counter()
     if guess is not None and np.any(guess.valid):
-        # a previous result (e.g. the last frame of a sequence) as the guess
-        p_init = _guess_from_result(grid, guess)
-        timing["init"] = time.perf_counter() - t
-        st.store(st.run(st.usable.copy(), p_init), np.nonzero(st.usable)[0])
+        # a previous result (e.g. the last frame of a sequence) predicts the
+        # motion: the coarse nodes search around it, as around the anchors'
+        # prediction, because between frames the motion may have moved on by
+        # more than IC-GN's basin (a few speckles)
+        t = _coarse_to_fine(st, timing, report, prediction=_guess_from_result(grid, guess))
     elif params.init == "seeds":
         _propagate_seeds(st)
         timing["init"] = 0.0
@@ -382,13 +384,16 @@ def _guess_from_result(grid: NodeGrid, guess) -> np.ndarray:
     return _extrapolate(pg[src], grid.x - guess.x[src], grid.y - guess.y[src])
 
 
-def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
+def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn,
+                    prediction: np.ndarray | None = None) -> float:
     """FFT initial guess: NCC and IC-GN at coarse nodes (every k-th lattice
     node; rotated searches at a few when many fail), then IC-GN at every
     other usable node from its nearest acceptable coarse node, extrapolated
-    to first order (or from its own NCC search if none is acceptable).
-    Records ``timing["init"]``; returns the ``time.perf_counter()`` at which
-    IC-GN started."""
+    to first order (or from its own NCC search if none is acceptable). The
+    coarse nodes search around ``prediction`` ((n, 6) affine warps of every
+    node, e.g. from a previous frame) when given, else around the anchors'
+    (:func:`_anchor_prediction`). Records ``timing["init"]``; returns the
+    ``time.perf_counter()`` at which IC-GN started."""
     t = time.perf_counter()
     grid, params, usable = st.grid, st.params, st.usable
     n = grid.n
@@ -398,7 +403,7 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn) -> float:
     if coarse.size == 0:
         coarse = np.nonzero(usable)[0]
     p_init = np.zeros((n, 6))
-    pred = _anchor_prediction(st, coarse, k)
+    pred = _anchor_prediction(st, coarse, k) if prediction is None else prediction[coarse]
     if pred is None:
         p_init[coarse] = st.ncc_guess(coarse)
     else:

@@ -50,7 +50,8 @@ from ..core.progress import check_cancel
 from ..core.reasons import Reason
 from ..core.results import DICResult
 from ..dic.correlate import correlate
-from ..dic.interpolation import PREFILTER_MARGIN, choose_order, speckle_scale
+from ..dic.icgn import convergence_record
+from ..dic.interpolation import PREFILTER_MARGIN, choose_order, jacobian_smoothing
 from ..dic.mesh import EDGE
 from ..io.stack import open_image
 from .tiled_aldic import aldic_tiled
@@ -138,15 +139,15 @@ def _resolved(params: DICParams, ref, shape) -> DICParams:
     changes = {}
     if params.search_max is None:
         changes["search_max"] = 4 * params.search
-    # speckle_scale reads the central 512² of its image: this window gives it
-    # exactly the crop an untiled run of the whole image would measure
+    # speckle_scale and jacobian_smoothing read the central 512² of their image:
+    # this window gives them exactly the crop an untiled run would measure
     r0, c0 = max(0, shape[0] // 2 - 512), max(0, shape[1] // 2 - 512)
     middle = np.asarray(ref[r0:r0 + 1024, c0:c0 + 1024], np.float64)
     if params.interpolation == "auto":
         changes["interpolation"] = "quintic" if choose_order("auto", middle) == 5 else "cubic"
     # every block smooths its steepest-descent images with the whole pair's value
     # (a new dict: replace() would share the caller's)
-    changes["extra"] = {**params.extra, "speckle_scale": speckle_scale(middle)}
+    changes["extra"] = {**params.extra, "jacobian_sigma": jacobian_smoothing(middle)}
     return params.replace(**changes)
 
 
@@ -364,6 +365,8 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
     res = _assemble(arrays, plan, lparams, meta)
     res.meta["n_nodes"] = len(res)
     res.meta["n_valid"] = res.n_valid
+    res.meta["convergence"] = convergence_record(
+        res.reason, res.iterations, res.reason != Reason.SMALL_COMPONENT, params.max_iter)
     if aldic:
         res = aldic_tiled(ref, dfm, roi, res, params, plan.per_block, workers=workers,
                           cancel=cancel, progress=lambda f, m: report(cut2 + (1 - cut2) * f, m))

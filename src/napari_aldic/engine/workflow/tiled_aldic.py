@@ -160,7 +160,7 @@ class _TiledLocalStep:
         self.workers, self.cancel, self.report = workers, cancel, report
         p = blocks.params
         self.order = _order(p)
-        self.speckle = p.extra.get("speckle_scale")
+        self.jacobian_sigma = p.extra.get("jacobian_sigma")
         self.passes = 0
 
     def __call__(self, start, F, target, mu, active, curvature):
@@ -197,7 +197,9 @@ class _TiledLocalStep:
             return None
         f = as_gray_float(self.ref[r0:r1, c0:c1], "reference image")
         g = as_gray_float(self.dfm[r0:r1, c0:c1], "deformed image")
-        jgx, jgy = steepest_descent_gradients(f, self.order, jacobian_smoothing(f, self.speckle))
+        sigma = self.jacobian_sigma
+        jgx, jgy = steepest_descent_gradients(
+            f, self.order, jacobian_smoothing(f) if sigma is None else sigma)
         lin = reference_gradients(prefilter(f, self.order))
         curv = None if curvature is None else curvature[ids]
         return icgn_solve_translation(f, jgx, jgy, prefilter(g, self.order), x, y, start[ids],
