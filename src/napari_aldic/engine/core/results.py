@@ -179,9 +179,10 @@ class DICResult:
         if self.aldic_summary():
             lines.append(self.aldic_summary())
         conv = self.meta.get("convergence")
-        if conv and conv.get("median_iterations") is not None:
-            lines.append(f"IC-GN: median {conv['median_iterations']:g} iterations, "
-                         f"{conv['at_cap']} nodes at the cap of {conv['max_iter']}")
+        if conv:
+            med = conv.get("median_iterations")
+            lines.append(("IC-GN: " if med is None else f"IC-GN: median {med:g} iterations, ")
+                         + f"{conv['at_cap']} nodes at the cap of {conv['max_iter']}")
         t = self.meta.get("timing", {})
         if "total" in t:
             rate = len(self) / max(t["total"], 1e-9)

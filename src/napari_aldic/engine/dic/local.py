@@ -126,7 +126,7 @@ class _State:
         res = icgn_solve(im.f, jgx, jgy, im.g_spline, g.x, g.y, p_init, active,
                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
                          out=out, stats=self._stats_scratch, shape=prm.shape_function,
-                         lin=(im.fgx, im.fgy))
+                         lin=(im.fgx, im.fgy), noise_var=self.validity.image_var)
         self._fill_stats(active)
         return res
 

@@ -36,7 +36,7 @@ from .gauss_newton import (
     gn_step,
     store_node,
 )
-from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
+from .icgn_node import begin_node, lu_solve, node_tolerance, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
@@ -188,8 +188,9 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
         Subset half-width and width.
     start : (float, float)
         Starting ``(u, v)`` (divergence test).
-    tol : float
-        Convergence tolerance on the increment (pixels).
+    tol : (float, float)
+        The node's convergence tolerances (pixels,
+        :func:`~.icgn_node.node_tolerance`).
     zn : float
         ZNCC of the previous step.
 
@@ -224,13 +225,14 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     dvx = -dp[4]
     dvy = -dp[5]
     p = inverse_compose(p, du, dux, duy, dv, dvx, dvy)
-    nrm = du * du + dv * dv + h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
-    return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn_k, p
+    nd = du * du + dv * dv
+    ng = h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
+    return step_status(p[0] - start[0], p[3] - start[1], span, nd, ng, tol), zn_k, p
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
+                h, max_iter, tol, noise2, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     Per node: gather the subset, build the reference matrix and its LU
@@ -259,6 +261,9 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         Mask slot per node and the component masks of the cut nodes.
     h, max_iter, tol
         Subset half-width, iteration cap, convergence tolerance.
+    noise2 : float
+        Widens each node's tolerance by its noise
+        (:func:`~.icgn_node.node_tolerance`; 0: ``tol`` everywhere).
     p_out, zncc_out, iters_out, reason_out : (n, 6), (n,), (n,), (n,)
         Receive parameters, ZNCC, iterations and status.
     stats_out : (n, 5) float64
@@ -274,6 +279,7 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         ey = np.empty(npx)
         LU, piv, b, dp = solve_buffers(6)
         H = np.empty((6, 6))
+        w = np.array([1.0, h * h, h * h, 1.0, h * h, h * h])  # affine_step's norm
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
@@ -288,11 +294,13 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
                  p_init[k, 5])
             status, zn, it, dfn = begin_node(k, m, df2, H, LU, piv, stats_out)
             start = (p[0], p[3])
+            tk = (tol, tol) if status != NOT_CONVERGED else node_tolerance(
+                LU, piv, w, tol, noise2, b, dp)
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
                                             gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
-                                            bf, (LU, piv), b, dp, h, span, start, tol, zn)
+                                            bf, (LU, piv), b, dp, h, span, start, tk, zn)
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
 
 

@@ -17,7 +17,8 @@ import numpy as np
 from .flags import INLINE
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK
 
-__all__ = ["lu_factor", "lu_solve", "solve_buffers", "begin_node", "step_status"]
+__all__ = ["lu_factor", "lu_solve", "solve_buffers", "begin_node", "node_tolerance",
+           "step_status"]
 
 
 @nb.njit(**INLINE)
@@ -169,7 +170,59 @@ def begin_node(k, m, df2, H, LU, piv, stats_out):
 
 
 @nb.njit(**INLINE)
-def step_status(du, dv, span, nrm, tol):
+def node_tolerance(LU, piv, weights, tol, noise2, e, z):
+    """Convergence tolerances of one node: ``tol`` for its displacement, and
+    ``tol`` widened by the node's own noise for the rest of its warp.
+
+    On subsets with little texture for their parameters (coarse speckle,
+    blur) the displacement gradients are poorly determined and their update
+    stalls near their noise, long after the displacement has settled:
+    iterating on moves them by nothing that can be measured. Their squared
+    tolerance is ``tol² + noise2 Σ w_i (M⁻¹)_ii`` over the parameters other
+    than ``u, v``: ``noise2`` is the image noise variance times twice the
+    square of the fraction of the standard uncertainty accepted as the last
+    step (:mod:`~napari_aldic.engine.dic.icgn`), ``(M⁻¹)_ii`` the diagonal of
+    the inverse Gauss-Newton matrix (the parameters' noise variance per unit
+    image noise), ``w_i`` the weights of the update norm. The displacement
+    keeps ``tol``: widened too, a slowly creeping iteration would stop short
+    of the match (measured: wrong but trusted nodes on speckle coarse for
+    the subset).
+
+    Parameters
+    ----------
+    LU, piv : (n, n) float64, (n,) int64
+        Factors of the node's matrix (:func:`lu_factor`).
+    weights : (n,) float64
+        Weight of each parameter in the squared update norm
+        (:func:`step_status`).
+    tol : float
+        The run's tolerance (pixels).
+    noise2 : float
+        As above; 0 keeps ``tol``.
+    e, z : (n,) float64
+        Work arrays.
+
+    Returns
+    -------
+    (float, float)
+        ``tol`` and the widened tolerance of the parameters other than the
+        displacement (pixels at the subset edge).
+    """
+    if not noise2 > 0:
+        return tol, tol
+    acc = 0.0
+    for i in range(weights.size):
+        if i == 0 or i == 3:
+            continue
+        e[:] = 0.0
+        e[i] = 1.0
+        lu_solve(LU, piv, e, z)
+        acc += weights[i] * abs(z[i])
+    return tol, np.sqrt(tol * tol + noise2 * acc)
+
+
+@nb.njit(**INLINE)
+def step_status(du, dv, span, nd, ng, tk):
     """Verdict on a node after one Gauss-Newton step.
 
     Parameters
@@ -178,18 +231,22 @@ def step_status(du, dv, span, nrm, tol):
         Displacement moved since the node's start.
     span : int
         Subset width: a node that moved farther has diverged.
-    nrm : float
-        Squared norm of the step's increment (not finite: diverged).
-    tol : float
-        Convergence tolerance: converged when ``nrm < tol^2``.
+    nd, ng : float
+        Squared norms of the step's increment: its displacement, and its
+        other parameters weighted to displacements at the subset edge (not
+        finite: diverged).
+    tk : (float, float)
+        Tolerances ``(tol, tol_g)`` (:func:`node_tolerance`): converged when
+        ``nd + ng < tol²``, or when ``nd < tol²`` and ``ng < tol_g²``.
 
     Returns
     -------
     int
         ``DIVERGED``, ``OK`` or ``NOT_CONVERGED`` (go on).
     """
-    if abs(du) > span or abs(dv) > span or not np.isfinite(nrm):
+    if abs(du) > span or abs(dv) > span or not np.isfinite(nd + ng):
         return DIVERGED
-    if nrm < tol * tol:
+    tol, tol_g = tk
+    if nd + ng < tol * tol or (nd < tol * tol and ng < tol_g * tol_g):
         return OK
     return NOT_CONVERGED
