@@ -139,6 +139,49 @@ def run_pyaldic(python: str, n: int, repeat: int, method: str = "local") -> dict
     return summary
 
 
+def _throughput_row(n: int, method: str, args) -> dict:
+    """One case: ``args.rounds`` rounds of ours then pyALDIC (alternated, so a
+    drift of the shared machine hits both), each the median of ``args.repeat``
+    runs; the row keeps the last round's figures, every round's POI/s and the
+    ratio of each round."""
+    rounds = []
+    for _ in range(max(1, args.rounds)):
+        row = {"size": n, "method": method, "ours": time_ours(n, args.repeat, method)}
+        if args.pyaldic:
+            row["pyaldic"] = run_pyaldic(args.pyaldic, n, args.repeat, method)
+            if "poi_per_s" in row["pyaldic"]:
+                row["ratio"] = row["ours"]["poi_per_s"] / row["pyaldic"]["poi_per_s"]
+        rounds.append(row)
+    row = rounds[-1]
+    row["rounds"] = [{"ours_poi_per_s": r["ours"]["poi_per_s"],
+                      "pyaldic_poi_per_s": r.get("pyaldic", {}).get("poi_per_s"),
+                      "ratio": r.get("ratio"), "load": os.getloadavg()[0]} for r in rounds]
+    return row
+
+
+def _print_row(row: dict) -> None:
+    o, method, n = row["ours"], row["method"], row["size"]
+    line = (f"{method:5s} {n:5d}^2  ours {o['poi_per_s']:9,.0f} POI/s ({o['n_poi']} POI,"
+            f" median {o['median_s']:.3f} s, RMSE {o['rmse_px']:.4f} px)")
+    if "pyaldic" in row and "poi_per_s" in row["pyaldic"]:
+        p = row["pyaldic"]
+        line += (f" | pyALDIC {p['poi_per_s']:8,.0f} POI/s (RMSE {p['rmse_px']:.4f} px)"
+                 f" | x{row['ratio']:.2f}")
+    print(line, flush=True)
+    print("      stages (s, last run):", o["stages_last_run"], flush=True)
+    if len(row["rounds"]) > 1:
+        ours = [r["ours_poi_per_s"] for r in row["rounds"]]
+        line = (f"      {len(ours)} rounds: ours POI/s median {np.median(ours):,.0f}, "
+                f"best {max(ours):,.0f}")
+        ratios = [r["ratio"] for r in row["rounds"] if r["ratio"] is not None]
+        if ratios:
+            py = [r["pyaldic_poi_per_s"] for r in row["rounds"] if r["ratio"] is not None]
+            line += (f"; pyALDIC median {np.median(py):,.0f}, best {max(py):,.0f}; ratio per "
+                     f"round {', '.join(f'{r:.2f}' for r in ratios)} (median "
+                     f"{np.median(ratios):.2f}, best rounds {max(ours) / max(py):.2f})")
+        print(line, flush=True)
+
+
 def machine() -> dict:
     import numba
     import scipy
@@ -160,6 +203,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rss-search", type=int, default=64,
                     help="NCC search half-range (px) for the RSS runs")
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="alternate ours and pyALDIC this many times per case (each round "
+                         "times --repeat runs of each); POI/s and ratios: median and best round")
     ap.add_argument("--methods", nargs="+", default=["local", "aldic"],
                     choices=["local", "aldic"])
     ap.add_argument("--pyaldic", metavar="PYTHON",
@@ -172,21 +218,9 @@ def main(argv=None) -> int:
     print(json.dumps(report["machine"]))
     for method in args.methods:
         for n in args.sizes:
-            row = {"size": n, "method": method, "ours": time_ours(n, args.repeat, method)}
-            if args.pyaldic:
-                row["pyaldic"] = run_pyaldic(args.pyaldic, n, args.repeat, method)
-                if "poi_per_s" in row["pyaldic"]:
-                    row["ratio"] = row["ours"]["poi_per_s"] / row["pyaldic"]["poi_per_s"]
+            row = _throughput_row(n, method, args)
             report["throughput"].append(row)
-            o = row["ours"]
-            line = (f"{method:5s} {n:5d}^2  ours {o['poi_per_s']:9,.0f} POI/s ({o['n_poi']} POI,"
-                    f" median {o['median_s']:.3f} s, RMSE {o['rmse_px']:.4f} px)")
-            if "pyaldic" in row and "poi_per_s" in row["pyaldic"]:
-                p = row["pyaldic"]
-                line += (f" | pyALDIC {p['poi_per_s']:8,.0f} POI/s (RMSE {p['rmse_px']:.4f} px)"
-                         f" | x{row['ratio']:.2f}")
-            print(line, flush=True)
-            print("      stages (s, last run):", o["stages_last_run"], flush=True)
+            _print_row(row)
     for method in args.methods:
         for n in args.rss:
             row = {"size": n, "method": method, "search": args.rss_search,

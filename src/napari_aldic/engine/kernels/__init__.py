@@ -19,5 +19,6 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
   interpolated-noise factors);
 * ``sums``     integral images and window sums;
 * ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
+* ``cg``       Jacobi-preconditioned conjugate gradients (the curvature smoother);
 * ``speckle``  the analytic speckle intensity of the synthetic images.
 """

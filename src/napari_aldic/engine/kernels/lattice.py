@@ -12,9 +12,27 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import PARALLEL
+from .flags import INLINE, PARALLEL
 
 __all__ = ["median_flags", "plane_fit"]
+
+
+@nb.njit(**INLINE)
+def _sorted_median(a, c):
+    """Median of ``a[:c]``, sorting ``a[:c]`` in place (insertion sort: a
+    node has at most a few dozen neighbours); the mean of the two middle
+    values for even ``c``, as ``np.median``."""
+    for i in range(1, c):
+        x = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > x:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = x
+    h = c >> 1
+    if c % 2 == 0:
+        return (a[h - 1] + a[h]) / 2
+    return a[h]
 
 
 @nb.njit(**PARALLEL)
@@ -25,7 +43,9 @@ def median_flags(u, v, trusted, nbr, threshold, eps, min_nb, out):
     for each component: the residual ``|x - median|`` of the node over the
     median absolute fluctuation of its neighbours plus ``eps``; above
     ``threshold`` the node is flagged (J. Westerweel, F. Scarano, "Universal
-    outlier detection for PIV data", Exp. Fluids 39, 2005).
+    outlier detection for PIV data", Exp. Fluids 39, 2005). The nodes are
+    taken in chunks, each with its own work buffers; the medians sort the
+    few neighbour values in place (the same values as ``np.median``).
 
     Parameters
     ----------
@@ -43,27 +63,33 @@ def median_flags(u, v, trusted, nbr, threshold, eps, min_nb, out):
         Set True at the outliers (others untouched).
     """
     n, k = nbr.shape
-    for i in nb.prange(n):
-        if not trusted[i]:
-            continue
+    chunk = 256  # nodes per parallel task
+    for t in nb.prange((n + chunk - 1) // chunk):
         a = np.empty(k)
-        b = np.empty(k)
-        c = 0
-        for j in range(k):
-            q = nbr[i, j]
-            if q >= 0 and trusted[q]:
-                a[c] = u[q]
-                b[c] = v[q]
-                c += 1
-        if c < min_nb:
-            continue
-        for comp in range(2):
-            vals = a[:c] if comp == 0 else b[:c]
-            x = u[i] if comp == 0 else v[i]
-            med = np.median(vals)
-            fl = np.median(np.abs(vals - med))
-            if abs(x - med) / (fl + eps) > threshold:
-                out[i] = True
+        for i in range(t * chunk, min(n, t * chunk + chunk)):
+            if not trusted[i]:
+                continue
+            c = 0
+            for j in range(k):
+                q = nbr[i, j]
+                if q >= 0 and trusted[q]:
+                    c += 1
+            if c < min_nb:
+                continue
+            for comp in range(2):
+                w = u if comp == 0 else v
+                c = 0
+                for j in range(k):
+                    q = nbr[i, j]
+                    if q >= 0 and trusted[q]:
+                        a[c] = w[q]
+                        c += 1
+                med = _sorted_median(a, c)
+                for j in range(c):
+                    a[j] = abs(a[j] - med)
+                fl = _sorted_median(a, c)
+                if abs(w[i] - med) / (fl + eps) > threshold:
+                    out[i] = True
 
 
 @nb.njit(**PARALLEL)
