@@ -38,6 +38,7 @@ match.
 from __future__ import annotations
 
 import numpy as np
+from scipy import fft as sp_fft
 
 from ..core.reasons import Reason
 from ..kernels.static import lag_peaks, static_evidence
@@ -57,27 +58,35 @@ AMBIGUITY = 0.8
 _CANDIDATE_MIN = 0.4
 _CANDIDATES = 4  # per tile
 _BLOCK = 2  # half-width of the lag block searched around a candidate
+#: pixel pitch of the zero-motion test within a subset (1: every pixel).
+#: 2 (a quarter of the cost) lets 7 occluder nodes through: a one-pixel
+#: static edge falls between the lattice's columns
+STRIDE = 1
 
 
 def static_statistics(im, grid, sub, p, active, image_var: float, half: int) -> np.ndarray:
     """``(S / D, z)`` per node (n, 2) of :func:`~..kernels.static.static_evidence`
-    (NaN where not ``active``)."""
+    on the ``STRIDE`` lattice, ``z`` scaled to the whole subset (NaN where
+    not ``active``)."""
     out = np.empty((grid.n, 2))
     static_evidence(np.ascontiguousarray(im.f, np.float32),
                     np.ascontiguousarray(im.g, np.float32), im.g_spline.coef,
                     int(im.g_spline.order), grid.x.astype(np.int64), grid.y.astype(np.int64),
                     np.ascontiguousarray(p, np.float64), np.ascontiguousarray(active),
-                    sub.slot.astype(np.int32), sub.masks, int(half), float(image_var), out)
+                    sub.slot.astype(np.int32), sub.masks, int(half), STRIDE, float(image_var),
+                    out)
+    # z of a per-pixel effect grows with the square root of the pixels tested
+    out[:, 1] *= STRIDE
     return out
 
 
-def _tile_spans(size: int, tile: int) -> list[int]:
+def _tile_spans(size: int, tile: int) -> np.ndarray:
     """Starts of tiles of ``tile`` pixels covering ``size`` (the last one
     flush with the end)."""
     starts = list(range(0, max(size - tile, 0) + 1, tile))
     if starts[-1] + tile < size:
         starts.append(size - tile)
-    return starts
+    return np.asarray(starts)
 
 
 def candidate_lags(f: np.ndarray, roi: np.ndarray, subset: int, reach: int):
@@ -86,64 +95,118 @@ def candidate_lags(f: np.ndarray, roi: np.ndarray, subset: int, reach: int):
     ``_CANDIDATE_MIN``, ``2 <= |lag| <= reach`` along some axis).
 
     Returns ``(tile, ys, xs, lags)``: the tile size, tile starts along y and
-    x, and ``lags[i][j]`` a (k, 2) int array of ``(sx, sy)`` for tile (i, j).
+    x, and ``lags`` (len(ys), len(xs), _CANDIDATES, 2) int64 of ``(sx, sy)``
+    per tile, padded with ``(0, 0)`` (no candidate).
     """
     tile = max(64, 1 << int(np.ceil(np.log2(2 * subset))))
     th, tw = min(tile, f.shape[0]), min(tile, f.shape[1])
     reach = int(min(reach, th // 2, tw // 2))
     ys, xs = _tile_spans(f.shape[0], th), _tile_spans(f.shape[1], tw)
-    shape = (2 * th, 2 * tw)
-    lags = []
-    for y0 in ys:
-        m = roi[y0:y0 + th].astype(np.float64)
-        t = np.asarray(f[y0:y0 + th], np.float64)
-        row = []
-        for x0 in xs:
-            row.append(_tile_peaks(t[:, x0:x0 + tw], m[:, x0:x0 + tw], shape, reach))
-        lags.append(row)
-    return tile, np.asarray(ys), np.asarray(xs), lags
+    # every tile at once: one batched FFT per correlation instead of a
+    # Python loop of small ones
+    iy = ys[:, None, None, None] + np.arange(th)[None, None, :, None]
+    ix = xs[None, :, None, None] + np.arange(tw)[None, None, None, :]
+    t = np.asarray(f, np.float32)[iy, ix].reshape(-1, th, tw).astype(np.float64)
+    m = np.asarray(roi)[iy, ix].reshape(-1, th, tw).astype(np.float64)
+    a = _normalised_autocorrelation(t, m, reach)
+    lags = _tile_peaks(a, reach).reshape(len(ys), len(xs), _CANDIDATES, 2)
+    return tile, ys, xs, lags
 
 
-def _corr(a, b, shape):
-    """Circular cross-correlation ``Σ a(x) b(x + s)`` of zero-padded tiles."""
-    fa = np.fft.rfft2(a, shape)
-    fb = np.fft.rfft2(b, shape)
-    return np.fft.irfft2(np.conj(fa) * fb, shape)
-
-
-def _tile_peaks(t, m, shape, reach: int) -> np.ndarray:
-    """Candidate lags (k, 2) of one tile (``t`` grey values, ``m`` ROI)."""
-    n = m.sum()
-    if n < 0.25 * m.size:
-        return np.zeros((0, 2), np.int64)
-    t = (t - (t * m).sum() / n) * m
+def _normalised_autocorrelation(t, m, reach):
+    """(T, 2 reach + 3, 2 reach + 3) normalised autocorrelation of each tile
+    (grey values ``t``, ROI ``m``) at lags ``[-reach - 1, reach + 1]²``; -inf
+    where the overlap is under a quarter of the tile or the tile is mostly
+    outside the ROI."""
+    th, tw = t.shape[1:]
+    size = th * tw
+    n = m.sum(axis=(1, 2))
+    mean = np.where(n > 0, (t * m).sum(axis=(1, 2)) / np.maximum(n, 1), 0.0)
+    t = (t - mean[:, None, None]) * m
     t2 = t * t
-    if t2.sum() <= 0:
-        return np.zeros((0, 2), np.int64)
-    num = _corr(t, t, shape)
-    den = np.sqrt(np.maximum(_corr(t2, m, shape) * _corr(m, t2, shape), 0.0))
-    over = _corr(m, m, shape)
+    # the FFTs need only cover the lags searched (linear, not circular,
+    # correlation up to reach + 1), not twice the tile
+    shape = tuple(sp_fft.next_fast_len(d + reach + 2, real=True) for d in (th, tw))
+    lag = np.arange(-reach - 1, reach + 2)
+    iy, ix = np.ix_(lag % shape[0], lag % shape[1])
+
+    def corr(fa, fb):  # Σ a(x) b(x + s) at the lags searched
+        return sp_fft.irfft2(np.conj(fa) * fb, shape, workers=-1)[:, iy, ix]
+    ft = sp_fft.rfft2(t, shape, workers=-1)
+    num = corr(ft, ft)
+    full = m.all(axis=(1, 2))
+    # Σ t²(x) m(x + s) and Σ m(x) t²(x + s): over a whole tile, sums of t² on
+    # the overlap rectangles (an integral image) ...
+    ii = np.zeros((len(t), th + 1, tw + 1))
+    ii[:, 1:, 1:] = t2.cumsum(axis=1).cumsum(axis=2)
+    sy, sx = np.meshgrid(lag, lag, indexing="ij")
+
+    def rect(y0, y1, x0, x1):
+        return ii[:, y1, x1] - ii[:, y0, x1] - ii[:, y1, x0] + ii[:, y0, x0]
+    lo_y, hi_y = np.maximum(0, -sy), th - np.maximum(0, sy)
+    lo_x, hi_x = np.maximum(0, -sx), tw - np.maximum(0, sx)
+    c_t2m = rect(lo_y, hi_y, lo_x, hi_x)
+    c_mt2 = rect(lo_y + sy, hi_y + sy, lo_x + sx, hi_x + sx)
+    over = np.broadcast_to(((th - abs(sy)) * (tw - abs(sx))).astype(float), num.shape).copy()
+    part = np.nonzero(~full)[0]
+    if part.size:  # ... and, where the ROI cuts a tile, FFTs of the mask
+        ft2 = sp_fft.rfft2(t2[part], shape, workers=-1)
+        fm = sp_fft.rfft2(m[part], shape, workers=-1)
+        c_t2m[part] = corr(ft2, fm)
+        c_mt2[part] = corr(fm, ft2)
+        over[part] = corr(fm, fm)
+    den = np.sqrt(np.maximum(c_t2m * c_mt2, 0.0))
+    ok = ((over >= 0.25 * size) & (den > 0) & (n >= 0.25 * size)[:, None, None]
+          & ((t2.sum(axis=(1, 2)) > 0)[:, None, None]))
     with np.errstate(invalid="ignore", divide="ignore"):
-        a = np.where((over >= 0.25 * m.size) & (den > 0), num / den, -np.inf)
-    a = np.fft.fftshift(a)
-    cy, cx = shape[0] // 2, shape[1] // 2
-    a = a[cy - reach - 1:cy + reach + 2, cx - reach - 1:cx + reach + 2]
-    core = a[1:-1, 1:-1]
+        return np.where(ok, num / den, -np.inf)
+
+
+def _tile_peaks(a, reach: int) -> np.ndarray:
+    """Candidate lags (T, _CANDIDATES, 2) of the tiles' autocorrelations
+    ``a`` (from :func:`_normalised_autocorrelation`), padded with zeros."""
+    core = a[:, 1:-1, 1:-1]
     peak = core >= _CANDIDATE_MIN
+    ny, nx = a.shape[1], a.shape[2]
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dy or dx:
-                peak &= core >= a[1 + dy:a.shape[0] - 1 + dy, 1 + dx:a.shape[1] - 1 + dx]
-    sy, sx = np.nonzero(peak)
-    sy, sx = sy - reach, sx - reach
+                peak &= core >= a[:, 1 + dy:ny - 1 + dy, 1 + dx:nx - 1 + dx]
+    sy, sx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
     # one of each pair +-s (the autocorrelation is symmetric), off the main lobe
-    keep = ((sy > 0) | ((sy == 0) & (sx > 0))) & (np.maximum(abs(sx), abs(sy)) >= 2)
-    sy, sx = sy[keep], sx[keep]
+    peak &= (((sy > 0) | ((sy == 0) & (sx > 0))) & (np.maximum(abs(sx), abs(sy)) >= 2))[None]
     # the highest first, the shorter of (nearly) equal ones: a lattice's
     # primitive periods rather than their multiples
-    order = np.argsort(-core[sy + reach, sx + reach] + 0.02 * np.hypot(sx, sy) / reach)
-    order = order[:_CANDIDATES]
-    return np.column_stack([sx[order], sy[order]]).astype(np.int64)
+    score = np.where(peak, -core + 0.02 * np.hypot(sx, sy)[None] / reach, np.inf)
+    flat = score.reshape(len(a), -1)
+    order = np.argsort(flat, axis=1, kind="stable")[:, :_CANDIDATES]
+    keep = np.isfinite(np.take_along_axis(flat, order, axis=1))
+    lags = np.stack([sx.ravel()[order], sy.ravel()[order]], axis=2)
+    return np.where(keep[:, :, None], lags, 0).astype(np.int64)
+
+
+def _node_candidates(grid, tile, ys, xs, lags, active, h):
+    """(n, K, 2) candidate lags of each node (both signs of every lag of the
+    tiles its subset overlaps: near the image border only one of them stays
+    inside) and their number (n,); ``(0, 0)`` entries are padding."""
+    def overlaps(starts, c):
+        # at most three tiles along one axis (the last tile, flush with the
+        # image's end, overlaps the one before it)
+        lo = np.searchsorted(starts + tile, c - h, side="right")
+        hi = np.searchsorted(starts, c + h, side="right") - 1
+        return [(np.clip(lo + i, 0, len(starts) - 1), lo + i <= hi) for i in range(3)]
+    cand = []
+    for iy, oky in overlaps(ys, grid.y):
+        for ix, okx in overlaps(xs, grid.x):
+            c = np.where((oky & okx & active)[:, None, None], lags[iy, ix], 0)
+            cand += [c, -c]
+    cand = np.concatenate(cand, axis=1)
+    # real lags first (the kernel reads the first ncand); duplicates are kept
+    # (searching a lag twice finds the same peak)
+    real = np.any(cand != 0, axis=2)
+    ncand = real.sum(axis=1).astype(np.int64)
+    order = np.argsort(~real, axis=1, kind="stable")[:, :max(int(ncand.max()), 1)]
+    return np.ascontiguousarray(np.take_along_axis(cand, order[:, :, None], axis=1)), ncand
 
 
 def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
@@ -151,27 +214,13 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     reference subset's autocorrelation within ``params.search`` (``-inf``
     where there is none or the node is not ``active``)."""
     tile, ys, xs, lags = candidate_lags(im.f, roi, params.subset, params.search)
-    h = params.half
-    k_max = 8 * _CANDIDATES  # up to four tiles, each lag with both signs
-    cand = np.zeros((grid.n, k_max, 2), np.int64)
-    ncand = np.zeros(grid.n, np.int64)
-    if not any(len(c) for row in lags for c in row):
+    if not lags.any():
         return np.full(grid.n, -np.inf)  # nothing repeats: no per-node search
-    for k in np.nonzero(active)[0]:
-        x, y = int(grid.x[k]), int(grid.y[k])
-        iy = np.nonzero((ys <= y + h) & (ys + tile > y - h))[0]
-        ix = np.nonzero((xs <= x + h) & (xs + tile > x - h))[0]
-        found = [c for i in iy for j in ix for c in lags[i][j]]
-        if found:
-            # both signs: near the image border only one of them stays inside
-            found = np.asarray(found)
-            uniq = np.unique(np.concatenate([found, -found]), axis=0)[:k_max]
-            cand[k, :len(uniq)] = uniq
-            ncand[k] = len(uniq)
+    cand, ncand = _node_candidates(grid, tile, ys, xs, lags, np.asarray(active), params.half)
     out = np.empty((grid.n, 3))
     lag_peaks(np.ascontiguousarray(im.f, np.float32), grid.x.astype(np.int64),
-              grid.y.astype(np.int64), sub.slot.astype(np.int32), sub.masks, int(h), cand,
-              ncand, _BLOCK, out)
+              grid.y.astype(np.int64), sub.slot.astype(np.int32), sub.masks, int(params.half),
+              cand, ncand, _BLOCK, out)
     return out[:, 0]
 
 
@@ -195,7 +244,8 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) 
     if not cand.any():
         return reason
     st = static_statistics(im, grid, sub, p, cand, validity.image_var, params.half)
-    static = cand & (st[:, 1] > STATIC_Z) & (st[:, 0] > STATIC_FRACTION)
+    with np.errstate(invalid="ignore"):
+        static = cand & (st[:, 1] > STATIC_Z) & (st[:, 0] > STATIC_FRACTION)
     peak = ambiguity(im, roi, grid, sub, cand & ~static, params)
     with np.errstate(invalid="ignore"):
         ambiguous = cand & ~static & (peak >= AMBIGUITY * np.minimum(zncc, 1.0))
