@@ -92,3 +92,18 @@ def test_reason_texts():
     assert "static" in Reason.describe(Reason.STATIC_FEATURE)
     assert "ambiguous" in Reason.describe(Reason.AMBIGUOUS_MATCH)
     assert int(Reason.GLOBAL_MISMATCH) == 12  # existing codes keep their numbers
+
+
+@pytest.mark.parametrize("method", ["local", "aldic"])
+def test_exported_uncertainty_is_honest_at_valid_nodes(method):
+    """A horizontal static bar at 5 GL noise: without the rule on the exported
+    value, valid nodes carried u_std of 1.4-3 px or NaN (the validity stage's
+    UNCERTAIN test judged the IC-GN model before the quality stage's u_std
+    was known)."""
+    r, d = _speckle(noise=5.0)
+    r[120:136] = 0
+    d[120:136] = 0
+    res = correlate(r, d, subset=SUBSET, step=STEP, method=method)
+    s = np.maximum(res.u_std, res.v_std)[res.valid]
+    assert res.valid.any()
+    assert np.all(np.isfinite(s)) and np.all(s <= res.params.max_uncertainty)

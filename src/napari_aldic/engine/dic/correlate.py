@@ -134,6 +134,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
             grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                 params, timing, report, solver_cache, meta)
     quality = _quality(im, mask, grid, sol, params, timing, meta)
+    sol.reason = _uncertain_as_exported(sol, quality, params)
     _record(meta, sol, ref_spec, grid, params, timing, t_start)
     meta["convergence"]["jacobian_sigma_px"] = float(im.j_sigma)
     warn_iteration_cap(meta["convergence"])
@@ -338,6 +339,29 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          aldic=aldic)
     timing["quality"] = time.perf_counter() - t
     return out
+
+
+def _uncertain_as_exported(sol: _Solution, quality: dict | None, params: DICParams):
+    """``sol.reason`` with valid nodes whose *exported* ``u_std``/``v_std`` is
+    above ``max_uncertainty`` or not finite flagged UNCERTAIN (issue 22).
+
+    The UNCERTAIN test of the validity stage judges the IC-GN noise model
+    before the final uncertainty is known; the exported one (the quality
+    stage's, for AL-DIC propagated through the ADMM run) can be larger or
+    undefined, and a valid node must never carry an uncertainty the run
+    promised not to accept."""
+    limit = params.max_uncertainty
+    if limit is None:
+        return sol.reason
+    if quality is not None and quality.get("u_std") is not None:
+        s = np.maximum(quality["u_std"], quality["v_std"])
+    elif sol.std is not None:
+        s = np.max(sol.std, axis=1)
+    else:
+        return sol.reason
+    with np.errstate(invalid="ignore"):
+        bad = (sol.reason == Reason.OK) & ~(s <= limit)
+    return np.where(bad, np.int8(Reason.UNCERTAIN), sol.reason).astype(sol.reason.dtype)
 
 
 def _assemble(sol: _Solution, grid: NodeGrid, shape, params: DICParams, meta: dict,
