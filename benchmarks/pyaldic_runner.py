@@ -150,6 +150,25 @@ def _extract(result):
     return xy[:, 0].copy(), xy[:, 1].copy(), U[0::2].copy(), U[1::2].copy()
 
 
+def _watch_iterations() -> list:
+    """Record the per-node IC-GN iteration counts of every Local step the
+    pipeline runs (pyALDIC returns them from ``local_icgn`` but keeps them out
+    of its result): the pipeline's reference to that function is wrapped, its
+    outputs passed on unchanged."""
+    import al_dic.core.pipeline as pipeline
+
+    calls: list = []
+    inner = pipeline.local_icgn
+
+    def watched(*a, **k):
+        out = inner(*a, **k)
+        calls.append(np.asarray(out[3], dtype=np.int64).ravel())
+        return out
+
+    pipeline.local_icgn = watched
+    return calls
+
+
 class _RssSampler:
     """Samples the process RSS with psutil in a background thread."""
 
@@ -196,6 +215,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-warmup", action="store_true",
                     help="skip the JIT warm-up run on a small crop")
     ap.add_argument("--out", required=True, help="output .npz")
+    ap.add_argument("--iterations", action="store_true",
+                    help="also store the IC-GN iterations per node of the Local step "
+                         "(icgn_iterations; observed by wrapping the pipeline's local_icgn)")
     args = ap.parse_args(argv)
 
     if args.subset < 3 or args.subset % 2 != 1:
@@ -241,6 +263,7 @@ def main(argv=None) -> int:
             print(f"warning: warm-up failed: {exc!r}", file=sys.stderr)
         warmup_s = time.perf_counter() - t0
 
+    conv = _watch_iterations() if args.iterations else None
     seconds = []
     result = None
     baseline_rss = psutil.Process(os.getpid()).memory_info().rss if psutil else 0
@@ -278,6 +301,7 @@ def main(argv=None) -> int:
         step=args.step,
         winsize=para.winsize,
         method=args.method,
+        **({} if not conv else {"icgn_iterations": conv[-1]}),
     )
 
     import al_dic
@@ -299,6 +323,9 @@ def main(argv=None) -> int:
         "step": args.step,
         "al_dic": al_dic.__version__,
     }
+    if conv:
+        ok = np.isfinite(u) & np.isfinite(v)
+        summary["median_icgn_iterations"] = float(np.median(conv[-1][ok]))
     print(json.dumps(summary))
     return 0
 
