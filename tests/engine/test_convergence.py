@@ -117,7 +117,7 @@ def test_any_speckle_scale_converges_in_a_few_iterations(radius, noise, blur, su
     res = correlate(ref, dfm, subset=subset, step=8)
     conv = res.meta["convergence"]
     assert conv["median_iterations"] <= 6, conv
-    assert conv["at_cap"] == 0, conv
+    assert conv["fraction_at_cap"] < 0.005, conv
     assert res.valid.mean() > 0.95
     ut, vt = field.displacement(res.x, res.y)
     err = np.hypot(res.u - ut, res.v - vt)[res.valid]
@@ -135,3 +135,27 @@ def test_many_nodes_at_the_cap_warn_and_are_counted():
     assert conv["at_cap"] == int(np.count_nonzero(res.reason == 2)) > 0
     assert conv["fraction_at_cap"] > 0.02 and conv["max_iter"] == 1
     assert "nodes at the cap of 1" in res.summary()
+
+
+def test_kernel_statistics_equal_the_validity_tests_statistics():
+    """Local DIC takes the validity tests' subset statistics from the IC-GN
+    kernel (summed from the exact gradients while it gathers each subset):
+    they must equal :func:`subset_statistics`, cut subsets included."""
+    from napari_aldic.engine import synthetic
+    from napari_aldic.engine.dic.reliability import subset_statistics
+
+    ref, dfm = (a.astype(np.float32) for a in synthetic.speckle_pair(
+        (160, 160), synthetic.Translation(0.3, -0.2), noise=2))
+    roi = np.ones(ref.shape, bool)
+    roi[60:90, 50:100] = False
+    grid = make_grid(roi, 31, 8)
+    sub = split_subsets(roi, grid, 31)
+    ok = sub.reason == 0
+    assert (sub.slot[ok] >= 0).any()
+    exact = reference_gradients(prefilter(ref, 3))
+    smooth = steepest_descent_gradients(ref, 3, 0.8)
+    stats = np.full((grid.n, 5), np.nan)
+    icgn_solve(ref, *smooth, prefilter(dfm, 3), grid.x, grid.y, np.zeros((grid.n, 6)), ok,
+               sub.slot, sub.masks, 15, stats=stats, lin=exact)
+    table = subset_statistics(ref, *exact, grid.x, grid.y, sub.slot, sub.masks, 15).table
+    np.testing.assert_allclose(stats[ok], table[ok], rtol=1e-10)

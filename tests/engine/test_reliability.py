@@ -103,9 +103,13 @@ def test_heavy_noise_flags_uncertain_nodes_instead_of_reporting_them(method):
     res = correlate(ref, dfm, subset=31, step=8, method=method)
     assert _check(res, field, dfm.shape)[0] == 0
     assert np.count_nonzero(res.reason == Reason.UNCERTAIN) > 0.2 * len(res)
-    if method == "local":  # without the uncertainty test some are off by over 0.5 px
+    if method == "local":
+        # without the uncertainty test nodes off by 3x max_uncertainty (0.1 px)
+        # pass as trusted (over 0.5 px before the noise-chosen smoothing of
+        # the steepest-descent images, section 5.1 of docs/method.md)
         loose = correlate(ref, dfm, subset=31, step=8, max_uncertainty=None)
-        assert _check(loose, field, dfm.shape)[0] > 0
+        ut, vt = field.displacement(loose.x, loose.y)
+        assert np.hypot(loose.u - ut, loose.v - vt)[loose.valid].max() > 0.3
 
 
 def test_moderate_noise_keeps_its_correct_matches():

@@ -35,7 +35,8 @@ def _compare_with_untiled(ref, dfm, step: int, tile: int):
     assert tiled.meta["tiled"]["blocks"] >= 4
     guess = coarse_guess(ref, dfm, params=tiled.params, tile_size=tile)
     # the untiled run measures the speckle scale itself (no shared value)
-    whole = correlate(ref, dfm, params=tiled.params.replace(extra={}), guess=guess)
+    same = {"guess_of_this_pair": True}  # the guess is this pair's own coarse result
+    whole = correlate(ref, dfm, params=tiled.params.replace(extra=same), guess=guess)
     assert np.array_equal(tiled.x, whole.x) and np.array_equal(tiled.y, whole.y)
     assert np.array_equal(tiled.reason, whole.reason)
     # every per-image choice is shared (search range, B-spline order, the
@@ -78,7 +79,8 @@ def test_tiled_from_files_with_roi_and_memmap(tmp_path):
                           tile_size=192, search=10, out_dir=tmp_path / "nodes")
     assert (tmp_path / "nodes" / "u.npy").exists()
     guess = coarse_guess(ref, dfm, roi, params=res.params, tile_size=192)
-    whole = correlate(ref, dfm, roi=roi, params=res.params.replace(extra={}), guess=guess)
+    same = {"guess_of_this_pair": True}  # the guess is this pair's own coarse result
+    whole = correlate(ref, dfm, roi=roi, params=res.params.replace(extra=same), guess=guess)
     assert np.array_equal(res.x, whole.x) and np.array_equal(res.y, whole.y)
     assert not np.any(roi[res.y.astype(int), res.x.astype(int)] == 0)
     ok = res.valid & whole.valid

@@ -32,7 +32,8 @@ def _untiled(ref, dfm, roi, tiled):
     guess and parameters (the speckle scale measured by correlate itself)."""
     guess = coarse_guess(ref, dfm, roi, params=tiled.params.replace(method="local"),
                          tile_size=160)
-    return correlate(ref, dfm, roi=roi, params=tiled.params.replace(extra={}), guess=guess)
+    same = {"guess_of_this_pair": True}  # the guess is this pair's own coarse result
+    return correlate(ref, dfm, roi=roi, params=tiled.params.replace(extra=same), guess=guess)
 
 
 def _rmse(res, u, v, valid):

@@ -153,7 +153,11 @@ class DICParams:
     extra : dict
         Run-time settings that are not analysis parameters (not compared,
         not saved): ``"jacobian_sigma"`` (px, the smoothing of the IC-GN
-        steepest-descent images, chosen once for a whole tiled pair) and
+        steepest-descent images, chosen once for a whole tiled pair),
+        ``"image_var"`` (grey levels², the pair's image noise variance, measured
+        once for a whole tiled pair), ``"guess_of_this_pair": True`` (the
+        ``guess`` of ``correlate`` is a coarse result of the same pair: IC-GN
+        starts from it directly instead of searching around it) and
         ``"quality": False`` (skip the speckle-quality and uncertainty maps,
         e.g. for a tiled run's coarse initial guess, whose only use is to
         start the nodes).

@@ -305,7 +305,9 @@ def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPara
     statistics that IC-GN fills in as it solves the nodes."""
     t = time.perf_counter()
     stats = SubsetStats.empty(grid.n)
-    image_var = 0.5 * (image_noise(im.f, roi) ** 2 + image_noise(im.g, roi) ** 2)
+    image_var = params.extra.get("image_var")  # a tiled run's, of the whole pair
+    if image_var is None:
+        image_var = 0.5 * (image_noise(im.f, roi) ** 2 + image_noise(im.g, roi) ** 2)
     timing["validity"] = time.perf_counter() - t
     return Validity(stats, image_var, gradient_noise_gain(im.g_spline.order), params)
 

@@ -52,7 +52,7 @@ from ..kernels.icgn import icgn_affine, icgn_translation
 from ..kernels.icgn_quadratic import NPAR, icgn_quadratic
 
 __all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS", "convergence_record",
-           "warn_iteration_cap", "CAP_WARN_FRACTION", "NOISE_FRACTION"]
+           "warn_iteration_cap", "CAP_WARN_FRACTION"]
 
 #: the subset shape functions ``icgn_solve`` knows
 SHAPE_FUNCTIONS = ("affine", "quadratic")
@@ -65,11 +65,6 @@ if (status.OK, status.NOT_CONVERGED, status.OUT_OF_IMAGE, status.NO_TEXTURE,
     raise ImportError("kernels.gauss_newton status codes disagree with core.reasons.Reason")
 
 _NOT_CONVERGED = int(Reason.NOT_CONVERGED)
-
-#: a node has converged once its update is below this fraction of its own
-#: predicted standard uncertainty (or below ``tol``): further steps move it by
-#: nothing measurable, and on faint texture they stall near the noise level
-NOISE_FRACTION = 0.1
 
 #: warn when more than this fraction of a run's solvable nodes ends at the
 #: iteration cap: a few such nodes are noise, many mean the solver (or its
@@ -119,8 +114,7 @@ def warn_iteration_cap(record: dict, stacklevel: int = 3) -> None:
 
 
 def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, masks,
-               half, max_iter=40, tol=1e-3, out=None, stats=None, shape="affine", lin=None,
-               noise_var=0.0):
+               half, max_iter=40, tol=1e-3, out=None, stats=None, shape="affine", lin=None):
     """Run IC-GN at the ``active`` nodes.
 
     Parameters
@@ -154,12 +148,6 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         The reference's exact spline gradients, which linearise the warp
         (None: ``fgx, fgy`` themselves). With smoothed ``fgx, fgy`` each step
         is an instrumental-variable Gauss-Newton step (module docstring).
-    noise_var : float
-        Image noise variance (grey levels²): a node has converged when its
-        update is below ``tol`` or below :data:`NOISE_FRACTION` of its own
-        predicted standard uncertainty, whichever is larger
-        (:func:`~napari_aldic.engine.kernels.icgn_node.node_tolerance`);
-        0 keeps ``tol`` everywhere.
 
     Returns
     -------
@@ -173,19 +161,18 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     if stats is None:
         stats = np.empty((n, 5))
     egx, egy = (fgx, fgy) if lin is None else lin
-    noise2 = 2.0 * NOISE_FRACTION**2 * max(float(noise_var), 0.0)
     if shape == "affine":
         icgn_affine(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y,
                     np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
-                    int(half), int(max_iter), float(tol), noise2, p, zn, it, rs, stats)
+                    int(half), int(max_iter), float(tol), p, zn, it, rs, stats)
     elif shape == "quadratic":
         p12 = np.zeros((n, NPAR))
         p12[:, :6] = p_init
         q = np.zeros((n, NPAR))
         q[:, :6] = p
         icgn_quadratic(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y, p12,
-                       active, slot, masks, int(half), int(max_iter), float(tol), noise2, q, zn,
-                       it, rs, stats)
+                       active, slot, masks, int(half), int(max_iter), float(tol), q, zn, it, rs,
+                       stats)
         p[active] = q[active, :6]
     else:
         raise ValueError(f"shape={shape!r} must be one of {SHAPE_FUNCTIONS}")

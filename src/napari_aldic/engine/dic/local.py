@@ -38,7 +38,7 @@ from .interpolation import (
 )
 from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
-from .reliability import Validity, subset_statistics
+from .reliability import Validity
 from .rotation import rotated_search, spread_nodes
 from .subsets import SubsetMasks
 
@@ -126,19 +126,17 @@ class _State:
         res = icgn_solve(im.f, jgx, jgy, im.g_spline, g.x, g.y, p_init, active,
                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
                          out=out, stats=self._stats_scratch, shape=prm.shape_function,
-                         lin=(im.fgx, im.fgy), noise_var=self.validity.image_var)
+                         lin=(im.fgx, im.fgy))
         self._fill_stats(active)
         return res
 
     def _fill_stats(self, active: np.ndarray) -> None:
-        """The validity tests' subset statistics of the ``active`` nodes, from
-        the unsmoothed gradients (the noise model's), once per node."""
+        """The validity tests' subset statistics of the ``active`` nodes, once
+        per node: the kernels sum them from the unsmoothed gradients (the
+        noise model's) while they gather each subset."""
         table = self.validity.stats.table
         todo = np.nonzero(active & np.isnan(table[:, 0]))[0]
-        if todo.size:
-            im, g, sub = self.im, self.grid, self.sub
-            table[todo] = subset_statistics(im.f, im.fgx, im.fgy, g.x[todo], g.y[todo],
-                                            sub.slot[todo], sub.masks, self.params.half).table
+        table[todo] = self._stats_scratch[todo]
 
     def store(self, res, nodes: np.ndarray) -> None:
         rp, rz, ri, rr = res
@@ -199,11 +197,15 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     """
     st = _State(im, roi, grid, sub, params, validity)
     t = time.perf_counter()
-    if guess is not None and np.any(guess.valid):
-        # a previous result (e.g. the last frame of a sequence) predicts the
-        # motion: the coarse nodes search around it, as around the anchors'
-        # prediction, because between frames the motion may have moved on by
-        # more than IC-GN's basin (a few speckles)
+    if guess is not None and np.any(guess.valid) and params.extra.get("guess_of_this_pair"):
+        # a coarse result of this very pair (tiled runs): within IC-GN's basin
+        p_init = _guess_from_result(grid, guess)
+        timing["init"] = time.perf_counter() - t
+        st.store(st.run(st.usable.copy(), p_init), np.nonzero(st.usable)[0])
+    elif guess is not None and np.any(guess.valid):
+        # a previous frame's result predicts the motion: the coarse nodes
+        # search around it, as around the anchors' prediction, because the
+        # motion may have moved on by more than IC-GN's basin (a few speckles)
         t = _coarse_to_fine(st, timing, report, prediction=_guess_from_result(grid, guess))
     elif params.init == "seeds":
         _propagate_seeds(st)

@@ -36,7 +36,7 @@ from .gauss_newton import (
     gn_step,
     store_node,
 )
-from .icgn_node import begin_node, lu_solve, node_tolerance, solve_buffers, step_status
+from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
@@ -77,46 +77,55 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     b00, b01, b02, b03, b04, b05 : float
         ``sum J (f - fm)``.
     """
-    for i in range(6):
-        for j in range(6):
-            H[i, j] = 0.0
     sj0 = sj1 = sj2 = sj3 = sj4 = sj5 = 0.0
     b00 = b01 = b02 = b03 = b04 = b05 = 0.0
-    jv = np.empty(6)
-    ev = np.empty(6)
+    # H is four 3 x 3 blocks sum (jx|jy)(ex|ey) w w^T with w = (1, dx, dy): six
+    # moments of w per gradient product, 24 sums per pixel instead of 36
+    mom = np.zeros((4, 6))
     for q in range(m):
         dx = dxs[q]
         dy = dys[q]
         ja = gx[q]
         jd = gy[q]
-        jv[0] = ja
-        jv[1] = ja * dx
-        jv[2] = ja * dy
-        jv[3] = jd
-        jv[4] = jd * dx
-        jv[5] = jd * dy
-        ev[0] = ex[q]
-        ev[1] = ex[q] * dx
-        ev[2] = ex[q] * dy
-        ev[3] = ey[q]
-        ev[4] = ey[q] * dx
-        ev[5] = ey[q] * dy
         fv = fs[q] - fm
-        sj0 += jv[0]
-        sj1 += jv[1]
-        sj2 += jv[2]
-        sj3 += jv[3]
-        sj4 += jv[4]
-        sj5 += jv[5]
-        b00 += jv[0] * fv
-        b01 += jv[1] * fv
-        b02 += jv[2] * fv
-        b03 += jv[3] * fv
-        b04 += jv[4] * fv
-        b05 += jv[5] * fv
-        for i in range(6):
-            for j in range(6):
-                H[i, j] += jv[i] * ev[j]
+        jax = ja * dx
+        jay = ja * dy
+        jdx = jd * dx
+        jdy = jd * dy
+        sj0 += ja
+        sj1 += jax
+        sj2 += jay
+        sj3 += jd
+        sj4 += jdx
+        sj5 += jdy
+        b00 += ja * fv
+        b01 += jax * fv
+        b02 += jay * fv
+        b03 += jd * fv
+        b04 += jdx * fv
+        b05 += jdy * fv
+        xx = dx * dx
+        xy = dx * dy
+        yy = dy * dy
+        ea = ex[q]
+        ed = ey[q]
+        for g, c in enumerate((ja * ea, ja * ed, jd * ea, jd * ed)):
+            mom[g, 0] += c
+            mom[g, 1] += c * dx
+            mom[g, 2] += c * dy
+            mom[g, 3] += c * xx
+            mom[g, 4] += c * xy
+            mom[g, 5] += c * yy
+    for g in range(4):
+        r0 = 3 * (g // 2)
+        c0 = 3 * (g % 2)
+        # entry (i, j) of a block: sum c w_i w_j
+        H[r0, c0] = mom[g, 0]
+        H[r0, c0 + 1] = H[r0 + 1, c0] = mom[g, 1]
+        H[r0, c0 + 2] = H[r0 + 2, c0] = mom[g, 2]
+        H[r0 + 1, c0 + 1] = mom[g, 3]
+        H[r0 + 1, c0 + 2] = H[r0 + 2, c0 + 1] = mom[g, 4]
+        H[r0 + 2, c0 + 2] = mom[g, 5]
     return sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05
 
 
@@ -188,9 +197,8 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
         Subset half-width and width.
     start : (float, float)
         Starting ``(u, v)`` (divergence test).
-    tol : (float, float)
-        The node's convergence tolerances (pixels,
-        :func:`~.icgn_node.node_tolerance`).
+    tol : float
+        Convergence tolerance on the increment (pixels).
     zn : float
         ZNCC of the previous step.
 
@@ -225,14 +233,13 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     dvx = -dp[4]
     dvy = -dp[5]
     p = inverse_compose(p, du, dux, duy, dv, dvx, dvy)
-    nd = du * du + dv * dv
-    ng = h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
-    return step_status(p[0] - start[0], p[3] - start[1], span, nd, ng, tol), zn_k, p
+    nrm = du * du + dv * dv + h * h * (dux * dux + duy * duy + dvx * dvx + dvy * dvy)
+    return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn_k, p
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                h, max_iter, tol, noise2, p_out, zncc_out, iters_out, reason_out, stats_out):
+                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     Per node: gather the subset, build the reference matrix and its LU
@@ -261,9 +268,6 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         Mask slot per node and the component masks of the cut nodes.
     h, max_iter, tol
         Subset half-width, iteration cap, convergence tolerance.
-    noise2 : float
-        Widens each node's tolerance by its noise
-        (:func:`~.icgn_node.node_tolerance`; 0: ``tol`` everywhere).
     p_out, zncc_out, iters_out, reason_out : (n, 6), (n,), (n,), (n,)
         Receive parameters, ZNCC, iterations and status.
     stats_out : (n, 5) float64
@@ -279,28 +283,25 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         ey = np.empty(npx)
         LU, piv, b, dp = solve_buffers(6)
         H = np.empty((6, 6))
-        w = np.array([1.0, h * h, h * h, 1.0, h * h, h * h])  # affine_step's norm
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
-            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+            hs = gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
             sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05 = affine_reference_sums(
                 dxs, dys, gx, gy, ex, ey, fs, m, fm, H)
             sj = (sj0, sj1, sj2, sj3, sj4, sj5)
             bf = (b00, b01, b02, b03, b04, b05)
             p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
                  p_init[k, 5])
-            status, zn, it, dfn = begin_node(k, m, df2, H, LU, piv, stats_out)
+            status, zn, it, dfn = begin_node(k, m, df2, hs, H, LU, piv, stats_out)
             start = (p[0], p[3])
-            tk = (tol, tol) if status != NOT_CONVERGED else node_tolerance(
-                LU, piv, w, tol, noise2, b, dp)
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
                                             gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
-                                            bf, (LU, piv), b, dp, h, span, start, tk, zn)
+                                            bf, (LU, piv), b, dp, h, span, start, tol, zn)
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
 
 

@@ -17,8 +17,7 @@ import numpy as np
 from .flags import INLINE
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK
 
-__all__ = ["lu_factor", "lu_solve", "solve_buffers", "begin_node", "node_tolerance",
-           "step_status"]
+__all__ = ["lu_factor", "lu_solve", "solve_buffers", "begin_node", "step_status"]
 
 
 @nb.njit(**INLINE)
@@ -128,7 +127,7 @@ def solve_buffers(npar):
 
 
 @nb.njit(**INLINE)
-def begin_node(k, m, df2, H, LU, piv, stats_out):
+def begin_node(k, m, df2, hs, H, LU, piv, stats_out):
     """Record node ``k``'s reference statistics and factorise its matrix.
 
     Parameters
@@ -138,11 +137,11 @@ def begin_node(k, m, df2, H, LU, piv, stats_out):
     m, df2 : int, float
         Subset pixels and ``sum (f - fm)^2``
         (:func:`~.subset.gather_subset`).
+    hs : (float, float, float)
+        ``sum gx^2, sum gx gy, sum gy^2`` of the exact gradients
+        (:func:`~.subset.gather_gradients`).
     H : (npar, npar) float64
-        Reference Gauss-Newton matrix ``sum J e^T``; parameters 0 and 3 are
-        ``u`` and ``v``, so ``H[0, 0], H[3, 0], H[3, 3]`` are ``sum jx ex,
-        sum jy ex, sum jy ey`` (``sum gx^2, sum gx gy, sum gy^2`` when the
-        steepest-descent images are the exact gradients).
+        Reference Gauss-Newton matrix ``sum J e^T``.
     LU, piv : (npar, npar) float64, (npar,) int64
         Receive the factors of ``H`` (:func:`lu_factor`).
     stats_out : (n, 5) float64
@@ -161,68 +160,16 @@ def begin_node(k, m, df2, H, LU, piv, stats_out):
     """
     stats_out[k, 0] = m
     stats_out[k, 1] = df2 / m
-    stats_out[k, 2] = H[0, 0]
-    stats_out[k, 3] = H[3, 0]
-    stats_out[k, 4] = H[3, 3]
+    stats_out[k, 2] = hs[0]
+    stats_out[k, 3] = hs[1]
+    stats_out[k, 4] = hs[2]
     if df2 <= 1e-6 * m or not lu_factor(H, LU, piv):
         return NO_TEXTURE, np.nan, 0, 0.0
     return NOT_CONVERGED, np.nan, 0, np.sqrt(df2)
 
 
 @nb.njit(**INLINE)
-def node_tolerance(LU, piv, weights, tol, noise2, e, z):
-    """Convergence tolerances of one node: ``tol`` for its displacement, and
-    ``tol`` widened by the node's own noise for the rest of its warp.
-
-    On subsets with little texture for their parameters (coarse speckle,
-    blur) the displacement gradients are poorly determined and their update
-    stalls near their noise, long after the displacement has settled:
-    iterating on moves them by nothing that can be measured. Their squared
-    tolerance is ``tol² + noise2 Σ w_i (M⁻¹)_ii`` over the parameters other
-    than ``u, v``: ``noise2`` is the image noise variance times twice the
-    square of the fraction of the standard uncertainty accepted as the last
-    step (:mod:`~napari_aldic.engine.dic.icgn`), ``(M⁻¹)_ii`` the diagonal of
-    the inverse Gauss-Newton matrix (the parameters' noise variance per unit
-    image noise), ``w_i`` the weights of the update norm. The displacement
-    keeps ``tol``: widened too, a slowly creeping iteration would stop short
-    of the match (measured: wrong but trusted nodes on speckle coarse for
-    the subset).
-
-    Parameters
-    ----------
-    LU, piv : (n, n) float64, (n,) int64
-        Factors of the node's matrix (:func:`lu_factor`).
-    weights : (n,) float64
-        Weight of each parameter in the squared update norm
-        (:func:`step_status`).
-    tol : float
-        The run's tolerance (pixels).
-    noise2 : float
-        As above; 0 keeps ``tol``.
-    e, z : (n,) float64
-        Work arrays.
-
-    Returns
-    -------
-    (float, float)
-        ``tol`` and the widened tolerance of the parameters other than the
-        displacement (pixels at the subset edge).
-    """
-    if not noise2 > 0:
-        return tol, tol
-    acc = 0.0
-    for i in range(weights.size):
-        if i == 0 or i == 3:
-            continue
-        e[:] = 0.0
-        e[i] = 1.0
-        lu_solve(LU, piv, e, z)
-        acc += weights[i] * abs(z[i])
-    return tol, np.sqrt(tol * tol + noise2 * acc)
-
-
-@nb.njit(**INLINE)
-def step_status(du, dv, span, nd, ng, tk):
+def step_status(du, dv, span, nrm, tol):
     """Verdict on a node after one Gauss-Newton step.
 
     Parameters
@@ -231,22 +178,18 @@ def step_status(du, dv, span, nd, ng, tk):
         Displacement moved since the node's start.
     span : int
         Subset width: a node that moved farther has diverged.
-    nd, ng : float
-        Squared norms of the step's increment: its displacement, and its
-        other parameters weighted to displacements at the subset edge (not
-        finite: diverged).
-    tk : (float, float)
-        Tolerances ``(tol, tol_g)`` (:func:`node_tolerance`): converged when
-        ``nd + ng < tol²``, or when ``nd < tol²`` and ``ng < tol_g²``.
+    nrm : float
+        Squared norm of the step's increment (not finite: diverged).
+    tol : float
+        Convergence tolerance: converged when ``nrm < tol^2``.
 
     Returns
     -------
     int
         ``DIVERGED``, ``OK`` or ``NOT_CONVERGED`` (go on).
     """
-    if abs(du) > span or abs(dv) > span or not np.isfinite(nd + ng):
+    if abs(du) > span or abs(dv) > span or not np.isfinite(nrm):
         return DIVERGED
-    tol, tol_g = tk
-    if nd + ng < tol * tol or (nd < tol * tol and ng < tol_g * tol_g):
+    if nrm < tol * tol:
         return OK
     return NOT_CONVERGED

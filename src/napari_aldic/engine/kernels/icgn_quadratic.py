@@ -33,7 +33,7 @@ import numpy as np
 
 from .flags import FASTMATH, INLINE, PARALLEL
 from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
-from .icgn_node import begin_node, lu_solve, node_tolerance, solve_buffers, step_status
+from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["NPAR", "quadratic_jacobian", "quadratic_reference_sums", "quadratic_offsets",
@@ -205,10 +205,9 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
         Work arrays.
     h, span, start
         As :func:`~.icgn.affine_step`.
-    tol : (float, float)
-        The node's convergence tolerances (pixels,
-        :func:`~.icgn_node.node_tolerance`) on the increment's
-        displacements at the subset edge.
+    tol : float
+        Convergence tolerance (pixels) on the increment's largest
+        displacement at the subset edge.
 
     Returns
     -------
@@ -244,17 +243,16 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
     compose_quadratic(p, dp)
     h2 = h * h
     h4 = 0.25 * h2 * h2
-    nd = dp[0] * dp[0] + dp[3] * dp[3]
-    ng = (h2 * (dp[1] * dp[1] + dp[2] * dp[2] + dp[4] * dp[4] + dp[5] * dp[5])
-          + h4 * (dp[6] * dp[6] + dp[7] * dp[7] + dp[8] * dp[8] + dp[9] * dp[9]
-                  + dp[10] * dp[10] + dp[11] * dp[11]))
-    return step_status(p[0] - start[0], p[3] - start[1], span, nd, ng, tol), zn
+    nrm = (dp[0] * dp[0] + dp[3] * dp[3]
+           + h2 * (dp[1] * dp[1] + dp[2] * dp[2] + dp[4] * dp[4] + dp[5] * dp[5])
+           + h4 * (dp[6] * dp[6] + dp[7] * dp[7] + dp[8] * dp[8] + dp[9] * dp[9]
+                   + dp[10] * dp[10] + dp[11] * dp[11]))
+    return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                   h, max_iter, tol, noise2, p_out, zncc_out, iters_out, reason_out,
-                   stats_out):
+                   h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
     """Quadratic IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     As :func:`~.icgn.icgn_affine` with twelve parameters: per node gather the
@@ -267,8 +265,6 @@ def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, s
     Parameters
     ----------
     f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
-        As :func:`~.icgn.icgn_affine`.
-    noise2 : float
         As :func:`~.icgn.icgn_affine`.
     p_init : (n, 12) float64
         Initial parameters (layout in the module docstring).
@@ -291,26 +287,21 @@ def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, s
         bf = np.empty(NPAR)
         p = np.empty(NPAR)
         LU, piv, b, dp = solve_buffers(NPAR)
-        w = np.empty(NPAR)  # quadratic_step's norm
-        for i in range(NPAR):
-            w[i] = 1.0 if i in (0, 3) else (h * h if i < 6 else 0.25 * h**4)
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
-            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+            hs = gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
             H = quadratic_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, Jm, Em, sj, bf)
             p[:] = p_init[k]
-            status, zn, it, dfn = begin_node(k, m, df2, H, LU, piv, stats_out)
+            status, zn, it, dfn = begin_node(k, m, df2, hs, H, LU, piv, stats_out)
             start = (p[0], p[3])
-            tk = (tol, tol) if status != NOT_CONVERGED else node_tolerance(
-                LU, piv, w, tol, noise2, b, dp)
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
                 status, z = quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
                                            gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, qx, qy,
-                                           sj, bf, (LU, piv), b, dp, h, span, start, tk)
+                                           sj, bf, (LU, piv), b, dp, h, span, start, tol)
                 if np.isfinite(z):
                     zn = z
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)

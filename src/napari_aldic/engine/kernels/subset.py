@@ -111,18 +111,31 @@ def gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey):
         As :func:`gather_subset`.
     ex, ey : (>= S^2,) float64
         Receive the gradients of the used pixels.
+
+    Returns
+    -------
+    hxx, hxy, hyy : float
+        ``sum ex^2, sum ex ey, sum ey^2``: the subset's 2 x 2 Gauss-Newton
+        matrix of the displacement, as :func:`subset_stats` sums it.
     """
     x0 = nx[k]
     y0 = ny[k]
     sl = slot[k]
     m = 0
+    hxx = hxy = hyy = 0.0
     for a in range(-h, h + 1):
         for bb in range(-h, h + 1):
             if sl >= 0 and masks[sl, a + h, bb + h] == 0:
                 continue
-            ex[m] = egx[y0 + a, x0 + bb]
-            ey[m] = egy[y0 + a, x0 + bb]
+            gxv = np.float64(egx[y0 + a, x0 + bb])
+            gyv = np.float64(egy[y0 + a, x0 + bb])
+            ex[m] = gxv
+            ey[m] = gyv
+            hxx += gxv * gxv
+            hxy += gxv * gyv
+            hyy += gyv * gyv
             m += 1
+    return hxx, hxy, hyy
 
 
 @nb.njit(**PARALLEL)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -469,25 +469,45 @@ class _SequenceRun:
         """Correlate the frames of ``todo`` one after the other, each from the
         previous increment of its reference block; ``ref_img`` is frame 0.
         Returns True if cancelled."""
-        ref_k, prev_inc = 0, None
+        ref_k, prev_inc, before = 0, None, None
         solvers: dict = {}  # AL-DIC global factor, reused while the mesh stays
         for i in todo:
             if cancel is not None and cancel():
                 return True
             r, k = self.ref_of(i), self.idx[i]
             if i - 1 not in todo and i > 1:
-                prev_inc = None  # previous frame came from disk: no increment at hand
+                prev_inc = before = None  # previous frame came from disk: no increment
             self.report(k, (i - 1) / (len(self.idx) - 1), f"frame {k} against frame {r}")
             try:  # cancel also stops promptly inside a frame
                 if r != ref_k:
-                    ref_k, ref_img, prev_inc = r, self.src[r], None
+                    ref_k, ref_img, prev_inc, before = r, self.src[r], None, None
                 inc = correlate(ref_img, self.src[k], roi=self.roi_on(r), params=self.params,
-                                guess=prev_inc, refine=self.refine, cancel=cancel,
+                                guess=_extrapolated(prev_inc, before), refine=self.refine,
+                                cancel=cancel,
                                 solver_cache=solvers)
             except Cancelled:
                 return True
             except Exception as exc:  # a bad frame: keep what is finished
                 raise self.failed(k, exc) from exc
-            prev_inc = inc
+            prev_inc, before = inc, prev_inc
             self.finish(i, inc)
         return False
+
+
+def _extrapolated(prev: DICResult | None, before: DICResult | None) -> DICResult | None:
+    """The initial guess of the next frame against the same reference: the
+    last result moved on at the last frames' rate (``2 prev - before`` where
+    both are valid on the same nodes), else ``prev``. A specimen that keeps
+    moving (a test machine's crosshead) leaves the last frame's field a whole
+    increment behind, beyond IC-GN's basin once the increment reaches a few
+    speckles."""
+    if prev is None or before is None or not (
+            np.array_equal(prev.x, before.x) and np.array_equal(prev.y, before.y)):
+        return prev
+    both = prev.valid & before.valid
+    if not both.any():
+        return prev
+    moved = {name: np.where(both, 2 * getattr(prev, name) - getattr(before, name),
+                            getattr(prev, name))
+             for name in ("u", "v", "dudx", "dudy", "dvdx", "dvdy")}
+    return replace(prev, valid=both, **moved)

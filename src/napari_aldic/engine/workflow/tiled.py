@@ -27,8 +27,8 @@ Why the blocks give the untiled result:
   nearest valid coarse node, extrapolated to first order.
 
 Block statistics that the validity tests take from their nodes (the median
-match residual, the image noise) are each block's own: a node near a
-threshold may be flagged differently from an untiled run. With
+match residual) are each block's own: a node near a threshold may be flagged
+differently from an untiled run; the image noise is the whole pair's. With
 ``method="aldic"`` the Local result then goes through AL-DIC, its local step
 read block by block (:mod:`.tiled_aldic`). Seed propagation and mesh
 refinement need the whole image and are refused.
@@ -53,6 +53,7 @@ from ..dic.correlate import correlate
 from ..dic.icgn import convergence_record
 from ..dic.interpolation import PREFILTER_MARGIN, choose_order, jacobian_smoothing
 from ..dic.mesh import EDGE
+from ..dic.reliability import image_noise
 from ..io.stack import open_image
 from .tiled_aldic import aldic_tiled
 
@@ -340,6 +341,13 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
         raise ValueError(f"ROI mask shape {tuple(roi.shape)} differs from image shape "
                          f"{ref.shape}")
     params = _resolved(params.fitted_to(ref.shape), ref, ref.shape)
+    # every block judges its nodes against the whole pair's image noise, as an
+    # untiled run does (and IC-GN's noise-widened tolerance uses it)
+    image_var = 0.5 * (image_noise(ref, roi) ** 2 + image_noise(dfm, roi) ** 2)
+    # and every block starts its nodes straight from the coarse result of this
+    # same pair (no search around it, as for a previous frame's result)
+    params = params.replace(extra={**params.extra, "image_var": image_var,
+                                   "guess_of_this_pair": True})
     aldic = params.method == "aldic"
     lparams = params.replace(method="local") if aldic else params
     # fractions of the progress bar: initial guess, Local blocks, (AL-DIC)
