@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..kernels.cg import jacobi_cg
+from ..kernels.cg import TriangularSolver, jacobi_cg
 from ..kernels.sums import integral_image
 from .subsets import rect_sums
 
@@ -420,6 +420,10 @@ class SPDSolver:
         self._last = sol
         return sol
 
+    def triangular(self) -> TriangularSolver:
+        """The factor as a :class:`~..kernels.cg.TriangularSolver` (a copy)."""
+        return TriangularSolver(self._lu)
+
     def _jacobi_cg(self, rhs: np.ndarray, start: np.ndarray) -> np.ndarray:
         """Jacobi-preconditioned CG per column (``scipy.sparse.linalg.cg``'s
         iteration with ``M = diag(A)⁻¹``, compiled and single-threaded)."""
@@ -465,6 +469,7 @@ class CurvatureEstimator:
         # well conditioned (length ~ step): warm-started CG beats a factor
         self._smoother = SPDSolver((self._Wd @ self.T + length**4 * K).tocsc(), "jacobi",
                                     rtol=1e-6)
+        self._factor = None  # TriangularSolver of this matrix (__call__'s direct)
         nb = _cached(mesh, "axis_neighbours", _axis_neighbours)
         e = mesh.elements
         cnt = np.bincount(e.ravel(), minlength=n).astype(float)
@@ -476,14 +481,19 @@ class CurvatureEstimator:
         self._Dxy = twist_to_nodes @ Dxy
         self._zero = (np.bincount(e.ravel(), minlength=n) == 0) | level_transition_nodes(mesh)
 
-    def __call__(self, uh: np.ndarray, vh: np.ndarray) -> np.ndarray:
-        """(N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy`` in 1/px."""
-        uv = np.column_stack([uh, vh])
-        sm = self.T @ self._smoother.solve(self._Wd @ uv, uv[self.free])
-        out = np.column_stack([self._Dxx @ sm[:, 0], self._Dxy @ sm[:, 0], self._Dyy @ sm[:, 0],
-                               self._Dxx @ sm[:, 1], self._Dxy @ sm[:, 1], self._Dyy @ sm[:, 1]])
+    def __call__(self, uh: np.ndarray, vh: np.ndarray, direct: bool = False) -> np.ndarray:
+        """(N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy`` in 1/px, (N, 6, K) for K fields (N, K);
+        ``direct``: smoothed by a factor of the smoother's matrix (built once,
+        :class:`~..kernels.cg.TriangularSolver`), not CG: for many columns (noise probes)."""
+        if direct and self._factor is None:
+            self._factor = SPDSolver(self._smoother.A, "direct", 0.0).triangular()
+        solve = (self._factor if direct else self._smoother).solve
+        uv = np.column_stack([uh, vh])  # the u columns, then the v columns
+        sm = self.T @ solve(self._Wd @ uv, uv[self.free])
+        out = np.stack([D @ s for s in np.split(sm, 2, axis=1)
+                        for D in (self._Dxx, self._Dxy, self._Dyy)], axis=1)
         out[self._zero] = 0.0
-        return out
+        return out[:, :, 0] if np.ndim(uh) == 1 else out
 
 
 class GlobalSolver:

@@ -71,8 +71,9 @@ class CurvatureFeedback:
 
     Attributes
     ----------
-    estimator : callable(uh, vh) -> (n, 6)
-        The smoothed second derivatives the local step bends subsets by.
+    estimator : CurvatureEstimator
+        The smoothed second derivatives the local step bends subsets by (all
+        probe columns at once: ``estimator(uh, vh, direct=True)``).
     factor : (n, 6) float
         Derivative of the curvature shrinkage at the run's curvature (0 where
         the warp is off: subsets cut by the ROI edge).
@@ -152,7 +153,8 @@ class BatchSolver:
             raise ValueError("the AL-DIC noise propagation needs the factorised global "
                              f"system, not {solver.system.method!r} (meshes up to "
                              "DIRECT_MAX_UNKNOWNS free nodes)")
-        self.s, self.system = solver, solver.system
+        # all probe columns in one compiled pass over the factor (TriangularSolver)
+        self.s, self.system = solver, solver.system.triangular()
 
     def gradients(self, uh, vh):
         s = self.s
@@ -162,8 +164,7 @@ class BatchSolver:
         s = self.s
         k = u.shape[1]
         rhs = s.rhs(F, W, u, v, vu, vv)
-        guess = np.concatenate([u - vu, v - vv], axis=1)[s.free]
-        full = s.T @ self.system.solve(rhs, guess)
+        full = s.T @ self.system.solve(rhs)
         return full[:, :k], full[:, k:]
 
 
@@ -191,9 +192,9 @@ def _gradient_coupling(m: np.ndarray, k: int) -> np.ndarray:
 
 
 def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
-    """(n, 6, K) linearised change of the warp curvature for field errors (n, K)."""
-    cols = [fb.estimator(uh[:, j], vh[:, j]) for j in range(uh.shape[1])]
-    return fb.factor[:, :, None] * np.stack(cols, axis=2)
+    """(n, 6, K) linearised change of the warp curvature for field errors (n, K):
+    all K columns smoothed by one solve with the smoother's factor."""
+    return fb.factor[:, :, None] * fb.estimator(uh, vh, direct=True)
 
 
 def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,

@@ -7,6 +7,8 @@ loop takes a BLAS dot product three times per iteration, and on vectors of
 this length OpenBLAS splits each between threads: on a busy machine the
 hand-over to a descheduled thread costs more than the arithmetic. Here every
 sum runs in order on one thread (the results agree with SciPy's to rounding).
+The triangular solves of a SuperLU factor for many right-hand sides at once
+(the AL-DIC noise propagation's probes) run the same way.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 
 from .flags import CACHED
 
-__all__ = ["jacobi_cg"]
+__all__ = ["jacobi_cg", "triangular_solve", "TriangularSolver"]
 
 
 @nb.njit(**CACHED)
@@ -98,3 +100,49 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter):
             r[i] -= alpha * q[i]
         rho_prev = rho
     return maxiter
+
+
+@nb.njit(**CACHED)
+def triangular_solve(indptr, indices, data, x, lower):
+    """Solve ``L y = x`` (``lower``) or ``U y = x`` in place for the columns
+    of ``x`` (n, K) with a sparse triangular factor in CSC arrays (a SuperLU
+    factor's ``L`` or ``U``), column-oriented and in order on one thread:
+    the K right-hand sides of one row sit side by side, so each factor
+    entry is read once for all of them.
+    """
+    n, k = x.shape
+    for step in range(n):
+        j = step if lower else n - 1 - step
+        d = 0.0
+        for p in range(indptr[j], indptr[j + 1]):
+            if indices[p] == j:
+                d = data[p]
+        for c in range(k):
+            x[j, c] /= d
+        for p in range(indptr[j], indptr[j + 1]):
+            i = indices[p]
+            if i != j:
+                a = data[p]
+                for c in range(k):
+                    x[i, c] -= a * x[j, c]
+
+
+class TriangularSolver:
+    """Solves with a SuperLU factor ``Pr A Pc = L U`` by the compiled
+    single-threaded triangular solves above, all columns in one
+    pass. SuperLU's own multi-column solve hands its small dense blocks to
+    threaded OpenBLAS; on 2 busy cores 32 columns of a 4.8k-node system took
+    0.2-0.4 s there and 3 ms here (equal to rounding)."""
+
+    def __init__(self, lu):
+        self.L, self.U = lu.L.tocsc(), lu.U.tocsc()
+        self.perm_r, self.perm_c = lu.perm_r, lu.perm_c
+
+    def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
+        """``A⁻¹ rhs`` for (n,) or (n, K) ``rhs`` (``guess`` unused: the
+        signature of :meth:`~..dic.global_solve.SPDSolver.solve`)."""
+        x = np.empty((rhs.shape[0], int(np.prod(rhs.shape[1:]))))
+        x[self.perm_r] = rhs.reshape(x.shape)
+        for f, lower in ((self.L, True), (self.U, False)):
+            triangular_solve(f.indptr, f.indices, f.data, x, lower)
+        return x[self.perm_c].reshape(rhs.shape)
