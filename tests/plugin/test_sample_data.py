@@ -202,7 +202,9 @@ def test_crack_sequence_sample_is_the_shipped_crop_and_the_crack_opens():
         assert near.any(), (x, y)
         return float(np.median(res.v[near]))
 
-    opening = v_at(70, 250) - v_at(70, 205)
+    # x = 63: the trusted nodes nearest the notch (those at x = 73, whose subsets
+    # reach the crack's tip region, are flagged static or uncertain since issue 22)
+    opening = v_at(62, 250) - v_at(62, 205)
     assert opening > 3.0
     assert abs(v_at(330, 250) - v_at(330, 205)) < 0.4 * opening
     assert -62 < v_at(330, 205) < -50  # the specimen moved ~57 px up

@@ -98,6 +98,14 @@ def result_summary(result) -> str:
     aldic = result.aldic_summary()
     if aldic:
         lines.append(aldic)
+    conv = result.meta.get("convergence")
+    if conv:
+        line = (tr("IC-GN: {at_cap} nodes at the cap of {max_iter}")
+                if conv.get("median_iterations") is None else
+                tr("IC-GN: median {median:g} iterations, {at_cap} nodes at the cap of "
+                   "{max_iter}"))
+        lines.append(line.format(median=conv.get("median_iterations") or 0,
+                                 at_cap=conv["at_cap"], max_iter=conv["max_iter"]))
     total = result.meta.get("timing", {}).get("total")
     if total is not None:
         lines.append(tr("time {seconds:.3f} s ({rate:,.0f} POI/s)").format(
