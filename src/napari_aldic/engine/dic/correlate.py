@@ -121,8 +121,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     if guess is not None and not isinstance(guess, DICResult):
         raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
                         f"{type(guess).__name__}")
-    report = _reporter(progress, cancel)
-    timing: dict[str, float] = {}
+    report, timing = _reporter(progress, cancel), {}  # timing: stage -> seconds
     f, g, mask, params = _validated(reference, deformed, roi, params)
     ref_spec = resolve_refinement(refine if refine is not None else params.refine)
     im, base, grid, qmesh = _prepare(f, g, mask, ref_spec, params, timing, report)
@@ -135,9 +134,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
                                                 params, timing, report, solver_cache, meta)
     quality = _quality(im, mask, grid, sol, params, timing, meta)
     sol.reason = _uncertain_as_exported(sol, quality, params)
-    _record(meta, sol, ref_spec, grid, params, timing, t_start)
-    meta["convergence"]["jacobian_sigma_px"] = float(im.j_sigma)
-    warn_iteration_cap(meta["convergence"])
+    _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
@@ -192,8 +189,9 @@ def _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec, params, timing,
 
 
 def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
-            t_start: float) -> None:
-    """What the result's ``meta`` tells about the run (refinement, ADMM, timing)."""
+            t_start: float, j_sigma: float) -> None:
+    """What the result's ``meta`` tells about the run (refinement, ADMM, timing,
+    IC-GN's convergence, with a warning when many nodes ended at the cap)."""
     if ref_spec is not None:
         meta["refine"] = _describe(ref_spec)
     for key, value in (("admm_history", sol.history), ("regularisation", sol.regularisation),
@@ -206,6 +204,8 @@ def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
     meta["n_valid"] = int(np.count_nonzero(sol.reason == Reason.OK))
     meta["convergence"] = convergence_record(sol.reason, sol.iters, sol.sub.reason == Reason.OK,
                                              params.max_iter)
+    meta["convergence"]["jacobian_sigma_px"] = float(j_sigma)
+    warn_iteration_cap(meta["convergence"], stacklevel=4)
 
 
 @dataclass

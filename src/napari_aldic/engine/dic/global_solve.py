@@ -523,9 +523,8 @@ class GlobalSolver:
         self.Gx, self.Gy, self.covered = gradient_operator(mesh)
         self.T, self.free = mesh.prolongation()
         self.w = np.where(weights, 1.0, UNTRUSTED_WEIGHT).astype(float)
-        # gradient rows of untrusted nodes are dropped: their local gradient is
-        # unknown, and their displacement is still tied in through the
-        # neighbours' rows (central differences include it)
+        # gradient rows of untrusted nodes are dropped (their gradient is unknown);
+        # their displacement is still tied in through the neighbours' rows
         self.wg = np.asarray(weights, float)
         if direct is not None:
             method = "direct" if direct else "jacobi"

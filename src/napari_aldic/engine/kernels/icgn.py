@@ -88,10 +88,7 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
         ja = gx[q]
         jd = gy[q]
         fv = fs[q] - fm
-        jax = ja * dx
-        jay = ja * dy
-        jdx = jd * dx
-        jdy = jd * dy
+        jax, jay, jdx, jdy = ja * dx, ja * dy, jd * dx, jd * dy
         sj0 += ja
         sj1 += jax
         sj2 += jay
@@ -104,11 +101,8 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
         b03 += jd * fv
         b04 += jdx * fv
         b05 += jdy * fv
-        xx = dx * dx
-        xy = dx * dy
-        yy = dy * dy
-        ea = ex[q]
-        ed = ey[q]
+        xx, xy, yy = dx * dx, dx * dy, dy * dy
+        ea, ed = ex[q], ey[q]
         for g, c in enumerate((ja * ea, ja * ed, jd * ea, jd * ed)):
             mom[g, 0] += c
             mom[g, 1] += c * dx

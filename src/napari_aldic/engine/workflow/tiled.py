@@ -130,6 +130,26 @@ def _plan(shape, params: DICParams, tile_size: int) -> _Plan:
     return _Plan((int(shape[0]), int(shape[1])), xs, ys, params.step, per_block, halo, margin)
 
 
+def _counted(res: DICResult, params: DICParams) -> DICResult:
+    """``res`` with the counts an untiled run records: nodes, valid nodes and
+    how IC-GN converged over all blocks."""
+    res.meta["n_nodes"] = len(res)
+    res.meta["n_valid"] = res.n_valid
+    res.meta["convergence"] = convergence_record(
+        res.reason, res.iterations, res.reason != Reason.SMALL_COMPONENT, params.max_iter)
+    return res
+
+
+def _shared(params: DICParams, ref, dfm, roi) -> DICParams:
+    """``params`` with what every block takes from the whole pair: its image
+    noise (the validity tests judge every node against it, as an untiled run
+    does), and that the guess is this same pair's coarse result (IC-GN starts
+    from it directly, without the search around a previous frame's field)."""
+    image_var = 0.5 * (image_noise(ref, roi) ** 2 + image_noise(dfm, roi) ** 2)
+    return params.replace(extra={**params.extra, "image_var": image_var,
+                                 "guess_of_this_pair": True})
+
+
 def _resolved(params: DICParams, ref, shape) -> DICParams:
     """The choices every block must share: ``search_max`` and the B-spline order."""
     if params.init != "fft":
@@ -340,14 +360,7 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
     if roi is not None and tuple(roi.shape) != ref.shape:
         raise ValueError(f"ROI mask shape {tuple(roi.shape)} differs from image shape "
                          f"{ref.shape}")
-    params = _resolved(params.fitted_to(ref.shape), ref, ref.shape)
-    # every block judges its nodes against the whole pair's image noise, as an
-    # untiled run does (and IC-GN's noise-widened tolerance uses it)
-    image_var = 0.5 * (image_noise(ref, roi) ** 2 + image_noise(dfm, roi) ** 2)
-    # and every block starts its nodes straight from the coarse result of this
-    # same pair (no search around it, as for a previous frame's result)
-    params = params.replace(extra={**params.extra, "image_var": image_var,
-                                   "guess_of_this_pair": True})
+    params = _shared(_resolved(params.fitted_to(ref.shape), ref, ref.shape), ref, dfm, roi)
     aldic = params.method == "aldic"
     lparams = params.replace(method="local") if aldic else params
     # fractions of the progress bar: initial guess, Local blocks, (AL-DIC)
@@ -370,11 +383,7 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
                       "margin_px": plan.margin, "guess_nodes": int(guess.valid.sum()),
                       "reference": ref.name, "deformed": dfm.name},
             "timing": {"guess": t_guess, "total": time.perf_counter() - t0}}
-    res = _assemble(arrays, plan, lparams, meta)
-    res.meta["n_nodes"] = len(res)
-    res.meta["n_valid"] = res.n_valid
-    res.meta["convergence"] = convergence_record(
-        res.reason, res.iterations, res.reason != Reason.SMALL_COMPONENT, params.max_iter)
+    res = _counted(_assemble(arrays, plan, lparams, meta), params)
     if aldic:
         res = aldic_tiled(ref, dfm, roi, res, params, plan.per_block, workers=workers,
                           cancel=cancel, progress=lambda f, m: report(cut2 + (1 - cut2) * f, m))
