@@ -159,3 +159,28 @@ def test_kernel_statistics_equal_the_validity_tests_statistics():
                sub.slot, sub.masks, 15, stats=stats, lin=exact)
     table = subset_statistics(ref, *exact, grid.x, grid.y, sub.slot, sub.masks, 15).table
     np.testing.assert_allclose(stats[ok], table[ok], rtol=1e-10)
+
+
+def test_sequence_guess_moves_on_at_the_last_frames_rate():
+    """The next frame's guess against the same reference: ``2 prev - before``
+    at the nodes valid in both, ``prev`` elsewhere and when the nodes differ."""
+    from dataclasses import replace
+
+    from napari_aldic.engine import synthetic
+    from napari_aldic.engine.workflow.sequence import _extrapolated
+
+    ref, dfm = synthetic.speckle_pair((96, 96), synthetic.Translation(0.5, 0.2))
+    base = correlate(ref, dfm, subset=31, step=16)
+    before = replace(base, u=base.u + 1.0, v=base.v - 2.0, dudx=base.dudx + 0.01)
+    valid = base.valid.copy()
+    valid[0] = False
+    prev = replace(base, u=base.u + 3.0, v=base.v - 5.0, dudx=base.dudx + 0.02, valid=valid)
+    g = _extrapolated(prev, before)
+    ok = valid & base.valid
+    np.testing.assert_allclose(g.u[ok], base.u[ok] + 5.0)
+    np.testing.assert_allclose(g.v[ok], base.v[ok] - 8.0)
+    np.testing.assert_allclose(g.dudx[ok], base.dudx[ok] + 0.03)
+    assert not g.valid[0] and g.u[0] == prev.u[0]
+    assert _extrapolated(prev, None) is prev
+    shifted = replace(before, x=before.x + 1.0)
+    assert _extrapolated(prev, shifted) is prev

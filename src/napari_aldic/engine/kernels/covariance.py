@@ -26,6 +26,7 @@ import numba as nb
 import numpy as np
 
 from .flags import FASTMATH, INLINE, PARALLEL
+from .icgn_node import lu_factor, lu_solve
 
 __all__ = ["CHUNK", "MIN_SPECKLE_FRACTION", "gather_matrices", "mean_noise_factor",
            "covariance_diag"]
@@ -153,59 +154,33 @@ def _noise_scale(c, ec):
 
 
 @nb.njit(**INLINE)
-def _lu_transposed(m, lu, piv):
+def _lu_transposed(m, lu, piv, mt):
     """LU factor with partial pivoting of ``mᵀ`` into ``lu`` (row swaps in
-    ``piv``); True when ``det m > 0``."""
+    ``piv``; :func:`~.icgn_node.lu_factor`, ``mt`` a work array); True when
+    the factor exists and ``det m > 0``."""
     s = m.shape[0]
     for i in range(s):
         for j in range(s):
-            lu[i, j] = m[j, i]
+            mt[i, j] = m[j, i]
+    if not lu_factor(mt, lu, piv):
+        return False
     sign = 1.0
     for c in range(s):
-        p = c
-        big = abs(lu[c, c])
-        for r in range(c + 1, s):
-            if abs(lu[r, c]) > big:
-                big = abs(lu[r, c])
-                p = r
-        piv[c] = p
-        if p != c:
+        if piv[c] != c:
             sign = -sign
-            for j in range(s):
-                lu[c, j], lu[p, j] = lu[p, j], lu[c, j]
-        if lu[c, c] == 0.0:
-            return False
         if lu[c, c] < 0:
             sign = -sign
-        for r in range(c + 1, s):
-            f = lu[r, c] / lu[c, c]
-            lu[r, c] = f
-            for j in range(c + 1, s):
-                lu[r, j] -= f * lu[c, j]
     return sign > 0
 
 
 @nb.njit(**INLINE)
-def _row_quadratic_form(lu, piv, e, z, mid):
+def _row_quadratic_form(lu, piv, e, z, mid, w):
     """``zᵀ mid z`` with ``z`` row ``e`` of ``m⁻¹`` (``mᵀ z = e_e``, the
-    factor of ``mᵀ`` in ``lu``, ``piv``)."""
+    factor of ``mᵀ`` in ``lu``, ``piv``; ``w`` a work array)."""
+    w[:] = 0.0
+    w[e] = 1.0
+    lu_solve(lu, piv, w, z)
     s = z.size
-    z[:] = 0.0
-    z[e] = 1.0
-    for c in range(s):
-        p = piv[c]
-        if p != c:
-            z[c], z[p] = z[p], z[c]
-    for r in range(s):  # unit lower triangle
-        acc = z[r]
-        for j in range(r):
-            acc -= lu[r, j] * z[j]
-        z[r] = acc
-    for r in range(s - 1, -1, -1):
-        acc = z[r]
-        for j in range(r + 1, s):
-            acc -= lu[r, j] * z[j]
-        z[r] = acc / lu[r, r]
     q = 0.0
     for i in range(s):
         row = 0.0
@@ -216,9 +191,10 @@ def _row_quadratic_form(lu, piv, e, z, mid):
 
 
 @nb.njit(**INLINE)
-def _node_covariance(mats, var, lu, piv, z):
+def _node_covariance(mats, var, lu, piv, z, w):
     """The u and v variances of one node from its matrices ``mats`` = ``A,
-    E_A, C, E_C`` (overwritten); NaN where the speckle part is not finite
+    E_A, C, E_C`` (overwritten; ``E_A`` ends as a work array; ``z, w`` work
+    vectors); NaN where the speckle part is not finite
     or not positive definite."""
     a, ea, c, ec = mats[0], mats[1], mats[2], mats[3]
     s = a.shape[0]
@@ -235,10 +211,10 @@ def _node_covariance(mats, var, lu, piv, z):
             # the reference's gradient noise is anti-correlated with its own
             # noise at the neighbouring pixels: it adds E_A / 2, not E_A
             a[p, q] -= 0.5 * t * ea[p, q]
-    if not _lu_transposed(c, lu, piv):
+    if not _lu_transposed(c, lu, piv, ea):  # E_A is no longer needed
         return np.nan, np.nan
-    return (2.0 * var * _row_quadratic_form(lu, piv, 0, z, a),
-            2.0 * var * _row_quadratic_form(lu, piv, s // 2, z, a))
+    return (2.0 * var * _row_quadratic_form(lu, piv, 0, z, a, w),
+            2.0 * var * _row_quadratic_form(lu, piv, s // 2, z, a, w))
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
@@ -275,12 +251,12 @@ def covariance_diag(m0, m1, src, col, scale, var_e, m):
     out = np.empty((n, 2))  # (np.full would be a parallel launch of its own)
     for ch in nb.prange((n + CHUNK - 1) // CHUNK):
         mats, lu = np.empty((4, s, s)), np.empty((s, s))
-        piv, z = np.empty(s, np.int64), np.empty(s)
+        piv, z, w = np.empty(s, np.int64), np.empty(s), np.empty(s)
         for i in range(ch * CHUNK, min(n, ch * CHUNK + CHUNK)):
             var = var_e[i]
             out[i, 0] = out[i, 1] = np.nan
             if m[i] > s and np.isfinite(var):
                 for j in range(4):
                     _gather(m0, m1, src[j], col[j], scale[j], i, mats[j])
-                out[i, 0], out[i, 1] = _node_covariance(mats, var, lu, piv, z)
+                out[i, 0], out[i, 1] = _node_covariance(mats, var, lu, piv, z, w)
     return out
