@@ -18,7 +18,8 @@ Layout, by role (imports flow downwards only; see docs/architecture.md):
 * ``viz/``       matplotlib figures, PNG/GIF/MP4 and the PDF report;
 * ``workflow/``  what strings the steps together: ``track``, ``export_result`` and
   ``correlate_tiled`` (pairs larger than memory, block by block);
-* ``synthetic/`` exact-truth images and the named demo cases.
+* ``synthetic/`` exact-truth images and the named demo cases;
+* ``sem/``       HRDIC in the SEM: distortion, scan-line shifts, drift.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from __future__ import annotations
 import importlib
 import warnings
 
-from . import io, probes, synthetic, viz
+from . import io, probes, sem, synthetic, viz
 from .core.files import EncoderNotFoundError, ExportError, RunFolderError
 from .core.params import DICParams
 from .core.progress import Cancelled
@@ -42,6 +43,14 @@ from .dic.strain import StrainResult, compute_strain
 from .io.runs import load_run
 from .io.settings_file import load_params, save_params
 from .io.stack import open_stack
+from .sem import (
+    calibrate_distortion,
+    calibrate_drift,
+    correct_distortion,
+    correlate_sem,
+    load_distortion,
+    load_drift,
+)
 from .viz.report import export_report
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
@@ -62,6 +71,9 @@ __all__ = [
     "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
     # subpackages
     "io", "viz", "synthetic", "probes",
+    # HRDIC in the SEM (issue 27)
+    "sem", "correlate_sem", "calibrate_distortion", "correct_distortion", "load_distortion",
+    "calibrate_drift", "load_drift",
 ]
 
 #: names this module exported before the engine was split into subpackages;

@@ -27,7 +27,8 @@ from ..core.results import DICResult
 from ..dic.correlate import correlate
 from ..dic.interpolation import prefilter, sample
 
-__all__ = ["ScanLines", "estimate_scan_lines", "remove_scan_lines", "correlate_scan_lines"]
+__all__ = ["ScanLines", "estimate_scan_lines", "find_scan_lines", "remove_scan_lines",
+           "correlate_scan_lines"]
 
 
 @dataclass
@@ -200,15 +201,10 @@ def estimate_scan_lines(reference, deformed, result: DICResult,
     return ScanLines(L_ref, L_def)
 
 
-def correlate_scan_lines(reference, deformed, roi=None, params: DICParams | None = None,
-                         passes: int = 2, min_shift: float = 0.08):
-    """Correlate a pair with its scan-line shifts estimated and removed.
-
-    ``passes`` rounds of (correlate, estimate, remove), the estimation rounds
-    on a lattice of at most 8 px; then the final correlation with
-    ``params``. Returns ``(result, ScanLines, reference, deformed)`` with the
-    corrected images; the shifts are recorded in ``result.meta["sem"]``.
-    """
+def find_scan_lines(reference, deformed, roi=None, params: DICParams | None = None,
+                    passes: int = 2, min_shift: float = 0.08) -> ScanLines:
+    """Both images' line shifts by ``passes`` rounds of (correlate on a lattice
+    of at most 8 px, estimate, remove)."""
     params = params or DICParams()
     f, g = as_gray_float(reference, "reference"), as_gray_float(deformed, "deformed")
     coarse = dataclasses.replace(params, step=min(params.step, 8), method="local")
@@ -221,6 +217,17 @@ def correlate_scan_lines(reference, deformed, roi=None, params: DICParams | None
             break
         lines = ScanLines(lines.reference + more.reference, lines.deformed + more.deformed)
         fc, gc = remove_scan_lines(f, lines.reference), remove_scan_lines(g, lines.deformed)
-    res = correlate(fc, gc, roi=roi, params=params)
+    return lines
+
+
+def correlate_scan_lines(reference, deformed, roi=None, params: DICParams | None = None,
+                         passes: int = 2, min_shift: float = 0.08):
+    """Correlate a pair with its scan-line shifts estimated
+    (:func:`find_scan_lines`) and removed. Returns ``(result, ScanLines)``;
+    the shifts are recorded in ``result.meta["sem"]["scan_lines"]``."""
+    lines = find_scan_lines(reference, deformed, roi, params, passes, min_shift)
+    res = correlate(remove_scan_lines(reference, lines.reference),
+                    remove_scan_lines(deformed, lines.deformed), roi=roi,
+                    params=params or DICParams())
     res.meta.setdefault("sem", {})["scan_lines"] = lines.to_meta()
-    return res, lines, fc, gc
+    return res, lines

@@ -8,6 +8,7 @@ the named cases shared by the CLI demo and the napari sample data.
 """
 
 from .cases import CASES, SyntheticCase, crack_roi, make_case, make_field
+from .sem import SEMScan, SEMView, random_line_shifts, sem_image
 from .speckle import (
     Affine,
     DisplacementField,
@@ -27,4 +28,5 @@ __all__ = [
     "SpecklePattern", "make_pattern", "render", "speckle_pair", "DisplacementField",
     "Translation", "Affine", "Rotation", "Sinusoid", "ModeICrack", "PlateWithHole", "Sum",
     "CASES", "SyntheticCase", "crack_roi", "make_case", "make_field",
+    "SEMScan", "SEMView", "sem_image", "random_line_shifts",
 ]

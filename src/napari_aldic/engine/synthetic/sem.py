@@ -61,7 +61,8 @@ class SEMScan:
     def _normalised(self, x, y):
         h, w = self.shape
         s = max(h, w) / 2.0
-        return (np.asarray(x, float) - (w - 1) / 2.0) / s, (np.asarray(y, float) - (h - 1) / 2.0) / s, s
+        xi = (np.asarray(x, float) - (w - 1) / 2.0) / s
+        return xi, (np.asarray(y, float) - (h - 1) / 2.0) / s, s
 
     def distortion(self, x, y):
         """``D(x, y)`` in pixels at image positions."""

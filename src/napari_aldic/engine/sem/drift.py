@@ -1,0 +1,232 @@
+"""Beam drift during the raster scan: calibration from a time series of images
+of the undeformed area and correction of each image by its own drift.
+
+Model (docs/sem.md). Pixel ``(x, y)`` of an image whose scan starts at time
+``t0`` (seconds on one clock for the whole session) is acquired at
+``t = t0 + y * line_time + x * dwell`` and shows the specimen position
+``x - delta(t)``; the drift ``delta`` is a polynomial in time without constant
+term (``delta(0) = 0``: the gauge). A point seen at ``x0`` in image 0 and at
+``x1 = x0 + u`` in image ``k`` of the series gives, exactly and linearly,
+
+    ``u = delta(t_k + tau(x1)) - delta(t_0 + tau(x0))``,  ``tau(x) = y line_time + x dwell``,
+
+which is solved by least squares over the trusted nodes of every image
+correlated with image 0. Correcting an image resamples it at ``x~`` with
+``x~ - delta(t0 + tau(x~)) = x``, so that pixel ``x`` shows specimen ``x``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..core.files import array_digest, atomic_write
+from ..core.images import as_gray_float
+from ..core.params import DICParams
+from ..dic.correlate import correlate
+from ..dic.interpolation import prefilter, sample
+from .distortion import DistortionError, _robust_lstsq
+
+__all__ = ["ScanTiming", "DriftModel", "calibrate_drift", "load_drift", "scan_timing"]
+
+FORMAT = "napari-aldic-sem-drift"
+VERSION = 1
+_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "\u03bcs": 1e-6, "ns": 1e-9}
+
+
+@dataclass
+class ScanTiming:
+    """Raster timing: seconds per pixel and per line (line = columns x dwell
+    plus the fly-back)."""
+
+    dwell: float
+    line_time: float
+
+    def __post_init__(self):
+        if not (self.dwell >= 0 and self.line_time > 0):
+            raise DistortionError(f"scan timing dwell={self.dwell} s, line time="
+                                  f"{self.line_time} s: both must be positive")
+
+    def pixel_time(self, x, y, t0: float = 0.0):
+        return t0 + np.asarray(y, float) * self.line_time + np.asarray(x, float) * self.dwell
+
+    def frame_time(self, rows: int) -> float:
+        return rows * self.line_time
+
+
+def _seconds(value, unit: str = "s") -> float:
+    return float(value) * _UNITS.get(str(unit).strip(), 1.0)
+
+
+def scan_timing(path) -> ScanTiming | None:
+    """Dwell and line time from an FEI (Thermo) or Zeiss SEM TIFF, or None."""
+    import tifffile
+
+    with tifffile.TiffFile(str(path)) as tf:
+        cols = tf.pages.first.shape[-1]
+        fei, zeiss = tf.fei_metadata, tf.sem_metadata
+    if fei:
+        for section in ("Scan", "EScan", "IScan"):
+            sec = fei.get(section) or {}
+            dwell = sec.get("Dwelltime") or sec.get("DwellTime")
+            if dwell:
+                line = sec.get("LineTime") or dwell * cols
+                return ScanTiming(float(dwell), float(line))
+    if zeiss:
+        found = {}
+        for val in zeiss.values():
+            if isinstance(val, tuple) and len(val) >= 2 and isinstance(val[1], (int, float)):
+                name = str(val[0]).lower()
+                unit = val[2] if len(val) >= 3 else "s"
+                if "dwell" in name:
+                    found.setdefault("dwell", _seconds(val[1], unit))
+                elif "line time" in name:
+                    found.setdefault("line", _seconds(val[1], unit))
+        if "dwell" in found:
+            return ScanTiming(found["dwell"], found.get("line", found["dwell"] * cols))
+    return None
+
+
+@dataclass
+class DriftModel:
+    """Fitted drift ``delta(t) = sum_i c_i (t / t_scale)^i``, ``i = 1..degree`` (px)."""
+
+    degree: int
+    timing: ScanTiming
+    image_shape: tuple[int, int]
+    t_scale: float
+    coef_x: np.ndarray
+    coef_y: np.ndarray
+    residual_rms: float = float("nan")
+    images: list = field(default_factory=list)  # [{"name", "sha256", "start_time_s"}]
+
+    def _basis(self, t) -> np.ndarray:
+        s = np.ravel(np.asarray(t, float)) / self.t_scale
+        return np.stack([s ** (i + 1) for i in range(self.degree)], axis=1)
+
+    def displacement(self, t):
+        """``delta(t)`` in pixels."""
+        shape = np.shape(t)
+        B = self._basis(t)
+        return (B @ self.coef_x).reshape(shape), (B @ self.coef_y).reshape(shape)
+
+    def start_time_of(self, image) -> float | None:
+        """The start time recorded for ``image`` if it is one of the series."""
+        digest = array_digest(as_gray_float(image))
+        for im in self.images:
+            if im.get("sha256") == digest:
+                return float(im["start_time_s"])
+        return None
+
+    def remove(self, image, start_time: float) -> np.ndarray:
+        """``image`` resampled so that each pixel shows the specimen point it
+        would show without drift (scan started at ``start_time`` s)."""
+        f = as_gray_float(image)
+        if f.shape != tuple(self.image_shape):
+            raise DistortionError(f"the drift calibration is for {self.image_shape[1]} x "
+                                  f"{self.image_shape[0]} px images, this one is "
+                                  f"{f.shape[1]} x {f.shape[0]} px")
+        yy, xx = np.mgrid[0:f.shape[0], 0:f.shape[1]].astype(float)
+        px, py = xx.copy(), yy.copy()
+        for _ in range(4):  # x~ = x + delta(t0 + tau(x~))
+            dx, dy = self.displacement(self.timing.pixel_time(px, py, start_time))
+            px, py = xx + dx, yy + dy
+        h, w = f.shape
+        return sample(prefilter(f), np.clip(px, 0, w - 1), np.clip(py, 0, h - 1))
+
+    # ------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "version": VERSION, "model": "polynomial in time",
+                "degree": self.degree, "t_scale_s": self.t_scale,
+                "dwell_s": self.timing.dwell, "line_time_s": self.timing.line_time,
+                "image_shape": list(self.image_shape),
+                "coef_x": [float(c) for c in self.coef_x],
+                "coef_y": [float(c) for c in self.coef_y],
+                "residual_rms_px": float(self.residual_rms), "images": self.images,
+                "convention": "pixel (x, y) scanned at t0 + y line_time + x dwell shows "
+                              "specimen (x, y) - delta(t); delta(0) = 0; px"}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "the drift file") -> DriftModel:
+        if d.get("format") != FORMAT:
+            raise DistortionError(f"{source} is not a napari-aldic drift calibration "
+                                  f"(format {d.get('format')!r})")
+        return cls(int(d["degree"]), ScanTiming(float(d["dwell_s"]), float(d["line_time_s"])),
+                   tuple(int(n) for n in d["image_shape"]), float(d["t_scale_s"]),
+                   np.asarray(d["coef_x"], float), np.asarray(d["coef_y"], float),
+                   float(d.get("residual_rms_px", np.nan)), list(d.get("images", [])))
+
+    def save(self, path) -> Path:
+        path = Path(path).expanduser()
+        with atomic_write(path) as tmp:
+            tmp.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
+        return path
+
+    def summary(self, start_time: float) -> dict:
+        h, w = self.image_shape
+        t = self.timing.pixel_time(np.array([0.0, w - 1.0]), np.array([0.0, h - 1.0]),
+                                   start_time)
+        dx, dy = self.displacement(t)
+        return {"model": "polynomial in time", "degree": self.degree,
+                "start_time_s": float(start_time),
+                "drift_over_image_px": [float(dx[1] - dx[0]), float(dy[1] - dy[0])],
+                "residual_rms_px": float(self.residual_rms)}
+
+
+def load_drift(path) -> DriftModel:
+    """Read a drift calibration written by :meth:`DriftModel.save`."""
+    path = Path(path).expanduser()
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DistortionError(f"drift file {path} does not exist") from None
+    except (OSError, ValueError) as exc:
+        raise DistortionError(f"cannot read drift file {path}: {exc}") from None
+    if not isinstance(d, dict):
+        raise DistortionError(f"{path} is not a napari-aldic drift calibration")
+    return DriftModel.from_dict(d, str(path))
+
+
+def calibrate_drift(images, timing: ScanTiming, start_times=None, degree: int = 3,
+                    params: DICParams | None = None, names=None, gap: float = 0.0,
+                    progress=None) -> DriftModel:
+    """Fit the drift from images of the undeformed, unmoved area (image 0 is
+    the reference). ``start_times`` (s, one clock): default back to back,
+    ``t_k = k (rows * line_time + gap)``."""
+    images = [as_gray_float(im, f"drift image {k}") for k, im in enumerate(images)]
+    if len(images) < 2:
+        raise DistortionError("give at least 2 drift images (3 or more recommended)")
+    shape = images[0].shape
+    if any(im.shape != shape for im in images):
+        raise DistortionError("the drift images differ in size")
+    if start_times is None:
+        start_times = [k * (timing.frame_time(shape[0]) + gap) for k in range(len(images))]
+    start_times = [float(t) for t in start_times]
+    if len(start_times) != len(images):
+        raise DistortionError(f"{len(start_times)} start times for {len(images)} drift images")
+    span = max(start_times) + timing.frame_time(shape[0]) - min(0.0, min(start_times))
+    model = DriftModel(int(degree), timing, shape, float(span), np.zeros(degree),
+                       np.zeros(degree))
+    rows, bu, bv = [], [], []
+    for k in range(1, len(images)):
+        if progress is not None:
+            progress((k - 1) / (len(images) - 1), f"drift image {k}")
+        res = correlate(images[0], images[k], params=params or DICParams())
+        ok = res.valid & np.isfinite(res.u) & np.isfinite(res.v)
+        x0, y0, u, v = res.x[ok], res.y[ok], res.u[ok], res.v[ok]
+        t1 = timing.pixel_time(x0 + u, y0 + v, start_times[k])
+        t0 = timing.pixel_time(x0, y0, start_times[0])
+        rows.append(model._basis(t1) - model._basis(t0))
+        bu.append(u)
+        bv.append(v)
+    A = np.vstack(rows)
+    cx, _, rx = _robust_lstsq(A, np.concatenate(bu))
+    cy, _, ry = _robust_lstsq(A, np.concatenate(bv))
+    model.coef_x, model.coef_y, model.residual_rms = cx, cy, float(np.hypot(rx, ry))
+    names = list(names) if names is not None else [f"image {k}" for k in range(len(images))]
+    model.images = [{"name": str(n), "sha256": array_digest(im), "start_time_s": t}
+                    for n, im, t in zip(names, images, start_times)]
+    return model
