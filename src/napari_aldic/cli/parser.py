@@ -60,6 +60,21 @@ TEXTS = {
                 "of the measurement; the scatter of u, v (about a fitted rigid motion) and "
                 "of the strains is the noise floor to report with the results (iDICs Good "
                 "Practices Guide).")),
+    # issue 27: HRDIC in the SEM
+    "sem-calibrate": (
+        tr_noop("calibrate the SEM's spatial distortion from translated images"),
+        tr_noop("Fit the time-invariant distortion of the SEM image field from images of "
+                "one undeformed area after rigid stage translations of unknown amount (up "
+                "to about a tenth of the field of view, along x and y; T0 is the "
+                "reference). Use the file with 'napari-aldic run --distortion FILE'. See "
+                "docs/sem.md.")),
+    "sem-drift": (
+        tr_noop("calibrate the SEM beam drift from a time series of images"),
+        tr_noop("Fit the beam drift, a smooth function of scan time, from images of the "
+                "undeformed, unmoved area taken one after the other (image 0 is the "
+                "reference); the scan timing comes from the FEI/Zeiss metadata or "
+                "--dwell/--line-time. Use the file with 'napari-aldic run --drift FILE'. "
+                "See docs/sem.md.")),
 }
 
 
@@ -96,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_probe(sub)
     add_advise(sub)
     add_noise_floor(sub)
+    add_sem_calibrate(sub)
+    add_sem_drift(sub)
     return parser
 
 
@@ -164,6 +181,7 @@ def add_run(sub) -> None:
                      help=tr("also write the complete parameters used (file and options "
                           "merged) to FILE.json, for --params of a later run"))
     add_unit_options(run)
+    add_sem_options(run)
 
 
 def add_params(sub) -> None:
@@ -337,3 +355,55 @@ def smooth_arg(text: str):
         raise argparse.ArgumentTypeError(tr("--smooth {text!r}: the length must be >= 0 px").format(
                                                 text=text))
     return value
+
+
+# ----------------------------------------------------------------- issue 27: SEM
+def add_sem_options(p: argparse.ArgumentParser) -> None:
+    """``run``'s SEM corrections (docs/sem.md)."""
+    p.add_argument("--distortion", type=Path, metavar="DISTORTION.json",
+                   help=tr("SEM: report u, v in undistorted specimen coordinates with the "
+                           "calibration written by 'sem-calibrate'"))
+    p.add_argument("--scan-lines", action="store_true", dest="scan_lines",
+                   help=tr("SEM: estimate and remove the x-shift of every scan line of "
+                           "each image; the shifts are stored with the result and drawn "
+                           "in OUT_scanlines.png"))
+    p.add_argument("--drift", type=Path, metavar="DRIFT.json",
+                   help=tr("SEM: remove each image's beam drift with the calibration "
+                           "written by 'sem-drift'"))
+    p.add_argument("--start-times", type=float, nargs="+", dest="start_times", metavar="T",
+                   help=tr("with --drift: the scan start time of every input frame, s, on "
+                           "the drift series' clock (default: found in the drift file when "
+                           "a frame is one of its images)"))
+
+
+def add_sem_calibrate(sub) -> None:
+    cal = _command(sub, "sem-calibrate")
+    cal.add_argument("images", nargs="+", type=Path, metavar="IMAGE",
+                     help=tr("T0 T1 ...: the undeformed area, rigidly translated"))
+    cal.add_argument("-o", "--output", type=Path, required=True, metavar="DISTORTION.json")
+    cal.add_argument("--degree", type=int, default=4,
+                     help=tr("polynomial degree of the distortion, 2 to 7 (default 4)"))
+    cal.add_argument("--pixel-size", type=float, dest="pixel_size", metavar="S",
+                     help=tr("length of one pixel in --unit, recorded in the file"))
+    cal.add_argument("--unit", help=tr("length unit name (default px)"))
+    add_param_options(cal)
+
+
+def add_sem_drift(sub) -> None:
+    dr = _command(sub, "sem-drift")
+    dr.add_argument("images", nargs="+", type=Path, metavar="IMAGE",
+                    help=tr("I0 I1 ...: the undeformed, unmoved area in scan order"))
+    dr.add_argument("-o", "--output", type=Path, required=True, metavar="DRIFT.json")
+    dr.add_argument("--dwell", type=float, metavar="S",
+                    help=tr("dwell time per pixel, s (default: from the metadata)"))
+    dr.add_argument("--line-time", type=float, dest="line_time", metavar="S",
+                    help=tr("time per scan line including fly-back, s (default: from the "
+                            "metadata)"))
+    dr.add_argument("--start-times", type=float, nargs="+", dest="start_times", metavar="T",
+                    help=tr("scan start time of every image, s (default: back to back, "
+                            "t_k = k (rows x line time + --gap))"))
+    dr.add_argument("--gap", type=float, default=0.0, metavar="S",
+                    help=tr("pause between back-to-back images, s (default 0)"))
+    dr.add_argument("--degree", type=int, default=3,
+                    help=tr("polynomial degree of the drift in time (default 3)"))
+    add_param_options(dr)

@@ -16,6 +16,7 @@ from ..engine.viz import plot_displacement
 from ..i18n import tr
 from .console import PROG, CLIError, clear_bar, frame_summary, progress_bar, sequence_progress
 from .masks import read_mask
+from .sem import run_sem, sem_requested
 from .settings import settings_from_args
 from .tiled import metadata_units, run_tiled_pair
 
@@ -30,6 +31,9 @@ def run_command(args) -> None:
                      resolve=write_settings(args.params_out, used).resolve()))
     if units is None:  # the pixel size recorded in the images, if any
         units = metadata_units(args.inputs)
+    if sem_requested(args):  # issue 27: SEM corrections, docs/sem.md
+        return run_sem(args, params, units,
+                       lambda: run_tiled_pair(args, params, units, args.output))
     if run_folder_of(args.output, pair=True) is None and \
             run_tiled_pair(args, params, units, args.output):
         return  # a large pair, read tile by tile and correlated block by block

@@ -12,6 +12,7 @@ from ..engine.io import open_image, pixel_size_of
 from ..i18n import tr
 from .console import CLIError, clear_bar, frame_summary, progress_bar
 from .masks import open_mask
+from .sem import distortion_corrected
 
 
 def metadata_units(inputs) -> Units | None:
@@ -78,6 +79,7 @@ def run_tiled_pair(args, params, units, output: Path | None) -> bool:
     finally:
         ref.close()
         dfm.close()
+    res = distortion_corrected(args, res)  # issue 27: --distortion
     res.meta["inputs"] = {"reference": str(args.inputs[0]), "deformed": str(args.inputs[1]),
                           "frame": 1, "roi": None if args.roi is None else str(args.roi)}
     if units is not None:

@@ -194,9 +194,9 @@ def fit_distortion(pairs, image_shape, degree: int = 4) -> tuple[DistortionModel
     """Fit (1) to measured pairs ``[(x0, y0, u, v), ...]`` (arrays of trusted
     nodes, image ``k + 1`` against image 0). Returns the model (images list
     empty) and the fitted translations ``(n_pairs, 2)``."""
-    if degree < 2:
-        raise DistortionError("the distortion degree must be at least 2 (degrees 0 and 1 "
-                              "are the affine gauge)")
+    if not 2 <= degree <= 7:
+        raise DistortionError(f"distortion degree {degree}: give 2 to 7 (degrees 0 and 1 are "
+                              "the affine gauge; 3 to 5 suit SEM fields)")
     model = DistortionModel(degree, tuple(image_shape), np.zeros(0), np.zeros(0))
     rows_b, rows_t, b_u, b_v = [], [], [], []
     for k, (x0, y0, u, v) in enumerate(pairs):
