@@ -4,8 +4,8 @@ limits), figures, PNG/GIF/MP4, PDF report."""
 from .deformed import fine_grid, on_fine_grid, rigid_motion, to_deformed
 from .figures import displacement_figure, field_figure, plot_displacement, truth_at_nodes
 from .media import export_gif, export_mp4, export_png
-from .sem import plot_scan_lines, scan_lines_figure
 from .report import export_report, line_profile, report_page_count
+from .sem import plot_scan_lines, scan_lines_figure
 from .style import colour_limits, field_colour_limits, field_label, field_title
 
 __all__ = [
