@@ -144,10 +144,7 @@ class DistortionModel:
         return model
 
     def save(self, path) -> Path:
-        path = Path(path).expanduser()
-        with atomic_write(path) as tmp:
-            tmp.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
-        return path
+        return write_calibration(path, self.to_dict())
 
     def summary(self) -> dict:
         """What a result records of the model that corrected it."""
@@ -159,22 +156,35 @@ class DistortionModel:
                 "calibration": [im.get("sha256") for im in self.images]}
 
 
-def load_distortion(path) -> DistortionModel:
-    """Read a distortion calibration written by :meth:`DistortionModel.save`."""
+def read_calibration(path, what: str) -> dict:
+    """The JSON object of a calibration file (``what``: "distortion", "drift")."""
     path = Path(path).expanduser()
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise DistortionError(f"distortion file {path} does not exist") from None
+        raise DistortionError(f"{what} file {path} does not exist") from None
     except (OSError, ValueError) as exc:
-        raise DistortionError(f"cannot read distortion file {path}: {exc}") from None
+        raise DistortionError(f"cannot read {what} file {path}: {exc}") from None
     if not isinstance(d, dict):
-        raise DistortionError(f"{path} is not a napari-aldic distortion calibration")
-    return DistortionModel.from_dict(d, str(path))
+        raise DistortionError(f"{path} is not a napari-aldic {what} calibration")
+    return d
+
+
+def write_calibration(path, d: dict) -> Path:
+    """Write a calibration's JSON object atomically."""
+    path = Path(path).expanduser()
+    with atomic_write(path) as tmp:
+        tmp.write_text(json.dumps(d, indent=1), encoding="utf-8")
+    return path
+
+
+def load_distortion(path) -> DistortionModel:
+    """Read a distortion calibration written by :meth:`DistortionModel.save`."""
+    return DistortionModel.from_dict(read_calibration(path, "distortion"), str(path))
 
 
 # ------------------------------------------------------------------ calibration
-def _robust_lstsq(A: np.ndarray, b: np.ndarray, rounds: int = 4, k: float = 4.0):
+def robust_lstsq(A: np.ndarray, b: np.ndarray, rounds: int = 4, k: float = 4.0):
     """Least squares with iterative rejection of residuals beyond ``k`` robust
     standard deviations (MAD). Returns ``(solution, kept mask, rms)``."""
     keep = np.isfinite(b)
@@ -211,8 +221,8 @@ def fit_distortion(pairs, image_shape, degree: int = 4) -> tuple[DistortionModel
     if np.linalg.matrix_rank(A[:: max(1, A.shape[0] // 4000)]) < A.shape[1]:
         raise DistortionError("the calibration translations do not determine the distortion: "
                               "translate the stage along both x and y (see docs/sem.md)")
-    sx, kx, rx = _robust_lstsq(A, np.concatenate(b_u))
-    sy, ky, ry = _robust_lstsq(A, np.concatenate(b_v))
+    sx, kx, rx = robust_lstsq(A, np.concatenate(b_u))
+    sy, ky, ry = robust_lstsq(A, np.concatenate(b_v))
     model.coef_x, model.coef_y = sx[:nb], sy[:nb]
     model.residual_rms = float(np.hypot(rx, ry))
     model.n_nodes = int(min(kx.sum(), ky.sum()))

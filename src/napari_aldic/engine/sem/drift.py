@@ -17,18 +17,17 @@ correlated with image 0. Correcting an image resamples it at ``x~`` with
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..core.files import array_digest, atomic_write
+from ..core.files import array_digest
 from ..core.images import as_gray_float
 from ..core.params import DICParams
 from ..dic.correlate import correlate
 from ..dic.interpolation import prefilter, sample
-from .distortion import DistortionError, _robust_lstsq
+from .distortion import DistortionError, read_calibration, robust_lstsq, write_calibration
 
 __all__ = ["ScanTiming", "DriftModel", "calibrate_drift", "load_drift", "scan_timing"]
 
@@ -160,10 +159,7 @@ class DriftModel:
                    float(d.get("residual_rms_px", np.nan)), list(d.get("images", [])))
 
     def save(self, path) -> Path:
-        path = Path(path).expanduser()
-        with atomic_write(path) as tmp:
-            tmp.write_text(json.dumps(self.to_dict(), indent=1), encoding="utf-8")
-        return path
+        return write_calibration(path, self.to_dict())
 
     def summary(self, start_time: float) -> dict:
         h, w = self.image_shape
@@ -178,16 +174,7 @@ class DriftModel:
 
 def load_drift(path) -> DriftModel:
     """Read a drift calibration written by :meth:`DriftModel.save`."""
-    path = Path(path).expanduser()
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DistortionError(f"drift file {path} does not exist") from None
-    except (OSError, ValueError) as exc:
-        raise DistortionError(f"cannot read drift file {path}: {exc}") from None
-    if not isinstance(d, dict):
-        raise DistortionError(f"{path} is not a napari-aldic drift calibration")
-    return DriftModel.from_dict(d, str(path))
+    return DriftModel.from_dict(read_calibration(path, "drift"), str(path))
 
 
 def calibrate_drift(images, timing: ScanTiming, start_times=None, degree: int = 3,
@@ -223,8 +210,8 @@ def calibrate_drift(images, timing: ScanTiming, start_times=None, degree: int = 
         bu.append(u)
         bv.append(v)
     A = np.vstack(rows)
-    cx, _, rx = _robust_lstsq(A, np.concatenate(bu))
-    cy, _, ry = _robust_lstsq(A, np.concatenate(bv))
+    cx, _, rx = robust_lstsq(A, np.concatenate(bu))
+    cy, _, ry = robust_lstsq(A, np.concatenate(bv))
     model.coef_x, model.coef_y, model.residual_rms = cx, cy, float(np.hypot(rx, ry))
     names = list(names) if names is not None else [f"image {k}" for k in range(len(images))]
     model.images = [{"name": str(n), "sha256": array_digest(im), "start_time_s": t}
