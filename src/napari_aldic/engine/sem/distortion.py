@@ -24,7 +24,6 @@ iteratively. A measurement at reference node ``x0`` with image displacement
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from ..core.images import as_gray_float
 from ..core.params import DICParams
 from ..core.results import DICResult
 from ..dic.correlate import correlate
+from .positions import correct_positions
 
 __all__ = ["DistortionModel", "calibrate_distortion", "correct_distortion", "load_distortion"]
 
@@ -296,37 +296,6 @@ def correct_distortion(result: DICResult, model: DistortionModel) -> DICResult:
     model.check_shape(result.image_shape, "the analysed images")
     if result.meta.get("sem", {}).get("distortion") is not None:
         raise DistortionError("this result is already corrected for distortion")
-    x, y = result.x, result.y
-    out = dataclasses.replace(result, meta=copy.deepcopy(result.meta))
-    d0x, d0y = model.displacement(x, y)
-    for un, vn in (("u", "v"), ("u_local", "v_local")):
-        u, v = getattr(result, un), getattr(result, vn)
-        if u is None:
-            continue
-        d1x, d1y = model.displacement(x + np.nan_to_num(u), y + np.nan_to_num(v))
-        setattr(out, un, u - d1x + d0x)
-        setattr(out, vn, v - d1y + d0y)
-    _correct_gradients(out, result, model)
+    out = correct_positions(result, model, model)
     out.meta.setdefault("sem", {})["distortion"] = model.summary()
     return out
-
-
-def _correct_gradients(out: DICResult, res: DICResult, model: DistortionModel) -> None:
-    """Subset gradients in specimen coordinates: with ``X = x - D(x)``,
-    ``I + G_true = (I - J(x1)) (I + G) (I - J(x0))^-1``."""
-    n = len(res)
-    F = np.empty((n, 2, 2))
-    F[:, 0, 0], F[:, 0, 1] = 1 + res.dudx, res.dudy
-    F[:, 1, 0], F[:, 1, 1] = res.dvdx, 1 + res.dvdy
-
-    def eye_minus_j(x, y):
-        a, b, c, d = model.jacobian(x, y)
-        m = np.empty((n, 2, 2))
-        m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1] = 1 - a, -b, -c, 1 - d
-        return m
-
-    m0 = eye_minus_j(res.x, res.y)
-    m1 = eye_minus_j(res.x + np.nan_to_num(res.u), res.y + np.nan_to_num(res.v))
-    Ft = m1 @ F @ np.linalg.inv(m0)
-    out.dudx, out.dudy = Ft[:, 0, 0] - 1, Ft[:, 0, 1]
-    out.dvdx, out.dvdy = Ft[:, 1, 0], Ft[:, 1, 1] - 1

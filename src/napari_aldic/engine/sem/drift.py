@@ -11,8 +11,9 @@ term (``delta(0) = 0``: the gauge). A point seen at ``x0`` in image 0 and at
     ``u = delta(t_k + tau(x1)) - delta(t_0 + tau(x0))``,  ``tau(x) = y line_time + x dwell``,
 
 which is solved by least squares over the trusted nodes of every image
-correlated with image 0. Correcting an image resamples it at ``x~`` with
-``x~ - delta(t0 + tau(x~)) = x``, so that pixel ``x`` shows specimen ``x``.
+correlated with image 0. A measurement is corrected without resampling
+either image (:mod:`.positions`): ``U = u - delta(t_def + tau(x0 + u)) +
+delta(t_ref + tau(x0))``, each image by its own drift at its own scan time.
 """
 
 from __future__ import annotations
@@ -25,11 +26,13 @@ import numpy as np
 from ..core.files import array_digest
 from ..core.images import as_gray_float
 from ..core.params import DICParams
+from ..core.results import DICResult
 from ..dic.correlate import correlate
-from ..dic.interpolation import prefilter, sample
 from .distortion import DistortionError, read_calibration, robust_lstsq, write_calibration
+from .positions import correct_positions
 
-__all__ = ["ScanTiming", "DriftModel", "calibrate_drift", "load_drift", "scan_timing"]
+__all__ = ["ScanTiming", "DriftModel", "calibrate_drift", "correct_drift", "load_drift",
+           "scan_timing"]
 
 FORMAT = "napari-aldic-sem-drift"
 VERSION = 1
@@ -120,21 +123,22 @@ class DriftModel:
                 return float(im["start_time_s"])
         return None
 
-    def remove(self, image, start_time: float) -> np.ndarray:
-        """``image`` resampled so that each pixel shows the specimen point it
-        would show without drift (scan started at ``start_time`` s)."""
-        f = as_gray_float(image)
-        if f.shape != tuple(self.image_shape):
+    def rate(self, t):
+        """``d delta / dt`` in px/s."""
+        s = np.ravel(np.asarray(t, float)) / self.t_scale
+        B = np.stack([(i + 1) * s**i for i in range(self.degree)], axis=1) / self.t_scale
+        return B @ self.coef_x, B @ self.coef_y
+
+    def at(self, start_time: float) -> _DriftMap:
+        """The position map of an image whose scan started at ``start_time``:
+        pixel ``x`` shows specimen ``x - delta(start_time + tau(x))``."""
+        return _DriftMap(self, float(start_time))
+
+    def check_shape(self, shape) -> None:
+        if tuple(shape) != tuple(self.image_shape):
             raise DistortionError(f"the drift calibration is for {self.image_shape[1]} x "
-                                  f"{self.image_shape[0]} px images, this one is "
-                                  f"{f.shape[1]} x {f.shape[0]} px")
-        yy, xx = np.mgrid[0:f.shape[0], 0:f.shape[1]].astype(float)
-        px, py = xx.copy(), yy.copy()
-        for _ in range(4):  # x~ = x + delta(t0 + tau(x~))
-            dx, dy = self.displacement(self.timing.pixel_time(px, py, start_time))
-            px, py = xx + dx, yy + dy
-        h, w = f.shape
-        return sample(prefilter(f), np.clip(px, 0, w - 1), np.clip(py, 0, h - 1))
+                                  f"{self.image_shape[0]} px images, these are "
+                                  f"{shape[1]} x {shape[0]} px")
 
     # ------------------------------------------------------------ files
     def to_dict(self) -> dict:
@@ -170,6 +174,34 @@ class DriftModel:
                 "start_time_s": float(start_time),
                 "drift_over_image_px": [float(dx[1] - dx[0]), float(dy[1] - dy[0])],
                 "residual_rms_px": float(self.residual_rms)}
+
+
+@dataclass
+class _DriftMap:
+    """One image's drift as a map of pixel positions (see :mod:`.positions`)."""
+
+    model: DriftModel
+    start_time: float
+
+    def displacement(self, x, y):
+        return self.model.displacement(self.model.timing.pixel_time(x, y, self.start_time))
+
+    def jacobian(self, x, y):
+        rx, ry = self.model.rate(self.model.timing.pixel_time(x, y, self.start_time))
+        dwell, line = self.model.timing.dwell, self.model.timing.line_time
+        return rx * dwell, rx * line, ry * dwell, ry * line
+
+
+def correct_drift(result: DICResult, model: DriftModel, start_times) -> DICResult:
+    """``result`` with displacements (and subset gradients) free of each image's
+    drift: ``U = u - delta(t_def + tau(x + u)) + delta(t_ref + tau(x))``,
+    ``start_times = (t_ref, t_def)`` in seconds on the drift series' clock."""
+    model.check_shape(result.image_shape)
+    t_ref, t_def = (float(t) for t in start_times)
+    out = correct_positions(result, model.at(t_ref), model.at(t_def))
+    out.meta.setdefault("sem", {})["drift"] = {"reference": model.summary(t_ref),
+                                               "deformed": model.summary(t_def)}
+    return out
 
 
 def load_drift(path) -> DriftModel:

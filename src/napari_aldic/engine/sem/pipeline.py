@@ -1,6 +1,6 @@
-"""One SEM pair measured with the corrections in the order the microscope
-applied the errors: scan-line shifts (estimated on the raw rows), then each
-image's drift, then the correlation, then the spatial distortion."""
+"""One SEM pair measured with its corrections: scan-line shifts (estimated on
+the raw rows and removed from them), the correlation, then the spatial
+distortion and each image's drift applied to the measured displacements."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ from ..core.images import as_gray_float
 from ..core.params import DICParams
 from ..core.results import DICResult
 from ..dic.correlate import correlate
-from .distortion import DistortionError, DistortionModel, correct_distortion
+from .distortion import DistortionError, DistortionModel
 from .drift import DriftModel
+from .positions import SumMap, correct_positions
 from .scanlines import ScanLines, find_scan_lines, remove_scan_lines
 
 __all__ = ["correlate_sem", "sem_corrections", "scan_lines_of"]
@@ -31,23 +32,14 @@ def _start_times(drift: DriftModel, f, g, start_times):
 
 
 def sem_corrections(reference, deformed, roi=None, params: DICParams | None = None, *,
-                    scan_lines: bool = False, drift: DriftModel | None = None,
-                    start_times=None):
-    """The pair with scan-line shifts and drift removed, and what was removed:
-    ``(reference, deformed, ScanLines | None, meta)``."""
+                    scan_lines: bool = False):
+    """The pair with its scan-line shifts removed (when asked), and them:
+    ``(reference, deformed, ScanLines | None)``."""
     f, g = as_gray_float(reference, "reference"), as_gray_float(deformed, "deformed")
-    meta: dict = {}
-    lines = None
-    times = _start_times(drift, f, g, start_times) if drift is not None else None
-    if scan_lines:
-        lines = find_scan_lines(f, g, roi, params)
-        f, g = remove_scan_lines(f, lines.reference), remove_scan_lines(g, lines.deformed)
-        meta["scan_lines"] = lines.to_meta()
-    if drift is not None:
-        f, g = drift.remove(f, times[0]), drift.remove(g, times[1])
-        meta["drift"] = {"reference": drift.summary(times[0]),
-                         "deformed": drift.summary(times[1])}
-    return f, g, lines, meta
+    if not scan_lines:
+        return f, g, None
+    lines = find_scan_lines(f, g, roi, params)
+    return remove_scan_lines(f, lines.reference), remove_scan_lines(g, lines.deformed), lines
 
 
 def correlate_sem(reference, deformed, roi=None, params: DICParams | None = None, *,
@@ -55,20 +47,34 @@ def correlate_sem(reference, deformed, roi=None, params: DICParams | None = None
                   drift: DriftModel | None = None, start_times=None,
                   **kwargs) -> DICResult:
     """``correlate`` of an SEM pair with its corrections: ``scan_lines``
-    estimates and removes both images' scan-line shifts, ``drift`` removes
-    each image's drift (scan start times from the drift series, or
-    ``start_times = (t_ref, t_def)``), ``distortion`` reports u, v in
-    undistorted specimen coordinates. ``kwargs`` go to ``correlate``.
-    ``meta["sem"]`` records every correction (line shifts per image)."""
+    estimates and removes both images' scan-line shifts (rows resampled),
+    then ``distortion`` and ``drift`` (each image's own, scan start times from
+    the drift series or ``start_times = (t_ref, t_def)``) move the measured
+    u, v to undistorted specimen coordinates in one step (:mod:`.positions`).
+    ``kwargs`` go to ``correlate``. ``meta["sem"]`` records every correction
+    (the line shifts per image)."""
     params = params or DICParams()
+    shape = as_gray_float(reference).shape
     if distortion is not None:
-        distortion.check_shape(as_gray_float(reference).shape, "the images")
-    f, g, lines, meta = sem_corrections(reference, deformed, roi, params,
-                                        scan_lines=scan_lines, drift=drift,
-                                        start_times=start_times)
+        distortion.check_shape(shape, "the images")
+    times = None
+    if drift is not None:
+        drift.check_shape(shape)
+        times = _start_times(drift, reference, deformed, start_times)
+    f, g, lines = sem_corrections(reference, deformed, roi, params, scan_lines=scan_lines)
     res = correlate(f, g, roi=roi, params=params, **kwargs)
-    if distortion is not None:
-        res = correct_distortion(res, distortion)
+    meta: dict = {}
+    if lines is not None:
+        meta["scan_lines"] = lines.to_meta()
+    if distortion is not None or drift is not None:
+        maps = [SumMap(distortion, None if drift is None else drift.at(t))
+                for t in (times or (0.0, 0.0))]
+        res = correct_positions(res, *maps)
+        if distortion is not None:
+            meta["distortion"] = distortion.summary()
+        if drift is not None:
+            meta["drift"] = {"reference": drift.summary(times[0]),
+                             "deformed": drift.summary(times[1])}
     res.meta.setdefault("sem", {}).update(meta)
     return res
 
