@@ -26,14 +26,8 @@ import time
 import numpy as np
 
 from napari_aldic import __version__
-from napari_aldic.engine import (
-    calibrate_distortion,
-    calibrate_drift,
-    compute_strain,
-    correlate,
-    correlate_sem,
-)
-from napari_aldic.engine.sem import ScanLines, ScanTiming
+from napari_aldic.engine import compute_strain, correlate, correlate_sem
+from napari_aldic.engine.sem import ScanLines, ScanTiming, calibrate_distortion, calibrate_drift
 from napari_aldic.engine.synthetic import (
     Affine,
     SEMScan,

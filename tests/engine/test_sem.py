@@ -6,21 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from napari_aldic.engine import (
-    calibrate_distortion,
-    calibrate_drift,
-    compute_strain,
-    correct_distortion,
-    correlate,
-    correlate_sem,
-    load_distortion,
-    load_drift,
-)
+from napari_aldic.engine import compute_strain, correct_distortion, correlate, correlate_sem
 from napari_aldic.engine.sem import (
     DistortionError,
     ScanLines,
     ScanTiming,
+    calibrate_distortion,
+    calibrate_drift,
     fit_distortion,
+    load_distortion,
+    load_drift,
     remove_scan_lines,
 )
 from napari_aldic.engine.synthetic import (

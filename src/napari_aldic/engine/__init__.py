@@ -43,14 +43,7 @@ from .dic.strain import StrainResult, compute_strain
 from .io.runs import load_run
 from .io.settings_file import load_params, save_params
 from .io.stack import open_stack
-from .sem import (
-    calibrate_distortion,
-    calibrate_drift,
-    correct_distortion,
-    correlate_sem,
-    load_distortion,
-    load_drift,
-)
+from .sem import correct_distortion, correlate_sem
 from .viz.report import export_report
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
@@ -71,9 +64,8 @@ __all__ = [
     "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
     # subpackages
     "io", "viz", "synthetic", "probes",
-    # HRDIC in the SEM (issue 27)
-    "sem", "correlate_sem", "calibrate_distortion", "correct_distortion", "load_distortion",
-    "calibrate_drift", "load_drift",
+    # HRDIC in the SEM (issue 27; calibration in engine.sem)
+    "sem", "correlate_sem", "correct_distortion",
 ]
 
 #: names this module exported before the engine was split into subpackages;

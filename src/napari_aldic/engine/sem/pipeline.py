@@ -4,6 +4,8 @@ distortion and each image's drift applied to the measured displacements."""
 
 from __future__ import annotations
 
+import dataclasses
+
 from ..core.images import as_gray_float
 from ..core.params import DICParams
 from ..core.results import DICResult
@@ -54,6 +56,10 @@ def correlate_sem(reference, deformed, roi=None, params: DICParams | None = None
     ``kwargs`` go to ``correlate``. ``meta["sem"]`` records every correction
     (the line shifts per image)."""
     params = params or DICParams()
+    fields = {f.name for f in dataclasses.fields(DICParams)}
+    given = {k: kwargs.pop(k) for k in list(kwargs) if k in fields}
+    if given:  # subset, step, ... also for the scan-line rounds
+        params = params.replace(**given)
     shape = as_gray_float(reference).shape
     if distortion is not None:
         distortion.check_shape(shape, "the images")
