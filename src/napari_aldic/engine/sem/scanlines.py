@@ -179,8 +179,7 @@ def estimate_scan_lines(reference, deformed, result: DICResult,
                                min_shift)
     s_ref, s_def = _steps(f), _steps(g)
     L_ref, L_def = np.zeros(f.shape[0]), np.zeros(f.shape[0])
-    labels, n = ndimage.label(flag_ref)
-    taken = np.zeros(f.shape[0], bool)
+    labels, _ = ndimage.label(flag_ref)
     for blk in ndimage.find_objects(labels):
         a, b = blk[0].start, blk[0].stop - 1
         m = float(hp_ref[a:b + 1].mean())
@@ -197,7 +196,6 @@ def estimate_scan_lines(reference, deformed, result: DICResult,
             L_ref[a:b + 1] = -hp_ref[a:b + 1]
         else:
             L_def[drows] = hp_def[drows]
-            taken[drows] = True
     return ScanLines(L_ref, L_def)
 
 
