@@ -11,7 +11,8 @@ Cases (engine/synthetic/sem.py):
   same test deformation;
 * drift: 6 images back to back (dwell 1 us, line 1.124 ms, frame 1.15 s), drift
   0.3 px/s + 0.15 px/s² along x, -0.2 px/s + 0.1 px/s² along y; image 3 is
-  loaded (the test deformation), images 0-2, 4, 5 calibrate.
+  loaded (the test deformation), images 0-2, 4, 5 calibrate;
+* combined (``--cases combined``): all three at once, scan lines in every image.
 Every case adds noise of 2 grey levels (8 bits). Errors over nodes 40 px inside
 the image; strain by compute_strain (plane fit, window 5).
 """
@@ -117,6 +118,33 @@ def drift_case(n: int, field) -> dict:
                                               start_times=(times[0], times[3])), field, n)}
 
 
+def combined_case(n: int, field) -> dict:
+    """All three at once: distortion (calibrated from short, drift-free scans),
+    drift (calibrated from a series corrected for the distortion) and scan
+    lines in every image of the series."""
+    scan = SEMScan((n, n), k1=0.15e-3, k2=0.05e-3, p1=0.7e-3, dwell=1e-6, flyback=1e-4,
+                   drift_x=(0.3, 0.15), drift_y=(-0.2, 0.1))
+    pat = make_pattern((n, n), margin=140, seed=9)
+    a = 90.0 * n / 1024
+    moves = [(0, 0), (a, 0), (-a, 0), (0, a), (0, -a), (0.7 * a, 0.7 * a),
+             (-0.7 * a, 0.7 * a), (0.7 * a, -0.7 * a)]
+    cal = [sem_image(pat, scan, Translation(*m), noise=2, seed=40 + k, use_drift=False)
+           for k, m in enumerate(moves)]
+    dist = calibrate_distortion(cal, degree=4)
+    F = scan.frame_time
+    times = [k * F for k in range(6)]
+    imgs = [sem_image(pat, scan, field if k == 3 else None, start_time=times[k], noise=2,
+                      seed=60 + k, line_shifts=random_line_shifts(n, seed=70 + k))
+            for k in range(6)]
+    calib = (0, 1, 2, 4, 5)
+    drift = calibrate_drift([imgs[k] for k in calib], ScanTiming(scan.dwell, scan.line_time),
+                            start_times=[times[k] for k in calib], degree=3, distortion=dist)
+    res = correlate_sem(imgs[0], imgs[3], distortion=dist, drift=drift, scan_lines=True,
+                        start_times=(times[0], times[3]))
+    return {"uncorrected": errors(correlate(imgs[0], imgs[3]), field, n),
+            "corrected": errors(res, field, n)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=1024)
@@ -127,7 +155,8 @@ def main() -> None:
     field = Affine.strain_rotation(exx=EXX, eyy=EYY, center=((n - 1) / 2,) * 2,
                                    t=tuple(s * n / 1024 for s in STAGE))
     out = {"napari-aldic": __version__, "machine": platform.platform(), "size": n}
-    cases = {"distortion": distortion_case, "scan_lines": scan_line_case, "drift": drift_case}
+    cases = {"distortion": distortion_case, "scan_lines": scan_line_case, "drift": drift_case,
+             "combined": combined_case}
     for name in a.cases:
         t0 = time.perf_counter()
         out[name] = cases[name](n, field)

@@ -406,4 +406,6 @@ def add_sem_drift(sub) -> None:
                     help=tr("pause between back-to-back images, s (default 0)"))
     dr.add_argument("--degree", type=int, default=3,
                     help=tr("polynomial degree of the drift in time (default 3)"))
+    dr.add_argument("--distortion", type=Path, metavar="DISTORTION.json",
+                    help=tr("correct the series for this distortion calibration first"))
     add_param_options(dr)

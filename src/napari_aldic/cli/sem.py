@@ -82,7 +82,9 @@ def sem_drift_command(args) -> None:
                                                   line=timing.line_time, degree=args.degree))
     model = calibrate_drift(images, timing, start_times=args.start_times, degree=args.degree,
                             params=_params(args), names=[Path(p).name for p in args.images],
-                            gap=args.gap, progress=progress_bar("  " + tr("calibration")))
+                            gap=args.gap, progress=progress_bar("  " + tr("calibration")),
+                            distortion=None if args.distortion is None
+                            else load_distortion(args.distortion))
     clear_bar()
     for im in model.images:
         t = im["start_time_s"]
