@@ -157,3 +157,19 @@ def test_drift_calibrated_and_removed(tmp_path):
     assert model.start_time_of(imgs[1]) == pytest.approx(times[1])
     with pytest.raises(DistortionError, match="deformed image is not in the drift"):
         correlate_sem(imgs[0], imgs[3], drift=model)
+
+
+def test_scan_lines_with_a_roi_hole():
+    n = 160
+    pat = make_pattern((n, n), margin=30, seed=8)
+    shifts = np.zeros(n)
+    shifts[60:63], shifts[110:114] = 0.8, -0.5
+    field = Translation(1.3, -0.7)
+    ref = sem_image(pat, SEMScan((n, n)), None, noise=1.0, seed=3)
+    dfm = sem_image(pat, SEMScan((n, n)), field, line_shifts=shifts, noise=1.0, seed=4)
+    yy, xx = np.mgrid[0:n, 0:n]
+    roi = np.hypot(xx - 80, yy - 80) > 25  # a hole: no material there in either image
+    res = correlate_sem(ref, dfm, roi=roi, scan_lines=True)
+    lines = ScanLines.from_meta(res.meta["sem"]["scan_lines"])
+    assert np.abs(lines.deformed - shifts).max() < 0.1
+    assert np.abs(lines.reference).max() == 0.0

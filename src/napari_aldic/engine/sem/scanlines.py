@@ -111,8 +111,9 @@ def _dense(result: DICResult, shape):
              int(np.floor(ys[-1]))))
 
 
-def _residuals(f: np.ndarray, g: np.ndarray, result: DICResult):
-    """Row shifts ``L_def - L_ref`` in reference rows and in deformed rows."""
+def _residuals(f: np.ndarray, g: np.ndarray, result: DICResult, roi=None):
+    """Row shifts ``L_def - L_ref`` in reference rows and in deformed rows
+    (over the ROI of the reference, carried into the deformed frame)."""
     h, w = f.shape
     su, sv, (x0, x1, y0, y1) = _dense(result, f.shape)
     xs, ys = np.arange(w, dtype=float), np.arange(h, dtype=float)
@@ -120,6 +121,8 @@ def _residuals(f: np.ndarray, g: np.ndarray, result: DICResult):
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     box = np.zeros((h, w))
     box[y0:y1 + 1, x0:x1 + 1] = 1.0
+    if roi is not None:
+        box *= np.asarray(roi, bool)
     # reference frame: the deformed image pulled back by the field
     px, py = xx + U, yy + V
     inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
@@ -130,6 +133,9 @@ def _residuals(f: np.ndarray, g: np.ndarray, result: DICResult):
     for _ in range(4):
         X, Y = xx - su.ev(Y, X), yy - sv.ev(Y, X)
     inside = (X >= x0) & (X <= x1) & (Y >= y0) & (Y <= y1)
+    if roi is not None:  # the ROI's material in the deformed frame
+        inside &= np.asarray(roi, bool)[np.clip(np.rint(Y).astype(int), 0, h - 1),
+                                        np.clip(np.rint(X).astype(int), 0, w - 1)]
     f_w = sample(prefilter(f), np.clip(X, 0, w - 1), np.clip(Y, 0, h - 1))
     r_def = _row_shifts(f_w, g, inside.astype(float))
     row_v = np.nanmedian(np.where(box > 0, V, np.nan)[y0:y1 + 1], axis=1)
@@ -166,12 +172,12 @@ def _sparse(r: np.ndarray, subset: int, rows, min_shift: float):
 
 
 def estimate_scan_lines(reference, deformed, result: DICResult,
-                        min_shift: float = 0.08) -> ScanLines:
+                        min_shift: float = 0.08, roi=None) -> ScanLines:
     """Line shifts of both images from their correlation ``result`` (shifts
     under ``min_shift`` px, or under five robust standard deviations of the
     row residuals, are taken as none)."""
     f, g = as_gray_float(reference, "reference"), as_gray_float(deformed, "deformed")
-    r_ref, r_def, rows_v, (y0, y1) = _residuals(f, g, result)
+    r_ref, r_def, rows_v, (y0, y1) = _residuals(f, g, result, roi)
     subset = result.params.subset
     hp_ref, flag_ref = _sparse(r_ref, subset, (y0, y1), min_shift)
     hp_def, flag_def = _sparse(r_def, subset, (max(0, int(y0 + rows_v[y0])),
@@ -210,7 +216,7 @@ def find_scan_lines(reference, deformed, roi=None, params: DICParams | None = No
     fc, gc = f, g
     for _ in range(passes):
         res = correlate(fc, gc, roi=roi, params=coarse)
-        more = estimate_scan_lines(fc, gc, res, min_shift)
+        more = estimate_scan_lines(fc, gc, res, min_shift, roi)
         if not (np.any(more.reference) or np.any(more.deformed)):
             break
         lines = ScanLines(lines.reference + more.reference, lines.deformed + more.deformed)
