@@ -111,36 +111,38 @@ def _dense(result: DICResult, shape):
              int(np.floor(ys[-1]))))
 
 
+def _covered(weight: np.ndarray) -> tuple[int, int]:
+    """First and last row with material over at least half the width."""
+    rows = np.flatnonzero(weight.sum(1) >= 0.5 * weight.shape[1])
+    return (int(rows[0]), int(rows[-1])) if rows.size else (0, -1)
+
+
 def _residuals(f: np.ndarray, g: np.ndarray, result: DICResult, roi=None):
     """Row shifts ``L_def - L_ref`` in reference rows and in deformed rows
-    (over the ROI of the reference, carried into the deformed frame)."""
+    (over the ROI of the reference, carried into the deformed frame; the
+    field is extrapolated beyond the outer nodes), the mean v of every
+    reference row and the rows each residual covers."""
     h, w = f.shape
-    su, sv, (x0, x1, y0, y1) = _dense(result, f.shape)
+    su, sv, _ = _dense(result, f.shape)
     xs, ys = np.arange(w, dtype=float), np.arange(h, dtype=float)
     U, V = su(ys, xs), sv(ys, xs)
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
-    box = np.zeros((h, w))
-    box[y0:y1 + 1, x0:x1 + 1] = 1.0
-    if roi is not None:
-        box *= np.asarray(roi, bool)
+    mask = np.ones((h, w), bool) if roi is None else np.asarray(roi, bool)
     # reference frame: the deformed image pulled back by the field
     px, py = xx + U, yy + V
-    inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
+    w_ref = mask & (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
     g_w = sample(prefilter(g), np.clip(px, 0, w - 1), np.clip(py, 0, h - 1))
-    r_ref = _row_shifts(f, g_w, box * inside)
+    r_ref = _row_shifts(f, g_w, w_ref.astype(float))
     # deformed frame: X with X + u(X) = x, by fixed point
     X, Y = xx.copy(), yy.copy()
     for _ in range(4):
         X, Y = xx - su.ev(Y, X), yy - sv.ev(Y, X)
-    inside = (X >= x0) & (X <= x1) & (Y >= y0) & (Y <= y1)
-    if roi is not None:  # the ROI's material in the deformed frame
-        inside &= np.asarray(roi, bool)[np.clip(np.rint(Y).astype(int), 0, h - 1),
-                                        np.clip(np.rint(X).astype(int), 0, w - 1)]
+    w_def = (X >= 0) & (X <= w - 1) & (Y >= 0) & (Y <= h - 1)
+    w_def &= mask[np.clip(np.rint(Y).astype(int), 0, h - 1),
+                  np.clip(np.rint(X).astype(int), 0, w - 1)]
     f_w = sample(prefilter(f), np.clip(X, 0, w - 1), np.clip(Y, 0, h - 1))
-    r_def = _row_shifts(f_w, g, inside.astype(float))
-    row_v = np.nanmedian(np.where(box > 0, V, np.nan)[y0:y1 + 1], axis=1)
-    rows_v = np.interp(np.arange(h), np.arange(y0, y1 + 1), row_v)
-    return r_ref, r_def, rows_v, (y0, y1)
+    r_def = _row_shifts(f_w, g, w_def.astype(float))
+    return r_ref, r_def, np.median(V, axis=1), _covered(w_ref), _covered(w_def)
 
 
 def _steps(image: np.ndarray) -> np.ndarray:
@@ -160,6 +162,8 @@ def _sparse(r: np.ndarray, subset: int, rows, min_shift: float):
     lo, hi = rows
     s = np.zeros_like(r)
     flag = np.zeros(r.size, bool)
+    if hi - lo < 2 * subset:  # too few rows with material to tell jumps from motion
+        return s, flag
     for _ in range(6):
         q = r + ndimage.uniform_filter1d(s, size=subset, mode="nearest")
         hp = q - ndimage.median_filter(q, size=2 * subset + 1, mode="nearest")
@@ -177,12 +181,10 @@ def estimate_scan_lines(reference, deformed, result: DICResult,
     under ``min_shift`` px, or under five robust standard deviations of the
     row residuals, are taken as none)."""
     f, g = as_gray_float(reference, "reference"), as_gray_float(deformed, "deformed")
-    r_ref, r_def, rows_v, (y0, y1) = _residuals(f, g, result, roi)
+    r_ref, r_def, rows_v, rows_ref, rows_def = _residuals(f, g, result, roi)
     subset = result.params.subset
-    hp_ref, flag_ref = _sparse(r_ref, subset, (y0, y1), min_shift)
-    hp_def, flag_def = _sparse(r_def, subset, (max(0, int(y0 + rows_v[y0])),
-                                               min(f.shape[0] - 1, int(y1 + rows_v[y1]))),
-                               min_shift)
+    hp_ref, flag_ref = _sparse(r_ref, subset, rows_ref, min_shift)
+    hp_def, flag_def = _sparse(r_def, subset, rows_def, min_shift)
     s_ref, s_def = _steps(f), _steps(g)
     L_ref, L_def = np.zeros(f.shape[0]), np.zeros(f.shape[0])
     labels, _ = ndimage.label(flag_ref)
