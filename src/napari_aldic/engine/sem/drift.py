@@ -157,6 +157,9 @@ class DriftModel:
         if d.get("format") != FORMAT:
             raise DistortionError(f"{source} is not a napari-aldic drift calibration "
                                   f"(format {d.get('format')!r})")
+        if int(d.get("version", 0)) > VERSION:
+            raise DistortionError(f"{source} has version {d['version']}, newer than this "
+                                  f"napari-aldic reads ({VERSION})")
         return cls(int(d["degree"]), ScanTiming(float(d["dwell_s"]), float(d["line_time_s"])),
                    tuple(int(n) for n in d["image_shape"]), float(d["t_scale_s"]),
                    np.asarray(d["coef_x"], float), np.asarray(d["coef_y"], float),
