@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 import warnings
 
@@ -29,12 +30,14 @@ COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
             "noise-floor": noise_floor_command}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, restore_sigint=None) -> int:
     """Entry point of the ``napari-aldic`` console script; returns the exit code.
 
     Every error ends the command with one line, ``napari-aldic: error: ...``,
     and exit code 2 (130 when interrupted); with the environment variable
     ``NAPARI_ALDIC_DEBUG=1`` the traceback is printed above that line.
+    ``restore_sigint`` is the SIGINT handler to put back once the command
+    starts (:func:`napari_aldic.cli.main` quits at once on Ctrl-C until then).
     """
     set_language(None)  # the environment's language, read now (docs/languages.md)
     parser = build_parser()
@@ -45,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = show_warning
         try:
+            if restore_sigint is not None:  # from now on Ctrl-C raises KeyboardInterrupt
+                signal.signal(signal.SIGINT, restore_sigint)
             return COMMANDS[args.command](args) or 0
         except BrokenPipeError:  # stdout piped into a program that stopped reading
             silence_stdout()

@@ -154,6 +154,141 @@ def atomic_write(path):
         raise
 
 
+# =================================================================== reading
+class InputFileError(ValueError):
+    """An input file cannot be read: it is not a regular file (a folder, a
+    named pipe, a device, a socket), is too large, or its text is not what
+    was expected. The message names the file; ``filename`` is its path."""
+
+    def __init__(self, message: str, path=None):
+        super().__init__(message)
+        self.filename = None if path is None else str(path)
+
+
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
+          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def _not_regular(st: os.stat_result) -> str | None:
+    if stat.S_ISREG(st.st_mode):
+        return None
+    return next((words for test, words in _KINDS if test(st.st_mode)), "not a regular file")
+
+
+def regular_file(path, what: str = "file") -> Path:
+    """``path`` (``~`` expanded) after checking that it names a regular file
+    (a link to one is fine): a named pipe, device or socket would block or
+    stream forever when opened, so it is refused before anything opens it.
+
+    Raises ``FileNotFoundError`` when nothing is there and
+    :class:`InputFileError` (a ``ValueError``) naming the file otherwise.
+    """
+    p = Path(os.fspath(path)).expanduser()
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise FileNotFoundError(errno.ENOENT, f"no {what} at {p}", str(p)) from None
+    except OSError as exc:
+        raise InputFileError(f"cannot read the {what} {p}: {exc.strerror or exc}", p) from None
+    kind = _not_regular(st)
+    if kind is not None:
+        raise InputFileError(f"cannot read the {what} {p}: it is {kind}, not a regular file",
+                             p)
+    return p
+
+
+def open_regular(path, what: str = "file"):
+    """``path`` opened for binary reading, refused (as :func:`regular_file`)
+    unless it is a regular file. The check is made on the opened file
+    (``O_NONBLOCK``, so that opening a pipe cannot block), not on the name."""
+    p = regular_file(path, what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(p, flags | getattr(os, "O_BINARY", 0))
+    except OSError as exc:
+        raise InputFileError(f"cannot read the {what} {p}: {exc.strerror or exc}", p) from None
+    kind = _not_regular(os.fstat(fd))
+    if kind is not None:  # swapped between the check and the open
+        os.close(fd)
+        raise InputFileError(f"cannot read the {what} {p}: it is {kind}, not a regular file",
+                             p)
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+#: largest JSON or text file read whole (settings, manifests, projects), bytes
+MAX_TEXT_BYTES = 256 << 20
+
+
+def read_text_file(path, what: str = "file", encoding: str = "utf-8",
+                   limit: int = MAX_TEXT_BYTES) -> str:
+    """The text of a regular file (see :func:`open_regular`) of at most
+    ``limit`` bytes; :class:`InputFileError` naming the file otherwise."""
+    with open_regular(path, what) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > limit:
+            raise InputFileError(f"cannot read the {what} {path}: it holds {size:,} bytes, "
+                                 f"more than the {limit >> 20} MB such a file can have", path)
+        raw = fh.read(limit + 1)
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"cannot read the {what} {path}: it is not {encoding.upper()} "
+                             f"text ({exc.reason} at byte {exc.start})", path) from None
+
+
+def parse_json(text: str, source) -> object:
+    """``json.loads(text)`` with every way it fails (bad syntax, nesting too
+    deep for the parser, integers too long to convert) a ``ValueError``
+    naming ``source`` (a file, or where the text was found)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputFileError(f"{source} is not valid JSON: {exc}", source) from None
+    except RecursionError:
+        raise InputFileError(f"{source} nests lists or objects too deeply to be read (a "
+                             "damaged or hostile file)", source) from None
+    except ValueError as exc:  # e.g. an integer of thousands of digits
+        raise InputFileError(f"{source} holds a value that cannot be read: {exc}",
+                             source) from None
+
+
+def read_json_file(path, what: str = "file", limit: int = MAX_TEXT_BYTES) -> object:
+    """The JSON document of a regular file; errors name the file."""
+    return parse_json(read_text_file(path, what, limit=limit), f"the {what} {path}")
+
+
+def file_sha256(path, what: str = "file") -> str:
+    """SHA-256 (hex) of a regular file's bytes, read in blocks."""
+    h = hashlib.sha256()
+    with open_regular(path, what) as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def available_memory() -> int | None:
+    """Memory a new allocation can have now, in bytes (None when unknown):
+    Linux's ``MemAvailable`` (free memory plus what caches would give back),
+    else the free pages, else the physical memory. Sizes declared by a file
+    are checked against it before anything is decompressed."""
+    try:
+        with open("/proc/meminfo", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    for pages in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):
+        try:
+            return os.sysconf("SC_PAGE_SIZE") * os.sysconf(pages)
+        except (ValueError, OSError, AttributeError):
+            continue
+    return None
+
+
 def numbered_path(path: Path, k: int) -> Path:
     """``path`` with ``_frame#####`` before the suffix: one file per frame."""
     return path.with_name(f"{path.stem}_frame{k:05d}{path.suffix}")

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.files import regular_file
 from ..core.images import as_gray_float
 
 __all__ = ["FrameSource", "open_stack", "read_image", "open_image", "image_files",
@@ -61,11 +62,9 @@ def image_files(folder) -> list[Path]:
 def _image_file(path) -> Path:
     """``path`` as a Path, checked to be an existing file."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no such file: {path}")
     if path.is_dir():
         raise ValueError(f"{path} is a folder; expected an image file")
-    return path
+    return regular_file(path, "image file")  # a pipe or device would block the reader
 
 
 def read_image(path) -> np.ndarray:
@@ -258,7 +257,7 @@ class FrameSource:
         elif not path.exists():
             raise FileNotFoundError(f"no image stack at {path} (no such file or folder)")
         elif path.suffix.lower() in TIFF_SUFFIXES:
-            self._open_tiff(path)
+            self._open_tiff(regular_file(path, "image stack"))
         else:
             raise ValueError(f"{path} is a single image; a sequence needs a multi-page TIFF "
                              "stack, a folder of images or several image files")

@@ -37,6 +37,7 @@ from ..core.files import (
     clean_temporaries,
     explain_os_error,
     folder_lock,
+    read_json_file,
 )
 from ..core.version import __version__
 from ..dic.quadtree import resolve_refinement
@@ -132,7 +133,7 @@ def check_or_create(out: Path, info: dict) -> None:
     """Write the manifest of a new run folder, or check that the folder's
     manifest describes the same analysis as ``info`` (raises otherwise)."""
     manifest = out / MANIFEST
-    if not manifest.exists():
+    if not os.path.lexists(manifest):
         results = sorted(p.name for p in out.glob("*.npz"))
         if results:
             raise RunFolderError(
@@ -145,7 +146,7 @@ def check_or_create(out: Path, info: dict) -> None:
             tmp.write_text(json.dumps(doc, indent=1))
         return
     try:
-        old = json.loads(manifest.read_text())
+        old = read_json_file(manifest, "run manifest")
     except (OSError, ValueError) as exc:
         raise RunFolderError(f"cannot read the run manifest {manifest}: {exc}. Choose another "
                              "folder (or delete the folder's contents)", out) from None
