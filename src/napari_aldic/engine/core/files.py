@@ -8,6 +8,7 @@ import hashlib
 import json
 import os
 import secrets
+import shutil
 import socket
 import stat
 import sys
@@ -15,7 +16,6 @@ import tempfile
 import time
 from collections.abc import Sequence
 from contextlib import contextmanager
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +57,7 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     code = getattr(exc, "errno", None)
     if code in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
         msg = (f"cannot write {path}: no space left on the device (disk full or quota "
-               "exceeded). Free some space or choose a folder on another disk, then export "
+               "exceeded). Free some space or choose a folder on another disk, then try "
                "again; no partial file was left behind")
     elif code in (errno.EACCES, errno.EPERM):
         msg = (f"cannot write {path}: permission denied. Choose a folder you can write to "
@@ -67,11 +67,22 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     elif code == errno.ENOENT:
         msg = (f"cannot write {path}: the folder {path.parent} does not exist (any more). "
                "Create it first or choose another output path")
+    elif code in (errno.ENOTDIR, errno.EEXIST) and _file_above(path) is not None:
+        msg = (f"cannot write {path}: {_file_above(path)} is a file, not a folder. Choose "
+               "another output path")
     elif code == errno.ENAMETOOLONG:
         msg = f"cannot write {path}: the file name is too long. Choose a shorter name"
     else:
         msg = f"cannot write {path}: {exc.strerror or exc}"
     return ExportError(msg, path, code)
+
+
+def _file_above(path: Path) -> Path | None:
+    """The part of ``path`` (itself or a folder above it) that is a file."""
+    for p in (path, *path.parents):
+        if os.path.lexists(p):
+            return None if p.is_dir() else p
+    return None
 
 
 def target_path(path, suffixes: Sequence[str]) -> Path:
@@ -86,6 +97,10 @@ def target_path(path, suffixes: Sequence[str]) -> Path:
 
 def check_folder(path: Path) -> None:
     folder = path.parent
+    above = _file_above(folder)
+    if above is not None:
+        raise ExportError(f"cannot write {path}: {above} is a file, not a folder. Choose "
+                          "another output path", path, errno.ENOTDIR)
     if not folder.exists():
         raise ExportError(f"cannot write {path}: the folder {folder} does not exist. Create it "
                           "first or choose another output path", path, errno.ENOENT)
@@ -115,6 +130,87 @@ def _umask() -> int:
     return mask
 
 
+def _disk_full(folder: Path) -> bool:
+    """Whether the file system of ``folder`` has (almost) no space left."""
+    try:
+        return shutil.disk_usage(folder).free < (1 << 20)
+    except OSError:
+        return False
+
+
+class AtomicFiles:
+    """Several files written as one: each under a temporary name beside it
+    (:meth:`write`), all renamed into place when the ``with`` block ends
+    without an error, none otherwise (a file series and the index naming it,
+    e.g. ``.vtu`` frames and their ``.pvd``, appear together or not at all).
+
+    Errors become :class:`ExportError` with an explanation; an error of a
+    library while the disk is full (a compressor's "error while flushing")
+    is reported as the full disk it is.
+    """
+
+    def __init__(self):
+        self._written: list[tuple[Path, Path]] = []
+
+    def __enter__(self) -> AtomicFiles:
+        return self
+
+    @contextmanager
+    def write(self, path):
+        """Yield a temporary path for ``path``; write the file there."""
+        path = Path(os.fspath(path)).expanduser()
+        check_folder(path)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part",
+                                       dir=path.parent)
+        except OSError as exc:
+            raise explain_os_error(exc, path) from None
+        made = os.fstat(fd)
+        os.close(fd)
+        tmp = Path(tmp)
+        try:
+            yield tmp
+            now = os.lstat(tmp)
+            if not stat.S_ISREG(now.st_mode) or (now.st_ino, now.st_dev) != (made.st_ino,
+                                                                              made.st_dev):
+                # swapped for another file or a link while we wrote: never rename it
+                raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
+                                  "replaced by another program during the write", path)
+        except ExportError:
+            _remove(tmp)
+            raise
+        except OSError as exc:
+            _remove(tmp)
+            raise explain_os_error(exc, path) from exc
+        except Exception as exc:
+            _remove(tmp)
+            if _disk_full(path.parent):
+                raise explain_os_error(OSError(errno.ENOSPC, "disk full"), path) from exc
+            raise
+        except BaseException:
+            _remove(tmp)
+            raise
+        self._written.append((tmp, path))
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        todo = list(self._written)
+        self._written.clear()
+        if kind is not None:
+            for tmp, _ in todo:
+                _remove(tmp)
+            return False
+        mode = 0o666 & ~_umask()  # mkstemp creates 0600
+        for n, (tmp, path) in enumerate(todo):
+            try:
+                os.chmod(tmp, mode)
+                os.replace(tmp, path)
+            except OSError as err:
+                for left, _ in todo[n:]:
+                    _remove(left)
+                raise explain_os_error(err, path) from err
+        return False
+
+
 @contextmanager
 def atomic_write(path):
     """Context manager yielding a temporary path beside ``path``.
@@ -122,36 +218,16 @@ def atomic_write(path):
     Write the file there; when the block ends without an exception it is
     renamed to ``path`` (replacing an older file atomically). On any error
     the temporary file is removed, an older ``path`` is left untouched, and
-    ``OSError`` becomes :class:`ExportError` with an explanation.
+    ``OSError`` becomes :class:`ExportError` with an explanation (see
+    :class:`AtomicFiles`, of which this is the one-file case).
     """
-    path = Path(os.fspath(path)).expanduser()
-    check_folder(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    except OSError as exc:
-        raise explain_os_error(exc, path) from None
-    made = os.fstat(fd)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
+    with AtomicFiles() as files, files.write(path) as tmp:
         yield tmp
-        now = os.lstat(tmp)
-        if not stat.S_ISREG(now.st_mode) or (now.st_ino, now.st_dev) != (made.st_ino,
-                                                                          made.st_dev):
-            # swapped for another file or a link while we wrote: never rename it
-            raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
-                              "replaced by another program during the write", path)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except ExportError:
-        _remove(tmp)
-        raise
-    except OSError as exc:
-        _remove(tmp)
-        raise explain_os_error(exc, path) from exc
-    except BaseException:
-        _remove(tmp)
-        raise
+
+
+def numbered_path(path: Path, k: int) -> Path:
+    """``path`` with ``_frame#####`` before the suffix: one file per frame."""
+    return path.with_name(f"{path.stem}_frame{k:05d}{path.suffix}")
 
 
 # =================================================================== reading
@@ -289,11 +365,6 @@ def available_memory() -> int | None:
     return None
 
 
-def numbered_path(path: Path, k: int) -> Path:
-    """``path`` with ``_frame#####`` before the suffix: one file per frame."""
-    return path.with_name(f"{path.stem}_frame{k:05d}{path.suffix}")
-
-
 # =================================================================== digests
 def array_digest(arr) -> str:
     """SHA-256 (hex) of an array's dtype, shape and values: equal digests mean
@@ -302,54 +373,6 @@ def array_digest(arr) -> str:
     h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
     h.update(memoryview(a.reshape(-1).view(np.uint8)))
     return h.hexdigest()
-
-
-# =================================================================== ROI files
-ROI_FORMAT = "napari-aldic-roi"
-
-
-def write_roi_file(folder, roi) -> dict:
-    """Store ``roi`` once in ``folder`` as ``roi_<digest>.npz`` (bit-packed;
-    named by its content, so an existing file is reused) and return the
-    reference a result file keeps instead of its own copy:
-    ``{"file": name, "sha256": digest}``."""
-    roi = np.asarray(roi, bool)
-    digest = array_digest(roi)
-    path = Path(folder) / f"roi_{digest[:16]}.npz"
-    if not path.is_file():
-        head = json.dumps({"format": ROI_FORMAT, "sha256": digest, "shape": list(roi.shape)})
-        with atomic_write(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, header=np.array(head), roi_packed=np.packbits(roi, axis=None))
-    return {"file": path.name, "sha256": digest}
-
-
-def read_roi_file(path, digest: str, shape) -> np.ndarray:
-    """The ROI stored by :func:`write_roi_file` (read-only; results of one run
-    share one array). Raises ``ValueError`` naming the file when it is
-    missing, unreadable or not the ROI ``digest`` the result refers to."""
-    path = Path(path)
-    try:
-        st = path.stat()
-    except OSError:
-        raise ValueError(f"the ROI file {path} that this result refers to is missing; keep "
-                         f"result files together with the roi_*.npz files of their run "
-                         "folder") from None
-    return _read_roi(str(path), st.st_mtime_ns, st.st_size, digest, tuple(shape))
-
-
-@lru_cache(maxsize=4)
-def _read_roi(path: str, mtime_ns: int, size: int, digest: str, shape: tuple) -> np.ndarray:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            bits = np.unpackbits(z["roi_packed"], count=int(np.prod(shape)))
-        roi = bits.reshape(shape).astype(bool)
-    except Exception as exc:  # any damage: the file is named below
-        raise ValueError(f"cannot read the ROI file {path}: {exc}") from None
-    if array_digest(roi) != digest:
-        raise ValueError(f"the ROI file {path} does not hold the ROI its results were "
-                         "computed with (damaged or replaced)")
-    roi.flags.writeable = False
-    return roi
 
 
 # =================================================================== run folders
@@ -368,9 +391,13 @@ def clean_temporaries(folder) -> list[str]:
     write of another process can then be in progress). Returns their names."""
     gone = []
     for entry in os.scandir(folder):
-        if entry.name.endswith(".part") and not entry.is_dir(follow_symlinks=False):
+        if not entry.name.endswith(".part") or entry.name.startswith(LOCK_NAME):
+            continue  # (a lock being created by another process is its own)
+        if entry.is_dir(follow_symlinks=False):  # a field store being built
+            shutil.rmtree(entry.path, ignore_errors=True)
+        else:
             _remove(Path(entry.path))  # unlink: a planted link is removed, never followed
-            gone.append(entry.name)
+        gone.append(entry.name)
     return gone
 
 
@@ -400,10 +427,9 @@ def folder_lock(folder):
 
 
 def _acquire(path: Path, me: dict) -> None:
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
     for _ in range(5):
         try:
-            fd = os.open(path, flags, 0o644)
+            _create_lock(path, json.dumps(me).encode())
         except FileExistsError:
             owner, raw = _read_lock(path)
             if not _stale(path, owner):
@@ -412,11 +438,45 @@ def _acquire(path: Path, me: dict) -> None:
             continue
         except OSError as exc:
             raise explain_os_error(exc, path) from None
-        with os.fdopen(fd, "w") as fh:
-            json.dump(me, fh)
         return
     raise RunFolderError(f"cannot lock the run folder {path.parent}: its lock file {path.name} "
                          "keeps changing (several runs starting at once?)", path.parent)
+
+
+def _create_lock(path: Path, body: bytes) -> None:
+    """Create the lock ``path`` holding ``body``, or raise FileExistsError.
+
+    The body is written to a temporary file first and hard-linked to the
+    lock's name (atomic, and fails if the name exists), so the lock is never
+    seen empty: a run killed while locking, or a full disk, leaves no empty
+    lock behind. Where hard links are not possible, ``O_EXCL`` creates it
+    and a failed write removes it again."""
+    tmp = path.with_name(f"{path.name}.{secrets.token_hex(4)}.part")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(tmp, flags, 0o644)
+        try:
+            os.write(fd, body)
+        finally:
+            os.close(fd)
+        try:
+            os.link(tmp, path)
+            return
+        except FileExistsError:
+            raise
+        except OSError:  # no hard links on this file system
+            pass
+        fd = os.open(path, flags, 0o644)
+        try:
+            if os.write(fd, body) != len(body):
+                raise OSError(errno.ENOSPC, "short write")
+        except OSError:
+            os.close(fd)
+            _remove(path)
+            raise
+        os.close(fd)
+    finally:
+        _remove(tmp)
 
 
 def _read_lock(path: Path) -> tuple[dict | None, bytes | None]:

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from .files import atomic_write, read_roi_file
+from .files import atomic_write
 from .npzfile import read_result_npz
 from .params import DICParams
 from .reasons import Reason
+from .roifile import read_roi_file
 
 __all__ = ["DICResult", "load_result"]
 

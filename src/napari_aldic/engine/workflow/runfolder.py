@@ -24,6 +24,8 @@ import dataclasses
 import hashlib
 import json
 import os
+import zipfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,12 +39,17 @@ from ..core.files import (
     clean_temporaries,
     explain_os_error,
     folder_lock,
+    parse_json,
     read_json_file,
+    regular_file,
 )
 from ..core.version import __version__
 from ..dic.quadtree import resolve_refinement
 
 MANIFEST = "sequence.json"
+#: the key of a frame result's meta holding the digest of the image it was computed
+#: from (frame k's pixels, read once), checked when a run resumes
+IMAGE_DIGEST = "image_sha256"
 FORMAT = "napari-aldic-run"
 FORMAT_VERSION = 2
 #: manifest entries that define a run, in the order differences are reported
@@ -253,3 +260,22 @@ def _stack_diff(a: dict, b: dict) -> list[str]:
             out.append(f"the image stack changed (the {end} analysed frame holds other pixel "
                        "values)")
     return out
+
+
+# ----------------------------------------------------------------- frame files
+def frame_file_meta(path: Path) -> dict:
+    """The ``meta`` of a finished frame's result file, after checking every
+    member's CRC (a bit flipped on disk is found when resuming, not by a
+    later export). Raises ``ValueError`` naming the file."""
+    regular_file(path, "frame result file")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+        if bad is not None:
+            raise ValueError(f"its member {bad} fails its CRC check")
+        with np.load(path, allow_pickle=False) as z:
+            doc = parse_json(str(z["header"]), f"the header of {path}")
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ValueError(f"{path} is damaged ({exc})") from None
+    meta = doc.get("meta") if isinstance(doc, dict) else None
+    return meta if isinstance(meta, dict) else {}
