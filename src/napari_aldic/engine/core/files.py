@@ -67,8 +67,8 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     elif code == errno.ENOENT:
         msg = (f"cannot write {path}: the folder {path.parent} does not exist (any more). "
                "Create it first or choose another output path")
-    elif code in (errno.ENOTDIR, errno.EEXIST) and _file_above(path) is not None:
-        msg = (f"cannot write {path}: {_file_above(path)} is a file, not a folder. Choose "
+    elif code in (errno.ENOTDIR, errno.EEXIST) and file_above(path) is not None:
+        msg = (f"cannot write {path}: {file_above(path)} is a file, not a folder. Choose "
                "another output path")
     elif code == errno.ENAMETOOLONG:
         msg = f"cannot write {path}: the file name is too long. Choose a shorter name"
@@ -77,7 +77,7 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     return ExportError(msg, path, code)
 
 
-def _file_above(path: Path) -> Path | None:
+def file_above(path: Path) -> Path | None:
     """The part of ``path`` (itself or a folder above it) that is a file."""
     for p in (path, *path.parents):
         if os.path.lexists(p):
@@ -97,7 +97,7 @@ def target_path(path, suffixes: Sequence[str]) -> Path:
 
 def check_folder(path: Path) -> None:
     folder = path.parent
-    above = _file_above(folder)
+    above = file_above(folder)
     if above is not None:
         raise ExportError(f"cannot write {path}: {above} is a file, not a folder. Choose "
                           "another output path", path, errno.ENOTDIR)
@@ -322,13 +322,14 @@ def parse_json(text: str, source) -> object:
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputFileError(f"{source} is not valid JSON: {exc}", source) from None
+        problem = f"is not valid JSON ({exc})"
     except RecursionError:
-        raise InputFileError(f"{source} nests lists or objects too deeply to be read (a "
-                             "damaged or hostile file)", source) from None
+        problem = "nests lists or objects too deeply (a damaged or hostile file)"
     except ValueError as exc:  # e.g. an integer of thousands of digits
-        raise InputFileError(f"{source} holds a value that cannot be read: {exc}",
-                             source) from None
+        problem = f"holds a value that cannot be read ({exc})"
+    err = InputFileError(f"cannot read {source}: it {problem}", source)
+    err.problem = problem  # for a caller that names the file its own way
+    raise err
 
 
 def read_json_file(path, what: str = "file", limit: int = MAX_TEXT_BYTES) -> object:

@@ -123,7 +123,10 @@ def _read_header(path: Path, heads: dict, fmt: str) -> dict:
             text = str(z["header"])
     except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
         raise _fail(path, f"its header is damaged ({exc})") from None
-    header = parse_json(text, f"the header of result file {path}")
+    try:
+        header = parse_json(text, path)
+    except ValueError as exc:
+        raise _fail(path, f"its header {exc.problem}") from None
     if not isinstance(header, dict) or header.get("format") != fmt:
         raise _fail(path, "it is not a napari-aldic result file (wrong format in its header)")
     dims = header.get("image_shape")

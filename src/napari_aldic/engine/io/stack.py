@@ -269,8 +269,10 @@ class FrameSource:
             self._use_files(files)
         elif not path.exists():
             raise FileNotFoundError(f"no image stack at {path} (no such file or folder)")
+        elif not path.is_file():  # a pipe or device would block the reader
+            regular_file(path, "image stack")
         elif path.suffix.lower() in TIFF_SUFFIXES:
-            self._open_tiff(regular_file(path, "image stack"))
+            self._open_tiff(path)
         else:
             raise ValueError(f"{path} is a single image; a sequence needs a multi-page TIFF "
                              "stack, a folder of images or several image files")

@@ -41,8 +41,8 @@ from ..core.files import (
     folder_lock,
     parse_json,
     read_json_file,
-    regular_file,
 )
+from ..core.npzfile import npz_headers
 from ..core.version import __version__
 from ..dic.quadtree import resolve_refinement
 
@@ -266,8 +266,9 @@ def _stack_diff(a: dict, b: dict) -> list[str]:
 def frame_file_meta(path: Path) -> dict:
     """The ``meta`` of a finished frame's result file, after checking every
     member's CRC (a bit flipped on disk is found when resuming, not by a
-    later export). Raises ``ValueError`` naming the file."""
-    regular_file(path, "frame result file")
+    later export). Raises ``ValueError`` saying what is wrong (the caller
+    names the file)."""
+    npz_headers(path)  # refuses a FIFO, a truncated or foreign file, naming it
     try:
         with zipfile.ZipFile(path) as zf:
             bad = zf.testzip()
@@ -276,6 +277,6 @@ def frame_file_meta(path: Path) -> dict:
         with np.load(path, allow_pickle=False) as z:
             doc = parse_json(str(z["header"]), f"the header of {path}")
     except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        raise ValueError(f"{path} is damaged ({exc})") from None
+        raise ValueError(f"it is damaged ({exc})") from None
     meta = doc.get("meta") if isinstance(doc, dict) else None
     return meta if isinstance(meta, dict) else {}

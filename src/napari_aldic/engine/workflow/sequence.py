@@ -457,8 +457,8 @@ class _SequenceRun:
         try:
             meta = frame_file_meta(pth)
         except ValueError as exc:
-            raise RunFolderError(f"cannot resume the run: {exc}. Delete that file to compute "
-                                 f"frame {k} again", self.out) from None
+            raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete that "
+                                 f"file to compute frame {k} again", self.out) from None
         recorded = meta.get(IMAGE_DIGEST)
         if isinstance(recorded, str) and array_digest(self.src[k]) != recorded:
             raise RunFolderError(
