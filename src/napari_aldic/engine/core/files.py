@@ -386,14 +386,23 @@ _UNREADABLE_LOCK_AGE = 30.0
 _HELD: set[str] = set()
 
 
+def _lock_in_making(name: str) -> bool:
+    """Whether ``name`` is the temporary of a lock that a live process on
+    this host is creating now (``.napari-aldic.lock.<pid>.<token>.part``)."""
+    if not name.startswith(LOCK_NAME + "."):
+        return False
+    pid = name[len(LOCK_NAME) + 1:].split(".")[0]
+    return pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid))
+
+
 def clean_temporaries(folder) -> list[str]:
     """Remove the temporaries (``*.part``, files or links) that killed runs
     left in the run ``folder``; call it while holding the folder's lock (no
     write of another process can then be in progress). Returns their names."""
     gone = []
     for entry in os.scandir(folder):
-        if not entry.name.endswith(".part") or entry.name.startswith(LOCK_NAME):
-            continue  # (a lock being created by another process is its own)
+        if not entry.name.endswith(".part") or _lock_in_making(entry.name):
+            continue
         if entry.is_dir(follow_symlinks=False):  # a field store being built
             shutil.rmtree(entry.path, ignore_errors=True)
         else:
@@ -452,7 +461,7 @@ def _create_lock(path: Path, body: bytes) -> None:
     seen empty: a run killed while locking, or a full disk, leaves no empty
     lock behind. Where hard links are not possible, ``O_EXCL`` creates it
     and a failed write removes it again."""
-    tmp = path.with_name(f"{path.name}.{secrets.token_hex(4)}.part")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
     try:
         fd = os.open(tmp, flags, 0o644)
