@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import Settings
+from ..engine import InputFileError, Settings
 from ..engine.io import available_memory, file_sha256, read_json_file
 from ..i18n import tr
 
@@ -325,7 +325,15 @@ def _check(doc) -> dict:
 def read_project(path) -> dict:
     """Read and check a project file (``ValueError``/``OSError`` naming the file)."""
     path = Path(os.fspath(path)).expanduser()
-    doc = read_json_file(path, "project file")
+    try:
+        doc = read_json_file(path, "project file")
+    except InputFileError as exc:
+        if exc.kind == "encoding":
+            raise ValueError(tr("{path} is not a text (UTF-8) file").format(path=path)) from None
+        if exc.kind == "json":
+            raise ValueError(tr("{path} is not valid JSON ({exc})").format(
+                path=path, exc=exc.problem.removeprefix("is not valid JSON (")[:-1])) from None
+        raise
     try:
         doc = _check(doc)
     except ValueError as exc:

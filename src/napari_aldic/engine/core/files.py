@@ -234,11 +234,15 @@ def numbered_path(path: Path, k: int) -> Path:
 class InputFileError(ValueError):
     """An input file cannot be read: it is not a regular file (a folder, a
     named pipe, a device, a socket), is too large, or its text is not what
-    was expected. The message names the file; ``filename`` is its path."""
+    was expected. The message names the file; ``filename`` is its path;
+    ``kind`` says what failed ("encoding", "json", "nesting", "value", else
+    None) and ``problem`` the words after "it" (for a caller that names the
+    file its own way)."""
 
-    def __init__(self, message: str, path=None):
+    def __init__(self, message: str, path=None, kind: str | None = None, problem: str = ""):
         super().__init__(message)
         self.filename = None if path is None else str(path)
+        self.kind, self.problem = kind, problem
 
 
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
@@ -311,8 +315,9 @@ def read_text_file(path, what: str = "file", encoding: str = "utf-8",
     try:
         return raw.decode(encoding)
     except UnicodeDecodeError as exc:
-        raise InputFileError(f"cannot read the {what} {path}: it is not {encoding.upper()} "
-                             f"text ({exc.reason} at byte {exc.start})", path) from None
+        problem = f"is not {encoding.upper()} text ({exc.reason} at byte {exc.start})"
+        raise InputFileError(f"cannot read the {what} {path}: it {problem}", path, "encoding",
+                             problem) from None
 
 
 def parse_json(text: str, source) -> object:
@@ -322,14 +327,12 @@ def parse_json(text: str, source) -> object:
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        problem = f"is not valid JSON ({exc})"
+        kind, problem = "json", f"is not valid JSON ({exc})"
     except RecursionError:
-        problem = "nests lists or objects too deeply (a damaged or hostile file)"
+        kind, problem = "nesting", "nests lists or objects too deeply (a damaged or hostile file)"
     except ValueError as exc:  # e.g. an integer of thousands of digits
-        problem = f"holds a value that cannot be read ({exc})"
-    err = InputFileError(f"cannot read {source}: it {problem}", source)
-    err.problem = problem  # for a caller that names the file its own way
-    raise err
+        kind, problem = "value", f"holds a value that cannot be read ({exc})"
+    raise InputFileError(f"cannot read {source}: it {problem}", source, kind, problem)
 
 
 def read_json_file(path, what: str = "file", limit: int = MAX_TEXT_BYTES) -> object:
