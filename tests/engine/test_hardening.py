@@ -353,3 +353,71 @@ def test_damaged_tiff_headers_are_named(tmp_path, stack):
             open_stack(bad)[1]
         assert str(bad) in str(info.value)
         assert "IndexError: tuple" not in str(info.value)
+
+
+# ----------------------------------------------------------------- projects (no Qt)
+def _image_layer(path, data):
+    import types
+
+    return types.SimpleNamespace(name="img", metadata={}, data=data, multiscale=False,
+                                 source=types.SimpleNamespace(path=path, sample=None),
+                                 scale=(1.0, 1.0), translate=(0.0, 0.0))
+
+
+def test_project_image_paths_resolve_against_the_project_file(tmp_path, monkeypatch, pair):
+    import tifffile
+
+    from napari_aldic._qt.project import image_record, read_project, write_project
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    tifffile.imwrite(a / "img.tif", pair[0])
+    tifffile.imwrite(b / "img.tif", pair[1])  # same name, other pixels
+    monkeypatch.chdir(a)  # the image was opened as "img.tif"
+    doc = {"image": image_record(_image_layer("img.tif", pair[0])), "layers": []}
+    project = write_project(a / "proj.json", doc)
+    assert json.loads(project.read_text())["image"]["path"] == "img.tif"  # relative to it
+    monkeypatch.chdir(b)  # opened from another folder: still a's image
+    assert read_project(project)["image"]["path"] == str(a / "img.tif")
+    moved = tmp_path / "c"
+    shutil.copytree(a, moved)  # the project moved with its image: found beside it
+    assert read_project(moved / "proj.json")["image"]["path"] == str(moved / "img.tif")
+    changed = pair[0].copy()
+    changed[0, 0] += 1  # same size, other content
+    tifffile.imwrite(a / "img.tif", changed)
+    with pytest.raises(ValueError, match=r"has changed since the project was saved \(sha256"):
+        read_project(project)
+    tifffile.imwrite(a / "img.tif", pair[0][:50])
+    with pytest.raises(ValueError, match=r"has changed since the project was saved \(size"):
+        read_project(project)
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda d: d.update(layers=5), "layers"),
+    (lambda d: d["layers"][0].pop("scale"), "scale"),
+    (lambda d: d["layers"][0].pop("shape_type"), "shape_type"),
+    (lambda d: d["layers"][0].pop("name"), "name"),
+    (lambda d: d["layers"][0].update(data=[[["a", "b"], [1, 2], [3, 4]]]), "data"),
+    (lambda d: d["layers"][1].update(data=[1, 2, 3, 4, 5]), "data"),
+    (lambda d: d["layers"][2]["data"].update(shape=[1 << 20, 1 << 16]), "64.0 GiB"),
+])
+def test_malformed_projects_are_named(tmp_path, edit, key):
+    from napari_aldic._qt.project import encode_array, read_project, write_project
+
+    (tmp_path / "img.tif").write_bytes(b"II*\x00")
+    doc = {"image": {"name": "img", "path": str(tmp_path / "img.tif")},
+           "layers": [{"role": "roi_add", "type": "shapes", "name": "roi", "scale": [1, 1],
+                       "translate": [0, 0], "data": [[[0, 0], [0, 5], [5, 5]]],
+                       "shape_type": ["polygon"], "edge_width": [1.0]},
+                      {"role": "seeds", "type": "points", "name": "s", "scale": [1, 1],
+                       "translate": [0, 0], "data": [[1, 2]]},
+                      {"role": "brush", "type": "labels", "name": "b", "scale": [1, 1],
+                       "translate": [0, 0], "data": encode_array(np.zeros((4, 4), np.uint8))}]}
+    path = write_project(tmp_path / "p.json", doc)
+    bad = json.loads(path.read_text())
+    edit(bad)
+    path.write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match=key) as info:
+        _within(lambda: read_project(path), 10)
+    assert str(path) in str(info.value)
