@@ -146,6 +146,21 @@ def _finished(stack, folder):
     return track(stack, out_dir=folder, **FAST)
 
 
+def test_a_link_inside_the_field_store_is_not_written_through(stack, tmp_path):
+    out, outside = tmp_path / "run", tmp_path / "outside"
+    _finished(stack, out)
+    outside.mkdir()
+    shutil.rmtree(out / "fields.zarr" / "u")
+    (out / "fields.zarr" / "u").symlink_to(outside, target_is_directory=True)
+    (out / "frame_00003.npz").unlink()
+    track(stack, out_dir=out, **FAST)  # the store is rebuilt, the link removed
+    assert list(outside.iterdir()) == []
+    assert not (out / "fields.zarr" / "u").is_symlink()
+    doc = json.loads((out / "sequence.json").read_text())
+    assert sorted(doc["frame_sha256"]) == ["0", "1", "2", "3"]  # kept in the manifest too
+    assert doc["frame_sha256"]["2"] == F.array_digest(stack[2])
+
+
 @pytest.mark.parametrize("damage", ["missing array", "corrupt chunk", "foreign attrs",
                                     "half built"])
 def test_a_damaged_field_store_is_rebuilt_from_the_frame_files(stack, tmp_path, damage):
@@ -421,3 +436,12 @@ def test_malformed_projects_are_named(tmp_path, edit, key):
     with pytest.raises(ValueError, match=key) as info:
         _within(lambda: read_project(path), 10)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_the_napari_reader_does_not_wait_on_a_fifo(tmp_path):
+    from napari_aldic._reader import get_reader
+
+    for name in ("p.npz", "p.tif"):
+        os.mkfifo(tmp_path / name)
+        assert _within(lambda p=tmp_path / name: get_reader(p), 10) is None

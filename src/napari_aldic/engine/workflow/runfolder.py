@@ -262,6 +262,18 @@ def _stack_diff(a: dict, b: dict) -> list[str]:
     return out
 
 
+def record_digests(out: Path, digests: dict) -> None:
+    """Keep the digest of every analysed frame's image (frame number -> SHA-256,
+    as :data:`IMAGE_DIGEST` in each frame's result file) in the manifest too:
+    rewritten once when a run ends, not per frame (each frame's file holds
+    its own, so a killed run loses none)."""
+    manifest = out / MANIFEST
+    doc = read_json_file(manifest, "run manifest")
+    doc["frame_sha256"] = {str(k): digests[k] for k in sorted(digests)}
+    with atomic_write(manifest) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1))
+
+
 # ----------------------------------------------------------------- frame files
 def frame_file_meta(path: Path) -> dict:
     """The ``meta`` of a finished frame's result file, after checking every

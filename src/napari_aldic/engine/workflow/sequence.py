@@ -54,6 +54,7 @@ from .runfolder import (
     IMAGE_DIGEST,
     MANIFEST,
     frame_file_meta,
+    record_digests,
     refine_record,
     roi_record,
     run_folder,
@@ -285,6 +286,7 @@ class _SequenceRun:
         self._whole = None  # the one ROI array of a run without per-frame ROIs
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
         self._carried: tuple = (None, None)  # (frame, frame 0's ROI carried onto it)
+        self.digests: dict = {}  # frame -> SHA-256 of its image, as read
 
     # ------------------------------------------------------------ inputs
     def roi_for(self, k: int) -> np.ndarray:
@@ -398,6 +400,8 @@ class _SequenceRun:
             cancelled = self.serial(todo, ref_img, cancel)
         else:
             cancelled = run_parallel(self, todo, scheduler, workers, cancel)
+        if self.out is not None:
+            record_digests(self.out, self.digests)
         return self.partial(seconds=time.perf_counter() - t0, cancelled=cancelled)
 
     def start(self):
@@ -407,7 +411,7 @@ class _SequenceRun:
         self.results[0] = reference_result(ref_img, roi=self.roi_for(0), params=self.params,
                                            refine=self.refine)
         self.results[0].meta.update(self.extra)
-        self.results[0].meta[IMAGE_DIGEST] = array_digest(ref_img)
+        self.results[0].meta[IMAGE_DIGEST] = self.digests[0] = array_digest(ref_img)
         if self.out is not None:
             try:
                 self.store = FieldStore(self.out, self.run_id, self.idx,
@@ -460,6 +464,8 @@ class _SequenceRun:
             raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete that "
                                  f"file to compute frame {k} again", self.out) from None
         recorded = meta.get(IMAGE_DIGEST)
+        if isinstance(recorded, str):
+            self.digests[k] = recorded
         if isinstance(recorded, str) and array_digest(self.src[k]) != recorded:
             raise RunFolderError(
                 f"frame {k} ({self.src.frame_name(k)}) has changed since it was analysed: its "
@@ -496,7 +502,7 @@ class _SequenceRun:
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
         if digest is not None:
-            res.meta[IMAGE_DIGEST] = digest
+            res.meta[IMAGE_DIGEST] = self.digests[k] = digest
         res.meta.setdefault("inputs", {"reference": self.src.frame_name(r),
                                        "deformed": self.src.frame_name(k), "frame": k})
         self.results[i] = res
