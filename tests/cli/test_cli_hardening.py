@@ -74,6 +74,15 @@ def test_edited_results_and_empty_formats_are_refused(run_cli, files, tmp_path):
     _one_error_line(rc, err, "no export format given")
 
 
+def test_a_damaged_tiff_of_a_pair_is_one_line(run_cli, files, tmp_path):
+    raw = (files / "ref.tif").read_bytes()
+    bad = tmp_path / "bad.tif"
+    bad.write_bytes(raw[:4] + b"\xff\xff\x00\x01" + raw[8:])  # offset of the first page
+    rc, _, err = run_cli(["run", bad, files / "def.tif", "-o", tmp_path / "out", "--subset",
+                          21, "--step", 16])
+    _one_error_line(rc, err, f"cannot read image {bad}: it is damaged")
+
+
 def test_an_output_under_a_file_is_named(run_cli, files):
     rc, _, err = run_cli(["run", files / "ref.tif", files / "def.tif", "-o",
                           files / "afile" / "sub" / "out", "--subset", 21, "--step", 16])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import sys
 import warnings
@@ -12,6 +13,7 @@ from .console import (
     DEBUG_ENV,
     PROG,
     CLIError,
+    debugging,
     print_error,
     show_traceback,
     show_warning,
@@ -45,6 +47,10 @@ def main(argv: list[str] | None = None, restore_sigint=None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code or 0)
+    tiff_log = logging.getLogger("tifffile")
+    if not debugging() and not any(isinstance(h, logging.NullHandler)
+                                   for h in tiff_log.handlers):
+        tiff_log.addHandler(logging.NullHandler())  # the engine reports damage in one line
     with warnings.catch_warnings():
         warnings.showwarning = show_warning
         try:

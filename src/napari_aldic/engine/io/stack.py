@@ -91,7 +91,11 @@ def read_image(path) -> np.ndarray:
             if path.suffix.lower() in TIFF_SUFFIXES:
                 import tifffile
 
-                return np.asarray(tifffile.imread(path))
+                with _tiff_log() as damage:  # tifffile logs a damaged file, and goes on
+                    img = np.asarray(tifffile.imread(path))
+                if damage or img.ndim < 2 or img.size == 0:
+                    raise ValueError(f"it is damaged ({damage[0] if damage else 'no image'})")
+                return img
             from skimage import io as skio
 
             return np.asarray(skio.imread(path))
