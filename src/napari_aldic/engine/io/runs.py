@@ -206,7 +206,7 @@ def _result_header(path: Path) -> tuple[dict, DICParams]:
                 header = json.loads(str(z["header"]))
             if isinstance(header, dict) and isinstance(header.get("meta", {}), dict):
                 return header.get("meta") or {}, DICParams.from_dict(header.get("params") or {})
-    except (KeyError, TypeError, ValueError, OSError, RecursionError):
+    except (KeyError, TypeError, ValueError, OSError, RecursionError, NotImplementedError):
         pass
     res = load_result(path)  # raises the reader's error for a file that is not a result
     return res.meta, res.params

@@ -288,7 +288,8 @@ def frame_file_meta(path: Path) -> dict:
             raise ValueError(f"its member {bad} fails its CRC check")
         with np.load(path, allow_pickle=False) as z:
             doc = parse_json(str(z["header"]), f"the header of {path}")
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error,
+            NotImplementedError) as exc:
         raise ValueError(f"it is damaged ({exc})") from None
     meta = doc.get("meta") if isinstance(doc, dict) else None
     return meta if isinstance(meta, dict) else {}
