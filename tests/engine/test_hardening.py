@@ -445,3 +445,15 @@ def test_the_napari_reader_does_not_wait_on_a_fifo(tmp_path):
     for name in ("p.npz", "p.tif"):
         os.mkfifo(tmp_path / name)
         assert _within(lambda p=tmp_path / name: get_reader(p), 10) is None
+
+
+def test_a_full_disk_during_a_run_is_named_and_leaves_no_lock(stack, tmp_path, monkeypatch):
+    from napari_aldic.engine.io.zarrstore import FieldStore
+
+    def full(self, i, res):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(FieldStore, "write", full)
+    with pytest.raises(ExportError, match=r"fields\.zarr: no space left on the device"):
+        track(stack, out_dir=tmp_path / "run", **FAST)
+    assert not (tmp_path / "run" / F.LOCK_NAME).exists()

@@ -77,6 +77,18 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     return ExportError(msg, path, code)
 
 
+@contextmanager
+def explained(path):
+    """Turn an ``OSError`` of the ``with`` block (a full disk, a permission)
+    into :class:`ExportError` naming ``path`` and the cause."""
+    try:
+        yield
+    except ExportError:
+        raise
+    except OSError as exc:
+        raise explain_os_error(exc, Path(path)) from None
+
+
 def file_above(path: Path) -> Path | None:
     """The part of ``path`` (itself or a folder above it) that is a file."""
     for p in (path, *path.parents):

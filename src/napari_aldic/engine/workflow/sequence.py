@@ -33,12 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.files import (
-    ExportError,
-    RunFolderError,
-    array_digest,
-    explain_os_error,
-)
+from ..core.files import RunFolderError, array_digest, explain_os_error, explained
 from ..core.images import validate_roi
 from ..core.params import DICParams
 from ..core.progress import Cancelled
@@ -360,14 +355,10 @@ class _SequenceRun:
                 entry[2] = write_roi_file(self.out, res.roi)
             ref = entry[2]
         i = self._pos[k]
-        try:
+        with explained(self.store.path):  # e.g. a full disk under the field store
             self.store.write(i, res)  # the fields first: the result file says "done"
             path = res.save(self.path_of(k), roi_file=ref)
             self.store.mark_done(i, res, path)
-        except ExportError:
-            raise
-        except OSError as exc:  # e.g. a full disk under the field store
-            raise explain_os_error(exc, self.store.path) from None
 
     def load_frame(self, i: int) -> DICResult:
         return load_result(self.path_of(self.idx[i]))
@@ -419,7 +410,7 @@ class _SequenceRun:
             except ValueError as exc:
                 raise RunFolderError(str(exc), self.out) from None
             except OSError as exc:
-                raise explain_os_error(exc, self.out / STORE_NAME) from None
+                raise explain_os_error(exc, self.out / STORE_NAME) from None  # a full disk
             if not self.path_of(0).exists():
                 self.save(self.results[0], 0)
         return ref_img
@@ -486,8 +477,9 @@ class _SequenceRun:
             raise RunFolderError(f"{pth} belongs to another analysis than "
                                  f"{self.out / MANIFEST} (results must not mix); remove "
                                  "it or choose an empty folder", self.out)
-        self.store.write(i, res)
-        self.store.mark_done(i, res, pth)
+        with explained(self.store.path):
+            self.store.write(i, res)
+            self.store.mark_done(i, res, pth)
 
     def finish(self, i: int, inc: DICResult) -> None:
         """Compose the increment of ``idx[i]`` back to frame 0, record, save
