@@ -106,6 +106,8 @@ def get_reader(path):
         return read_stack if len(image_files(path)) >= 2 else None
     suffix = path.suffix.lower()
     if suffix == ".npz":
+        if not path.is_file():  # a named pipe or device would block np.load
+            return None
         if is_result_file(path):
             return read_results
         return _explain_builtin_npz if _builtin_npz(path) else None

@@ -314,7 +314,7 @@ NPZ_EDITS = {
                  r"its ROI holds \(100000000000,\) uint8"),
     "bomb_huge_image": (dict(doc={"image_shape": [_SIDE, _SIDE]},
                              roi_packed=_npy_claiming(((_SIDE * _SIDE) // 8,), "|u1")),
-                        r"would need .* GiB, more than this computer's memory"),
+                        r"would need .* GiB, more than the memory available now"),
     "bomb_elements": (dict(elements=_npy_claiming((10**9, 4), "<i8")),
                       r"array 'elements' has shape \(1000000000, 4\)"),
     "bomb_header": (dict(header=_npy_claiming((), "<U100000000")),

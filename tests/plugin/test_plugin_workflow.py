@@ -89,7 +89,8 @@ def test_project_saves_and_reopens_layers_and_controls(make_napari_viewer_proxy,
     path = w.save_project(tmp_path / "analysis")
     assert path == tmp_path / "analysis.json"
     doc = json.loads(path.read_text(encoding="utf-8"))
-    assert doc["format"] == "napari-aldic-project" and doc["image"]["path"] == str(tif)
+    # the image path is stored relative to the project file (issue 23)
+    assert doc["format"] == "napari-aldic-project" and doc["image"]["path"] == "stack.tif"
     assert {r["role"] for r in doc["layers"]} == {"roi_add", "roi_subtract", "roi_labels",
                                                    "brush", "seeds", "probe"}
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import os
 import zlib
 from pathlib import Path
@@ -24,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import Settings
+from ..engine import InputFileError, Settings
+from ..engine.io import available_memory, file_sha256, read_json_file
 from ..i18n import tr
 
 __all__ = ["PROJECT_FORMAT", "PROBE_KEY", "ROLES", "is_probe_layer", "image_record",
@@ -57,11 +59,25 @@ def encode_array(a: np.ndarray) -> dict:
 
 
 def decode_array(d: dict) -> np.ndarray:
-    """The array of :func:`encode_array` (``ValueError`` when it does not fit)."""
+    """The array of :func:`encode_array` (``ValueError`` when it does not fit,
+    or would need more memory than is available: checked before decompressing)."""
     try:
-        raw = zlib.decompress(base64.b64decode(d["zlib_base64"]))
-        return np.frombuffer(raw, np.dtype(d["dtype"])).reshape(d["shape"]).copy()
-    except (KeyError, TypeError, ValueError, zlib.error) as exc:
+        dtype, shape = np.dtype(d["dtype"]), [int(n) for n in d["shape"]]
+        if dtype.hasobject or any(n < 0 for n in shape):
+            raise ValueError(f"dtype {dtype}, shape {shape}")
+        need = math.prod(shape) * dtype.itemsize
+        avail = available_memory()
+        if avail is not None and need > avail:
+            raise MemoryError(need, avail)
+        z = zlib.decompressobj()
+        raw = z.decompress(base64.b64decode(d["zlib_base64"], validate=True), need + 1)
+        return np.frombuffer(raw, dtype).reshape(shape).copy()
+    except MemoryError as exc:
+        need, avail = exc.args if len(exc.args) == 2 else (0, 0)
+        raise ValueError(tr("a labels layer of the project would need {gib:.1f} GiB, more "
+                            "than the memory available ({avail:.1f} GiB)").format(
+                                gib=need / 2**30, avail=avail / 2**30)) from None
+    except (KeyError, TypeError, ValueError, zlib.error, OverflowError) as exc:
         raise ValueError(tr("a labels layer of the project cannot be read ({exc})").format(
                                 exc=exc)) from None
 
@@ -90,14 +106,71 @@ def image_record(layer) -> dict:
                             "(File > Save Selected Layers... as .tif), open that file, "
                             "then save the project").format(
                                 layer_name=layer.name))
+    # absolute now (a relative name means the folder napari was started in);
+    # write_project stores it relative to the project file
     if isinstance(path, (list, tuple)):
-        path = [str(p) for p in path]
+        path = [os.path.abspath(os.fspath(p)) for p in path]
     elif path:
-        path = str(path)
+        path = os.path.abspath(os.fspath(path))
+    data = layer.data[0] if getattr(layer, "multiscale", False) else layer.data
     return {"name": layer.name, "path": path or None,
-            "sample": list(sample) if sample else None,
+            "sample": list(sample) if sample else None, "shape": list(np.shape(data)),
+            "files": _identities(path) if path else None,
             "scale": [float(s) for s in layer.scale],
             "translate": [float(t) for t in layer.translate]}
+
+
+def _identities(path) -> list[dict] | None:
+    """Size and content digest of the image file(s) (None for a folder)."""
+    paths = path if isinstance(path, list) else [path]
+    if not all(os.path.isfile(p) for p in paths):
+        return None
+    return [{"size": os.path.getsize(p), "sha256": file_sha256(p, "image file")} for p in paths]
+
+
+def _relative(path, folder: Path):
+    """``path`` (or each of a list) relative to ``folder`` where it can be."""
+    if isinstance(path, list):
+        return [_relative(p, folder) for p in path]
+    try:
+        return os.path.relpath(path, folder)
+    except ValueError:  # another drive (Windows): keep it absolute
+        return path
+
+
+def _resolved(path, folder: Path):
+    """``path`` (or each of a list) resolved against the project's ``folder``."""
+    if isinstance(path, list):
+        return [_resolved(p, folder) for p in path]
+    return str(folder / Path(os.fspath(path)).expanduser())
+
+
+def check_image_files(image: dict) -> None:
+    """Refuse image files that are not those the project was saved with
+    (``ValueError`` naming the file and what changed): a replaced image would
+    silently put the layers on other pixels."""
+    files, path = image.get("files"), image.get("path")
+    paths = path if isinstance(path, list) else [path]
+    if not isinstance(files, list) or len(files) != len(paths):
+        return  # a project of an earlier version, or a folder of images
+    for p, rec in zip(paths, files):
+        if not os.path.exists(p) or not isinstance(rec, dict):
+            continue  # reported when the image is opened
+        size = os.path.getsize(p)
+        if size != rec.get("size"):
+            detail = f"size {rec.get('size')} -> {size} bytes"
+        else:
+            digest = file_sha256(p, "image file")
+            if digest == rec.get("sha256"):
+                continue
+            detail = f"sha256 {str(rec.get('sha256'))[:12]} -> {digest[:12]}"
+        raise ValueError(image_changed(p, detail))
+
+
+def image_changed(path, detail: str) -> str:
+    return tr("the image {path} of the project has changed since the project was saved "
+              "({detail}); put the original back, or open the new image and save the "
+              "project again").format(path=path, detail=detail)
 
 
 def layer_record(layer, role: str) -> dict:
@@ -161,6 +234,45 @@ def layer_data(rec: dict) -> tuple:
     raise ValueError(tr("unknown layer type {kind!r} in the project").format(kind=kind))
 
 
+def _numbers(value, n: int | None = None) -> bool:
+    """A list of finite numbers (of length ``n``)."""
+    return isinstance(value, list) and (n is None or len(value) == n) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        for v in value)
+
+
+def _bad_key(rec: dict) -> str | None:
+    """The first entry of a stored layer that is missing or of the wrong kind
+    (a hand-edited or damaged project), else None."""
+    if not isinstance(rec.get("name"), str):
+        return "name"
+    for key in ("scale", "translate"):
+        if not _numbers(rec.get(key)) or not 2 <= len(rec[key]) <= 5:
+            return key
+    ndim, data = len(rec["scale"]), rec.get("data")
+    if len(rec["translate"]) != ndim:
+        return "translate"
+    if rec["type"] == "shapes":
+        if not isinstance(data, list) or not all(
+                isinstance(v, list) and v and all(_numbers(p, ndim) for p in v) for v in data):
+            return "data"
+        if not (isinstance(rec.get("shape_type"), list) and len(rec["shape_type"]) == len(data)
+                and all(isinstance(t, str) for t in rec["shape_type"])):
+            return "shape_type"
+        if not _numbers(rec.get("edge_width"), len(data)):
+            return "edge_width"
+    elif rec["type"] == "points":
+        if not isinstance(data, list) or not all(_numbers(p, ndim) for p in data):
+            return "data"
+        if not _numbers([rec.get("size", 6.0)]):
+            return "size"
+    elif not (isinstance(data, dict) and isinstance(data.get("dtype"), str)
+              and _numbers(data.get("shape"), ndim)
+              and isinstance(data.get("zlib_base64"), str)):
+        return "data"
+    return None
+
+
 def _check(doc) -> dict:
     """The project document, checked (``ValueError`` naming the problem)."""
     if not isinstance(doc, dict) or doc.get("format") != PROJECT_FORMAT:
@@ -175,7 +287,20 @@ def _check(doc) -> dict:
     if not isinstance(image, dict) or not (image.get("path") or image.get("sample")):
         raise ValueError(tr("the project names no image (an 'image' with a path or a "
                             "sample)"))
-    for rec in doc.get("layers", []):
+    path = image.get("path")
+    if path and not (isinstance(path, str) or (isinstance(path, list) and all(
+            isinstance(p, str) for p in path))):
+        raise ValueError(tr("layer {number} of the project is damaged: its '{key}' entry is "
+                            "missing or invalid").format(number="-", key="image.path"))
+    for key in ("scale", "translate"):
+        if key in image and not _numbers(image[key]):
+            raise ValueError(tr("layer {number} of the project is damaged: its '{key}' entry "
+                                "is missing or invalid").format(number="-", key=f"image.{key}"))
+    layers = doc.get("layers", [])
+    if not isinstance(layers, list):
+        raise ValueError(tr("layer {number} of the project is damaged: its '{key}' entry is "
+                            "missing or invalid").format(number="-", key="layers"))
+    for i, rec in enumerate(layers):
         if not isinstance(rec, dict) or rec.get("role") not in ROLES:
             raise ValueError(tr("a stored layer has no valid role (one of {join})").format(
                                     join=', '.join(ROLES)))
@@ -183,6 +308,10 @@ def _check(doc) -> dict:
         if rec.get("type") not in (allowed if isinstance(allowed, tuple) else (allowed,)):
             raise ValueError(tr("layer '{get}': a {get2} layer cannot be the {role}").format(
                                     get=rec.get('name'), get2=rec.get('type'), role=rec['role']))
+        bad = _bad_key(rec)
+        if bad:
+            raise ValueError(tr("layer {number} of the project is damaged: its '{key}' entry "
+                                "is missing or invalid").format(number=i + 1, key=bad))
         layer_data(rec)  # the data decode
     Settings.from_dict(doc.get("settings") or {})
     if doc.get("init") not in (None, "fft", "seeds"):
@@ -197,16 +326,23 @@ def read_project(path) -> dict:
     """Read and check a project file (``ValueError``/``OSError`` naming the file)."""
     path = Path(os.fspath(path)).expanduser()
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise ValueError(tr("{path} is not a text (UTF-8) file").format(path=path)) from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(tr("{path} is not valid JSON ({exc})").format(path=path,
-                                                                         exc=exc)) from None
+        doc = read_json_file(path, "project file")
+    except InputFileError as exc:
+        if exc.kind == "encoding":
+            raise ValueError(tr("{path} is not a text (UTF-8) file").format(path=path)) from None
+        if exc.kind == "json":
+            raise ValueError(tr("{path} is not valid JSON ({exc})").format(
+                path=path, exc=exc.problem.removeprefix("is not valid JSON (")[:-1])) from None
+        raise
     try:
-        return _check(doc)
+        doc = _check(doc)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    image = doc["image"]
+    if image.get("path"):  # stored relative to the project file
+        image["path"] = _resolved(image["path"], path.absolute().parent)
+        check_image_files(image)
+    return doc
 
 
 def write_project(path, doc: dict) -> Path:
@@ -215,6 +351,9 @@ def write_project(path, doc: dict) -> Path:
     if not path.suffix:
         path = path.with_suffix(".json")
     body = {"format": PROJECT_FORMAT, "format_version": PROJECT_VERSION, **doc}
+    image = body.get("image")
+    if isinstance(image, dict) and image.get("path"):
+        body["image"] = {**image, "path": _relative(image["path"], path.absolute().parent)}
     _check(json.loads(json.dumps(body)))  # what is written reads back
     path.write_text(json.dumps(body, indent=1, ensure_ascii=False), encoding="utf-8")
     return path

@@ -12,9 +12,12 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from ..engine import Settings
 from ..i18n import tr, tr_noop
 from .project import (
+    image_changed,
     image_record,
     is_probe_layer,
     layer_data,
@@ -98,6 +101,11 @@ class ProjectActions:
             doc = read_project(path)
             settings = Settings.from_dict(doc.get("settings") or {})
             image = self._image(doc["image"])
+            shape, data = doc["image"].get("shape"), image.data
+            now = list(np.shape(data[0] if getattr(image, "multiscale", False) else data))
+            if isinstance(shape, list) and now != shape:
+                raise ValueError(image_changed(doc["image"].get("path"),
+                                               f"shape {shape} -> {now}"))
         except Exception as exc:  # invalid file or missing image: nothing is changed
             self._log(tr("ERROR opening the analysis {path}: {exc}").format(
                              path=path, exc=message(exc)))

@@ -1,7 +1,5 @@
 """``python -m napari_aldic.cli``."""
 
-import sys
+from . import console_main
 
-from .app import main
-
-sys.exit(main())
+console_main()

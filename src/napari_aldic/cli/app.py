@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import signal
 import sys
 import warnings
 
@@ -11,6 +13,7 @@ from .console import (
     DEBUG_ENV,
     PROG,
     CLIError,
+    debugging,
     print_error,
     show_traceback,
     show_warning,
@@ -31,12 +34,14 @@ COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
             "sem-calibrate": sem_calibrate_command, "sem-drift": sem_drift_command}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, restore_sigint=None) -> int:
     """Entry point of the ``napari-aldic`` console script; returns the exit code.
 
     Every error ends the command with one line, ``napari-aldic: error: ...``,
     and exit code 2 (130 when interrupted); with the environment variable
     ``NAPARI_ALDIC_DEBUG=1`` the traceback is printed above that line.
+    ``restore_sigint`` is the SIGINT handler to put back once the command
+    starts (:func:`napari_aldic.cli.main` quits at once on Ctrl-C until then).
     """
     set_language(None)  # the environment's language, read now (docs/languages.md)
     parser = build_parser()
@@ -44,9 +49,15 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code or 0)
+    tiff_log = logging.getLogger("tifffile")
+    if not debugging() and not any(isinstance(h, logging.NullHandler)
+                                   for h in tiff_log.handlers):
+        tiff_log.addHandler(logging.NullHandler())  # the engine reports damage in one line
     with warnings.catch_warnings():
         warnings.showwarning = show_warning
         try:
+            if restore_sigint is not None:  # from now on Ctrl-C raises KeyboardInterrupt
+                signal.signal(signal.SIGINT, restore_sigint)
             return COMMANDS[args.command](args) or 0
         except BrokenPipeError:  # stdout piped into a program that stopped reading
             silence_stdout()

@@ -30,10 +30,14 @@ def print_error(message: str) -> None:
           file=sys.stderr)
 
 
+def debugging() -> bool:
+    """Whether :data:`DEBUG_ENV` is set (to anything but empty or 0)."""
+    return os.environ.get(DEBUG_ENV, "") not in ("", "0")
+
+
 def show_traceback() -> None:
-    """Print the traceback of the error being handled when :data:`DEBUG_ENV`
-    is set (to anything but empty or 0)."""
-    if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+    """Print the traceback of the error being handled when :func:`debugging`."""
+    if debugging():
         traceback.print_exc(file=sys.stderr)
 
 

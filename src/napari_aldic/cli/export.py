@@ -71,6 +71,9 @@ def _units(args, stored: Units | None) -> Units:
 def _formats(items: list[str]) -> list[str]:
     """The formats of ``--to`` (comma or space separated), checked."""
     formats = [f.strip().lower() for item in items for f in item.split(",") if f.strip()]
+    if not formats:  # --to "" would write nothing and report success
+        raise CLIError(tr("no export format given; choose one or more of {join}").format(
+            join=", ".join(EXPORT_FORMATS)))
     bad = [f for f in formats if f not in EXPORT_FORMATS]
     if bad:
         raise CLIError(tr("unknown export format(s) {bad}; choose from {join}").format(

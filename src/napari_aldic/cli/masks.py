@@ -3,19 +3,19 @@ window by window for a pair correlated block by block."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
-from ..engine.io import open_lazy, read_image
+from ..engine.io import open_lazy, read_image, regular_file
 from ..i18n import tr
 from .console import CLIError
 
 
 def read_mask(path: Path) -> np.ndarray:
     """ROI mask from a ``.npy`` array or an image file (nonzero = analysed)."""
-    if not path.exists():
-        raise CLIError(tr("no such file: {path}").format(path=path))
+    _check_file(path)
     if path.suffix.lower() == ".npy":
         m = _load_npy(path, None)
     else:
@@ -32,8 +32,8 @@ def open_mask(path: Path):
     memory-mapped ``.npy`` array, or a TIFF/zarr mask read window by window
     (nonzero = analysed; the engine slices it block by block). Other formats
     are read whole."""
-    if not path.exists():
-        raise CLIError(tr("no such file: {path}").format(path=path))
+    if not path.is_dir():
+        _check_file(path)
     if path.suffix.lower() == ".npy":
         m = _load_npy(path, "r")
         if m.ndim != 2:  # e.g. an RGB mask saved as an array
@@ -45,6 +45,13 @@ def open_mask(path: Path):
         return read_mask(path)
     _check_2d(path, m.shape)
     return m
+
+
+def _check_file(path: Path) -> None:
+    """A regular file is there (a named pipe or device would block the read)."""
+    if not os.path.lexists(path):
+        raise CLIError(tr("no such file: {path}").format(path=path))
+    regular_file(path, "ROI mask")
 
 
 def _load_npy(path: Path, mmap_mode):

@@ -3,9 +3,9 @@ optionally with the testing machine's load (stress), to one CSV row per frame.""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from ..engine.io import read_json_file
 from ..engine.probes import (
     AreaProbe,
     LineProbe,
@@ -76,8 +76,8 @@ def probe_set(args) -> ProbeSet:
     probes = ProbeSet()
     if args.probes is not None:
         try:
-            data = json.loads(Path(args.probes).expanduser().read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
+            data = read_json_file(Path(args.probes).expanduser(), "probe file")
+        except (OSError, ValueError) as exc:
             raise CLIError(tr("cannot read the probe file {probes}: {exc}").format(
                                   probes=args.probes, exc=exc)) from None
         if isinstance(data, dict) and data.get("format") == "napari-aldic-settings":

@@ -28,7 +28,7 @@ import importlib
 import warnings
 
 from . import io, probes, sem, synthetic, viz
-from .core.files import EncoderNotFoundError, ExportError, RunFolderError
+from .core.files import EncoderNotFoundError, ExportError, InputFileError, RunFolderError
 from .core.params import DICParams
 from .core.progress import Cancelled
 from .core.reasons import Reason
@@ -62,6 +62,7 @@ __all__ = [
     # files
     "export_result", "export_report", "save_params", "load_params",
     "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
+    "InputFileError",
     # subpackages
     "io", "viz", "synthetic", "probes",
     # HRDIC in the SEM (issue 27; calibration in engine.sem)

@@ -8,6 +8,7 @@ import hashlib
 import json
 import os
 import secrets
+import shutil
 import socket
 import stat
 import sys
@@ -15,7 +16,6 @@ import tempfile
 import time
 from collections.abc import Sequence
 from contextlib import contextmanager
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +57,7 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     code = getattr(exc, "errno", None)
     if code in (errno.ENOSPC, getattr(errno, "EDQUOT", -1)):
         msg = (f"cannot write {path}: no space left on the device (disk full or quota "
-               "exceeded). Free some space or choose a folder on another disk, then export "
+               "exceeded). Free some space or choose a folder on another disk, then try "
                "again; no partial file was left behind")
     elif code in (errno.EACCES, errno.EPERM):
         msg = (f"cannot write {path}: permission denied. Choose a folder you can write to "
@@ -67,11 +67,34 @@ def explain_os_error(exc: OSError, path: Path) -> ExportError:
     elif code == errno.ENOENT:
         msg = (f"cannot write {path}: the folder {path.parent} does not exist (any more). "
                "Create it first or choose another output path")
+    elif code in (errno.ENOTDIR, errno.EEXIST) and file_above(path) is not None:
+        msg = (f"cannot write {path}: {file_above(path)} is a file, not a folder. Choose "
+               "another output path")
     elif code == errno.ENAMETOOLONG:
         msg = f"cannot write {path}: the file name is too long. Choose a shorter name"
     else:
         msg = f"cannot write {path}: {exc.strerror or exc}"
     return ExportError(msg, path, code)
+
+
+@contextmanager
+def explained(path):
+    """Turn an ``OSError`` of the ``with`` block (a full disk, a permission)
+    into :class:`ExportError` naming ``path`` and the cause."""
+    try:
+        yield
+    except ExportError:
+        raise
+    except OSError as exc:
+        raise explain_os_error(exc, Path(path)) from None
+
+
+def file_above(path: Path) -> Path | None:
+    """The part of ``path`` (itself or a folder above it) that is a file."""
+    for p in (path, *path.parents):
+        if os.path.lexists(p):
+            return None if p.is_dir() else p
+    return None
 
 
 def target_path(path, suffixes: Sequence[str]) -> Path:
@@ -86,6 +109,10 @@ def target_path(path, suffixes: Sequence[str]) -> Path:
 
 def check_folder(path: Path) -> None:
     folder = path.parent
+    above = file_above(folder)
+    if above is not None:
+        raise ExportError(f"cannot write {path}: {above} is a file, not a folder. Choose "
+                          "another output path", path, errno.ENOTDIR)
     if not folder.exists():
         raise ExportError(f"cannot write {path}: the folder {folder} does not exist. Create it "
                           "first or choose another output path", path, errno.ENOENT)
@@ -115,6 +142,87 @@ def _umask() -> int:
     return mask
 
 
+def _disk_full(folder: Path) -> bool:
+    """Whether the file system of ``folder`` has (almost) no space left."""
+    try:
+        return shutil.disk_usage(folder).free < (1 << 20)
+    except OSError:
+        return False
+
+
+class AtomicFiles:
+    """Several files written as one: each under a temporary name beside it
+    (:meth:`write`), all renamed into place when the ``with`` block ends
+    without an error, none otherwise (a file series and the index naming it,
+    e.g. ``.vtu`` frames and their ``.pvd``, appear together or not at all).
+
+    Errors become :class:`ExportError` with an explanation; an error of a
+    library while the disk is full (a compressor's "error while flushing")
+    is reported as the full disk it is.
+    """
+
+    def __init__(self):
+        self._written: list[tuple[Path, Path]] = []
+
+    def __enter__(self) -> AtomicFiles:
+        return self
+
+    @contextmanager
+    def write(self, path):
+        """Yield a temporary path for ``path``; write the file there."""
+        path = Path(os.fspath(path)).expanduser()
+        check_folder(path)
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part",
+                                       dir=path.parent)
+        except OSError as exc:
+            raise explain_os_error(exc, path) from None
+        made = os.fstat(fd)
+        os.close(fd)
+        tmp = Path(tmp)
+        try:
+            yield tmp
+            now = os.lstat(tmp)
+            if not stat.S_ISREG(now.st_mode) or (now.st_ino, now.st_dev) != (made.st_ino,
+                                                                              made.st_dev):
+                # swapped for another file or a link while we wrote: never rename it
+                raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
+                                  "replaced by another program during the write", path)
+        except ExportError:
+            _remove(tmp)
+            raise
+        except OSError as exc:
+            _remove(tmp)
+            raise explain_os_error(exc, path) from exc
+        except Exception as exc:
+            _remove(tmp)
+            if _disk_full(path.parent):
+                raise explain_os_error(OSError(errno.ENOSPC, "disk full"), path) from exc
+            raise
+        except BaseException:
+            _remove(tmp)
+            raise
+        self._written.append((tmp, path))
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        todo = list(self._written)
+        self._written.clear()
+        if kind is not None:
+            for tmp, _ in todo:
+                _remove(tmp)
+            return False
+        mode = 0o666 & ~_umask()  # mkstemp creates 0600
+        for n, (tmp, path) in enumerate(todo):
+            try:
+                os.chmod(tmp, mode)
+                os.replace(tmp, path)
+            except OSError as err:
+                for left, _ in todo[n:]:
+                    _remove(left)
+                raise explain_os_error(err, path) from err
+        return False
+
+
 @contextmanager
 def atomic_write(path):
     """Context manager yielding a temporary path beside ``path``.
@@ -122,41 +230,155 @@ def atomic_write(path):
     Write the file there; when the block ends without an exception it is
     renamed to ``path`` (replacing an older file atomically). On any error
     the temporary file is removed, an older ``path`` is left untouched, and
-    ``OSError`` becomes :class:`ExportError` with an explanation.
+    ``OSError`` becomes :class:`ExportError` with an explanation (see
+    :class:`AtomicFiles`, of which this is the one-file case).
     """
-    path = Path(os.fspath(path)).expanduser()
-    check_folder(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    except OSError as exc:
-        raise explain_os_error(exc, path) from None
-    made = os.fstat(fd)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
+    with AtomicFiles() as files, files.write(path) as tmp:
         yield tmp
-        now = os.lstat(tmp)
-        if not stat.S_ISREG(now.st_mode) or (now.st_ino, now.st_dev) != (made.st_ino,
-                                                                          made.st_dev):
-            # swapped for another file or a link while we wrote: never rename it
-            raise ExportError(f"cannot write {path}: its temporary file {tmp.name} was "
-                              "replaced by another program during the write", path)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except ExportError:
-        _remove(tmp)
-        raise
-    except OSError as exc:
-        _remove(tmp)
-        raise explain_os_error(exc, path) from exc
-    except BaseException:
-        _remove(tmp)
-        raise
 
 
 def numbered_path(path: Path, k: int) -> Path:
     """``path`` with ``_frame#####`` before the suffix: one file per frame."""
     return path.with_name(f"{path.stem}_frame{k:05d}{path.suffix}")
+
+
+# =================================================================== reading
+class InputFileError(ValueError):
+    """An input file cannot be read: it is not a regular file (a folder, a
+    named pipe, a device, a socket), is too large, or its text is not what
+    was expected. The message names the file; ``filename`` is its path;
+    ``kind`` says what failed ("encoding", "json", "nesting", "value", else
+    None) and ``problem`` the words after "it" (for a caller that names the
+    file its own way)."""
+
+    def __init__(self, message: str, path=None, kind: str | None = None, problem: str = ""):
+        super().__init__(message)
+        self.filename = None if path is None else str(path)
+        self.kind, self.problem = kind, problem
+
+
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"),
+          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def _not_regular(st: os.stat_result) -> str | None:
+    if stat.S_ISREG(st.st_mode):
+        return None
+    return next((words for test, words in _KINDS if test(st.st_mode)), "not a regular file")
+
+
+def regular_file(path, what: str = "file") -> Path:
+    """``path`` (``~`` expanded) after checking that it names a regular file
+    (a link to one is fine): a named pipe, device or socket would block or
+    stream forever when opened, so it is refused before anything opens it.
+
+    Raises ``FileNotFoundError`` when nothing is there and
+    :class:`InputFileError` (a ``ValueError``) naming the file otherwise.
+    """
+    p = Path(os.fspath(path)).expanduser()
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise FileNotFoundError(errno.ENOENT, f"no {what} at {p}", str(p)) from None
+    except OSError as exc:
+        raise InputFileError(f"cannot read the {what} {p}: {exc.strerror or exc}", p) from None
+    kind = _not_regular(st)
+    if kind is not None:
+        raise InputFileError(f"cannot read the {what} {p}: it is {kind}, not a regular file",
+                             p)
+    return p
+
+
+def open_regular(path, what: str = "file"):
+    """``path`` opened for binary reading, refused (as :func:`regular_file`)
+    unless it is a regular file. The check is made on the opened file
+    (``O_NONBLOCK``, so that opening a pipe cannot block), not on the name."""
+    p = regular_file(path, what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(p, flags | getattr(os, "O_BINARY", 0))
+    except OSError as exc:
+        raise InputFileError(f"cannot read the {what} {p}: {exc.strerror or exc}", p) from None
+    kind = _not_regular(os.fstat(fd))
+    if kind is not None:  # swapped between the check and the open
+        os.close(fd)
+        raise InputFileError(f"cannot read the {what} {p}: it is {kind}, not a regular file",
+                             p)
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+#: largest JSON or text file read whole (settings, manifests, projects), bytes
+MAX_TEXT_BYTES = 256 << 20
+
+
+def read_text_file(path, what: str = "file", encoding: str = "utf-8",
+                   limit: int = MAX_TEXT_BYTES) -> str:
+    """The text of a regular file (see :func:`open_regular`) of at most
+    ``limit`` bytes; :class:`InputFileError` naming the file otherwise."""
+    with open_regular(path, what) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > limit:
+            raise InputFileError(f"cannot read the {what} {path}: it holds {size:,} bytes, "
+                                 f"more than the {limit >> 20} MB such a file can have", path)
+        raw = fh.read(limit + 1)
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        problem = f"is not {encoding.upper()} text ({exc.reason} at byte {exc.start})"
+        raise InputFileError(f"cannot read the {what} {path}: it {problem}", path, "encoding",
+                             problem) from None
+
+
+def parse_json(text: str, source) -> object:
+    """``json.loads(text)`` with every way it fails (bad syntax, nesting too
+    deep for the parser, integers too long to convert) a ``ValueError``
+    naming ``source`` (a file, or where the text was found)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        kind, problem = "json", f"is not valid JSON ({exc})"
+    except RecursionError:
+        kind, problem = "nesting", "nests lists or objects too deeply (a damaged or hostile file)"
+    except ValueError as exc:  # e.g. an integer of thousands of digits
+        kind, problem = "value", f"holds a value that cannot be read ({exc})"
+    raise InputFileError(f"cannot read {source}: it {problem}", source, kind, problem)
+
+
+def read_json_file(path, what: str = "file", limit: int = MAX_TEXT_BYTES) -> object:
+    """The JSON document of a regular file; errors name the file."""
+    return parse_json(read_text_file(path, what, limit=limit), f"the {what} {path}")
+
+
+def file_sha256(path, what: str = "file") -> str:
+    """SHA-256 (hex) of a regular file's bytes, read in blocks."""
+    h = hashlib.sha256()
+    with open_regular(path, what) as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def available_memory() -> int | None:
+    """Memory a new allocation can have now, in bytes (None when unknown):
+    Linux's ``MemAvailable`` (free memory plus what caches would give back),
+    else the free pages, else the physical memory. Sizes declared by a file
+    are checked against it before anything is decompressed."""
+    try:
+        with open("/proc/meminfo", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    for pages in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):
+        try:
+            return os.sysconf("SC_PAGE_SIZE") * os.sysconf(pages)
+        except (ValueError, OSError, AttributeError):
+            continue
+    return None
 
 
 # =================================================================== digests
@@ -169,54 +391,6 @@ def array_digest(arr) -> str:
     return h.hexdigest()
 
 
-# =================================================================== ROI files
-ROI_FORMAT = "napari-aldic-roi"
-
-
-def write_roi_file(folder, roi) -> dict:
-    """Store ``roi`` once in ``folder`` as ``roi_<digest>.npz`` (bit-packed;
-    named by its content, so an existing file is reused) and return the
-    reference a result file keeps instead of its own copy:
-    ``{"file": name, "sha256": digest}``."""
-    roi = np.asarray(roi, bool)
-    digest = array_digest(roi)
-    path = Path(folder) / f"roi_{digest[:16]}.npz"
-    if not path.is_file():
-        head = json.dumps({"format": ROI_FORMAT, "sha256": digest, "shape": list(roi.shape)})
-        with atomic_write(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, header=np.array(head), roi_packed=np.packbits(roi, axis=None))
-    return {"file": path.name, "sha256": digest}
-
-
-def read_roi_file(path, digest: str, shape) -> np.ndarray:
-    """The ROI stored by :func:`write_roi_file` (read-only; results of one run
-    share one array). Raises ``ValueError`` naming the file when it is
-    missing, unreadable or not the ROI ``digest`` the result refers to."""
-    path = Path(path)
-    try:
-        st = path.stat()
-    except OSError:
-        raise ValueError(f"the ROI file {path} that this result refers to is missing; keep "
-                         f"result files together with the roi_*.npz files of their run "
-                         "folder") from None
-    return _read_roi(str(path), st.st_mtime_ns, st.st_size, digest, tuple(shape))
-
-
-@lru_cache(maxsize=4)
-def _read_roi(path: str, mtime_ns: int, size: int, digest: str, shape: tuple) -> np.ndarray:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            bits = np.unpackbits(z["roi_packed"], count=int(np.prod(shape)))
-        roi = bits.reshape(shape).astype(bool)
-    except Exception as exc:  # any damage: the file is named below
-        raise ValueError(f"cannot read the ROI file {path}: {exc}") from None
-    if array_digest(roi) != digest:
-        raise ValueError(f"the ROI file {path} does not hold the ROI its results were "
-                         "computed with (damaged or replaced)")
-    roi.flags.writeable = False
-    return roi
-
-
 # =================================================================== run folders
 LOCK_NAME = ".napari-aldic.lock"
 #: an empty or unreadable lock older than this (s) was left by a process killed
@@ -227,15 +401,28 @@ _UNREADABLE_LOCK_AGE = 30.0
 _HELD: set[str] = set()
 
 
+def _lock_in_making(name: str) -> bool:
+    """Whether ``name`` is the temporary of a lock that a live process on
+    this host is creating now (``.napari-aldic.lock.<pid>.<token>.part``)."""
+    if not name.startswith(LOCK_NAME + "."):
+        return False
+    pid = name[len(LOCK_NAME) + 1:].split(".")[0]
+    return pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid))
+
+
 def clean_temporaries(folder) -> list[str]:
     """Remove the temporaries (``*.part``, files or links) that killed runs
     left in the run ``folder``; call it while holding the folder's lock (no
     write of another process can then be in progress). Returns their names."""
     gone = []
     for entry in os.scandir(folder):
-        if entry.name.endswith(".part") and not entry.is_dir(follow_symlinks=False):
+        if not entry.name.endswith(".part") or _lock_in_making(entry.name):
+            continue
+        if entry.is_dir(follow_symlinks=False):  # a field store being built
+            shutil.rmtree(entry.path, ignore_errors=True)
+        else:
             _remove(Path(entry.path))  # unlink: a planted link is removed, never followed
-            gone.append(entry.name)
+        gone.append(entry.name)
     return gone
 
 
@@ -265,10 +452,9 @@ def folder_lock(folder):
 
 
 def _acquire(path: Path, me: dict) -> None:
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
     for _ in range(5):
         try:
-            fd = os.open(path, flags, 0o644)
+            _create_lock(path, json.dumps(me).encode())
         except FileExistsError:
             owner, raw = _read_lock(path)
             if not _stale(path, owner):
@@ -277,11 +463,45 @@ def _acquire(path: Path, me: dict) -> None:
             continue
         except OSError as exc:
             raise explain_os_error(exc, path) from None
-        with os.fdopen(fd, "w") as fh:
-            json.dump(me, fh)
         return
     raise RunFolderError(f"cannot lock the run folder {path.parent}: its lock file {path.name} "
                          "keeps changing (several runs starting at once?)", path.parent)
+
+
+def _create_lock(path: Path, body: bytes) -> None:
+    """Create the lock ``path`` holding ``body``, or raise FileExistsError.
+
+    The body is written to a temporary file first and hard-linked to the
+    lock's name (atomic, and fails if the name exists), so the lock is never
+    seen empty: a run killed while locking, or a full disk, leaves no empty
+    lock behind. Where hard links are not possible, ``O_EXCL`` creates it
+    and a failed write removes it again."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.part")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(tmp, flags, 0o644)
+        try:
+            os.write(fd, body)
+        finally:
+            os.close(fd)
+        try:
+            os.link(tmp, path)
+            return
+        except FileExistsError:
+            raise
+        except OSError:  # no hard links on this file system
+            pass
+        fd = os.open(path, flags, 0o644)
+        try:
+            if os.write(fd, body) != len(body):
+                raise OSError(errno.ENOSPC, "short write")
+        except OSError:
+            os.close(fd)
+            _remove(path)
+            raise
+        os.close(fd)
+    finally:
+        _remove(tmp)
 
 
 def _read_lock(path: Path) -> tuple[dict | None, bytes | None]:

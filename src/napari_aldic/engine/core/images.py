@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -22,6 +23,9 @@ def as_gray_float(image, name: str = "image") -> np.ndarray:
         If the array is not 2-D (or 3-D with 3/4 channels), is empty, holds
         NaN/inf values, or (wider floats) values outside the float32 range.
     """
+    if isinstance(image, (str, bytes, os.PathLike)):
+        raise TypeError(f"{name} is a file name ({os.fsdecode(image)!r}), not an image "
+                        "array; read it first (napari_aldic.engine.io.read_image)")
     arr = np.asarray(image)
     if arr.dtype == bool or not (
         np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
@@ -99,6 +103,9 @@ def validate_roi(roi, shape: tuple[int, int]) -> np.ndarray:
     """Return the ROI as a boolean mask of ``shape`` (``None`` = whole image)."""
     if roi is None:
         return np.ones(shape, dtype=bool)
+    if isinstance(roi, (str, bytes, os.PathLike)):
+        raise TypeError(f"the ROI is a file name ({os.fsdecode(roi)!r}), not a mask array; "
+                        "read it first (napari_aldic.engine.io.read_image, nonzero = analysed)")
     m = np.asarray(roi)
     if m.shape != tuple(shape):
         raise ValueError(

@@ -12,7 +12,7 @@ memory, and only then loads them. Every error is a ``ValueError`` (or
 
 from __future__ import annotations
 
-import json
+import errno
 import math
 import os
 import zipfile
@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import available_memory, open_regular, parse_json
 from .params import DICParams
 
-__all__ = ["read_result_npz", "npz_headers", "MAX_IMAGE_SIDE"]
+__all__ = ["read_result_npz", "npz_headers", "check_invariants", "MAX_IMAGE_SIDE"]
 
 #: largest image side (pixels) a result file may declare
 MAX_IMAGE_SIDE = 1 << 20
@@ -37,12 +38,10 @@ def _fail(path: Path, problem: str) -> ValueError:
 
 
 def _opening_bytes(path: Path) -> bytes:
-    if not path.exists():
-        raise FileNotFoundError(f"no result file at {path}")
-    if path.is_dir():
-        raise _fail(path, "it is a folder, not a file")
+    if not os.path.lexists(path):
+        raise FileNotFoundError(errno.ENOENT, f"no result file at {path}", str(path))
     try:
-        with open(path, "rb") as fh:
+        with open_regular(path, "result file") as fh:
             return fh.read(64)
     except OSError as exc:
         raise _fail(path, exc.strerror or str(exc)) from None
@@ -80,7 +79,7 @@ def npz_headers(path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
     except zipfile.BadZipFile as exc:
         raise _fail(path, f"the archive is truncated or damaged ({exc}); an interrupted "
                           "copy or save leaves such a file") from None
-    except (OSError, EOFError, zlib.error) as exc:
+    except (OSError, EOFError, zlib.error, NotImplementedError) as exc:
         raise _fail(path, f"the archive is damaged ({exc})") from None
     return heads
 
@@ -97,7 +96,7 @@ def _member_header(path: Path, zf: zipfile.ZipFile, info: zipfile.ZipInfo):
                 shape, _, dtype = fmt.read_array_header_2_0(fh)
             else:
                 raise ValueError(f".npy format version {version} is not supported")
-    except (ValueError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+    except (ValueError, EOFError, zlib.error, zipfile.BadZipFile, NotImplementedError) as exc:
         raise _fail(path, f"array {name!r} is damaged ({exc})") from None
     if dtype.hasobject:
         raise _fail(path, f"array {name!r} holds Python objects (pickled data), which "
@@ -108,14 +107,6 @@ def _member_header(path: Path, zf: zipfile.ZipFile, info: zipfile.ZipInfo):
 def _nbytes(head) -> int:
     shape, dtype = head
     return math.prod(shape) * dtype.itemsize
-
-
-def _memory_bytes() -> int | None:
-    """Physical memory of this computer in bytes (None when unknown)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def _read_header(path: Path, heads: dict, fmt: str) -> dict:
@@ -129,11 +120,14 @@ def _read_header(path: Path, heads: dict, fmt: str) -> dict:
                           f"(shape {shape}, dtype {dtype})")
     try:
         with np.load(path, allow_pickle=False) as z:
-            header = json.loads(str(z["header"]))
-    except json.JSONDecodeError as exc:
-        raise _fail(path, f"its header is not valid JSON ({exc})") from None
-    except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+            text = str(z["header"])
+    except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile,
+            NotImplementedError) as exc:
         raise _fail(path, f"its header is damaged ({exc})") from None
+    try:
+        header = parse_json(text, path)
+    except ValueError as exc:
+        raise _fail(path, f"its header {exc.problem}") from None
     if not isinstance(header, dict) or header.get("format") != fmt:
         raise _fail(path, "it is not a napari-aldic result file (wrong format in its header)")
     dims = header.get("image_shape")
@@ -188,10 +182,11 @@ def _check_layout(path: Path, heads: dict, shape: tuple[int, int], required, opt
                               f"but image_shape {rows} x {cols} in its header needs ({need},) "
                               "uint8 (bit-packed); the header and the ROI disagree")
         total += _nbytes(heads["roi_packed"]) + rows * cols
-    memory = _memory_bytes()
+    memory = available_memory()
     if memory is not None and total > memory:
-        raise _fail(path, f"its arrays would need {total / 2**30:.1f} GiB, more than this "
-                          f"computer's memory ({memory / 2**30:.1f} GiB)")
+        raise _fail(path, f"its arrays would need {total / 2**30:.1f} GiB, more than the "
+                          f"memory available now ({memory / 2**30:.1f} GiB); the file is "
+                          "damaged, or too large for this computer")
 
 
 def _check_values(path: Path, arrays: dict, shape: tuple[int, int]) -> None:
@@ -214,6 +209,40 @@ def _check_values(path: Path, arrays: dict, shape: tuple[int, int]) -> None:
         e = arrays.get(k)
         if e is not None and e.size and (e.min() < 0 or e.max() >= n):
             raise _fail(path, f"array {k!r} refers to nodes outside the {n} of the result")
+    problem = check_invariants(arrays)
+    if problem:
+        raise _fail(path, problem)
+
+
+#: per-node values a trusted node must have finite
+_FINITE_WHEN_VALID = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
+
+
+def check_invariants(arrays: dict) -> str | None:
+    """What breaks a result's invariants (a trusted node has finite values
+    and reason 0; ``valid`` holds only 0 and 1), in words; None when sound.
+    An edited file must not make untrusted values pass as trusted."""
+    valid = np.asarray(arrays["valid"])
+    if valid.dtype != bool:
+        if valid.size and not np.isin(valid, (0, 1)).all():
+            return "its 'valid' array holds values other than 0 and 1 (damaged or edited file)"
+        valid = valid.astype(bool)
+    reason = np.asarray(arrays["reason"])
+    bad = np.nonzero(valid & (reason != 0))[0]
+    if bad.size:
+        return (f"{bad.size} node(s) are marked valid but carry a failure reason (node "
+                f"{bad[0]}: reason {int(reason[bad[0]])}); a valid node has reason 0 "
+                "(damaged or edited file)")
+    for k in _FINITE_WHEN_VALID:
+        values = arrays.get(k)
+        if values is None:
+            continue
+        bad = np.nonzero(valid & ~np.isfinite(np.asarray(values, float)))[0]
+        if bad.size:
+            return (f"{bad.size} node(s) are marked valid but their {k!r} is not a finite "
+                    f"number (node {bad[0]}: {values[bad[0]]}); a valid node has finite "
+                    "values (damaged or edited file)")
+    return None
 
 
 def _load(path: Path, names) -> dict:
@@ -222,8 +251,11 @@ def _load(path: Path, names) -> dict:
         with np.load(path, allow_pickle=False) as z:
             for k in names:
                 out[k] = z[k]
-    except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+    except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile,
+            NotImplementedError) as exc:
         raise _fail(path, f"array {k!r} is damaged ({exc})") from None
+    except MemoryError:
+        raise _fail(path, f"array {k!r} does not fit in the memory available now") from None
     return out
 
 

@@ -20,6 +20,8 @@ __all__ = ["DICParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL"]
 #: a failing node (or ADMM loop) look like a hung program
 MAX_ITER_CAP = 10_000
 ADMM_ITER_CAP = 1_000
+#: largest thin-plate smoothing length ``smooth`` (px)
+SMOOTH_MAX = 1e4
 #: finest IC-GN tolerance (pixels): float32 interpolation noise is about 1e-7 px
 MIN_TOL = 1e-6
 
@@ -257,8 +259,11 @@ class DICParams:
             _bad(f"mu={self.mu} must be > 0")
         if not self.beta > 0:
             _bad(f"beta={self.beta} must be > 0")
-        if self.smooth != "auto" and self.smooth < 0:
-            _bad(f"smooth={self.smooth!r} must be 'auto' or a length >= 0 in pixels")
+        if self.smooth != "auto" and not 0 <= self.smooth <= SMOOTH_MAX:
+            # beyond it, smooth**4 swamps the data term in double precision: the
+            # global solve is singular or silently returns a flat field
+            _bad(f"smooth={self.smooth!r} must be 'auto' or a length in pixels between 0 "
+                 f"and {SMOOTH_MAX:g}")
         if not 1 <= self.admm_max_iter <= ADMM_ITER_CAP:
             _bad(f"admm_max_iter={self.admm_max_iter} must be between 1 and {ADMM_ITER_CAP}")
         if not (0 < self.admm_tol < 1):

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from .files import atomic_write, read_roi_file
+from .files import atomic_write, check_folder, file_above
 from .npzfile import read_result_npz
 from .params import DICParams
 from .reasons import Reason
+from .roifile import read_roi_file
 
 __all__ = ["DICResult", "load_result"]
 
@@ -211,6 +212,8 @@ class DICResult:
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
+        if file_above(path.parent) is not None:
+            check_folder(path)  # names the file that stands where a folder should be
         if not path.parent.exists():
             raise FileNotFoundError(f"folder {path.parent} does not exist; create it first")
         header = {

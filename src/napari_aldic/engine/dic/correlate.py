@@ -259,6 +259,11 @@ def _merge_params(params, subset, step, method, kwargs) -> DICParams:
     """One validated DICParams from ``params`` and explicit arguments."""
     if params is None:
         return DICParams(subset=subset, step=step, method=method, **kwargs)
+    if isinstance(params, dict):  # the fields of a DICParams, e.g. from a JSON file
+        params = DICParams.from_dict(params)
+    if not isinstance(params, DICParams):
+        raise TypeError(f"params must be a DICParams (or a dict of its fields), not "
+                        f"{type(params).__name__}")
     changes = dict(kwargs)
     defaults = DICParams()
     for name, val in (("subset", subset), ("step", step), ("method", method)):

@@ -11,6 +11,7 @@
   :func:`save_params` / :func:`load_params` / :func:`load_settings` -- settings files.
 """
 
+from ..core.files import available_memory, file_sha256, read_json_file, regular_file
 from .columns import FIELD_INFO, frame_columns
 from .csv import export_csv, read_csv
 from .davis import export_davis
@@ -38,5 +39,6 @@ __all__ = [
     "Frame", "FrameSet", "collect_frames", "load_run", "load_mat", "frame_columns", "FIELD_INFO",
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
     "export_davis", "save_params", "load_params", "load_settings", "read_settings",
-    "write_settings",
+    "write_settings", "regular_file", "read_json_file",
+    "file_sha256", "available_memory",
 ]

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.files import atomic_write, target_path
+from ..core.files import atomic_write, regular_file, target_path
 from ..core.units import Units
 from .columns import UNTRUSTED_RULE, frame_columns, reason_lines, software_name
 from .runs import collect_frames
@@ -89,7 +89,7 @@ def read_csv(path) -> dict[str, Any]:
     "settings": Units, "header": {key: text}}``; column names are given
     without their ``[unit]`` suffix.
     """
-    path = Path(path)
+    path = regular_file(path, "CSV file")  # a named pipe would block the read
     header: dict[str, str] = {}
     with open(path, encoding="utf-8") as fh:
         line = fh.readline()

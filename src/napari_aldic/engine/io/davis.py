@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.files import atomic_write, numbered_path, target_path
+from ..core.files import AtomicFiles, numbered_path, target_path
 from .runs import collect_frames
 
 
@@ -26,21 +26,26 @@ def export_davis(data, path, *, frames=None) -> list[Path]:
     fr_list, units, info = collect_frames(data, frames=frames, strain=False)
     targets = [path] if len(fr_list) == 1 else [numbered_path(path, fr.index) for fr in fr_list]
     written = []
-    for fr, target in zip(fr_list, targets):
-        res = fr.result
-        xs = np.asarray(res.grid_xs, float)
-        ys = np.asarray(res.grid_ys, float)
-        step = int(res.params.step)
-        U = res.to_grid("u")
-        V = res.to_grid("v")
-        X, Y = np.meshgrid(xs, ys)
-        table = np.column_stack([X.ravel(), Y.ravel(), U.ravel(), V.ravel()])
-        head = (f'#DaVis 8.4.0 2D-vector {step} {ys.size} {xs.size} "position" "pixel" '
-                '"position" "pixel" "displacement" "pixel" "displacement" "pixel"\n')
-        with atomic_write(target) as tmp, open(tmp, "w", encoding="ascii", newline="\n") as fh:
-            fh.write(head)
-            np.savetxt(fh, table, fmt=["%.6f", "%.6f", "%.8g", "%.8g"], delimiter="\t")
-        written.append(target)
+    with AtomicFiles() as files:  # a frame series appears whole or not at all
+        for fr, target in zip(fr_list, targets):
+            _write_frame(files, fr.result, target)
+            written.append(target)
     return written
+
+
+def _write_frame(files, res, target) -> None:
+    """One frame's DaVis table."""
+    xs = np.asarray(res.grid_xs, float)
+    ys = np.asarray(res.grid_ys, float)
+    step = int(res.params.step)
+    U = res.to_grid("u")
+    V = res.to_grid("v")
+    X, Y = np.meshgrid(xs, ys)
+    table = np.column_stack([X.ravel(), Y.ravel(), U.ravel(), V.ravel()])
+    head = (f'#DaVis 8.4.0 2D-vector {step} {ys.size} {xs.size} "position" "pixel" '
+            '"position" "pixel" "displacement" "pixel" "displacement" "pixel"\n')
+    with files.write(target) as tmp, open(tmp, "w", encoding="ascii", newline="\n") as fh:
+        fh.write(head)
+        np.savetxt(fh, table, fmt=["%.6f", "%.6f", "%.8g", "%.8g"], delimiter="\t")
 
 

@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.npzfile import npz_headers
+from ..core.files import parse_json, read_json_file
+from ..core.npzfile import check_invariants, npz_headers
 from ..core.params import DICParams
 from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
 from ..core.settings import STRAIN_DEFAULTS
@@ -128,12 +129,9 @@ def load_run(folder):
     if not folder.is_dir():
         raise FileNotFoundError(f"no run folder at {folder}")
     manifest = folder / "sequence.json"
-    if manifest.exists():
-        try:
-            info = json.loads(manifest.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"cannot read {manifest}: {exc}") from None
-        idx = [int(k) for k in info.get("frames") or []]
+    if os.path.lexists(manifest):
+        info = read_json_file(manifest, "run manifest")
+        idx = _manifest_frames(manifest, info)
         paths = [folder / f"frame_{k:05d}.npz" for k in idx]
         paths = [p if p.exists() else None for p in paths]
         for p in paths:
@@ -142,12 +140,36 @@ def load_run(folder):
         frames = LazyFrames(paths)
         if not any(frames.present):
             raise ValueError(f"{folder} holds no frame results yet (frame_#####.npz)")
-        params = DICParams.from_dict(info["params"]) if info.get("params") else \
-            next(f for f in frames if f is not None).params
+        try:
+            params = DICParams.from_dict(info["params"]) if info.get("params") else None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"cannot read the run manifest {manifest}: its parameters are "
+                             f"invalid ({exc})") from None
+        params = params or next(f for f in frames if f is not None).params
         meta = {"frames": idx, "source": info.get("source"),
                 "update_every": info.get("update_every"), "folder": str(folder)}
         return SequenceResult(frames, params, info.get("reference", "accumulative"), meta)
     return _result_folder(folder)
+
+
+def _manifest_frames(manifest: Path, info) -> list[int]:
+    """The frame numbers of a run manifest, checked (a hand-edited manifest
+    is named, not half read)."""
+    frames = info.get("frames") if isinstance(info, dict) else None
+    if not (isinstance(frames, list) and frames and all(
+            isinstance(k, int) and not isinstance(k, bool) and 0 <= k < 10**8 for k in frames)
+            and frames == sorted(set(frames))):
+        what = "not a JSON object" if not isinstance(info, dict) else \
+            f"its 'frames' entry is {str(info.get('frames'))[:60]!r}"
+        raise ValueError(f"cannot read the run manifest {manifest}: {what}; expected an "
+                         "object whose 'frames' is an increasing list of frame numbers "
+                         "(a damaged or hand-edited file)")
+    for key, kind in (("params", dict), ("reference", str)):
+        if info.get(key) is not None and not isinstance(info[key], kind):
+            raise ValueError(f"cannot read the run manifest {manifest}: its {key!r} entry "
+                             f"is a {type(info[key]).__name__} (a damaged or hand-edited "
+                             "file)")
+    return frames
 
 
 def _result_folder(folder: Path) -> SequenceResult:
@@ -184,7 +206,7 @@ def _result_header(path: Path) -> tuple[dict, DICParams]:
                 header = json.loads(str(z["header"]))
             if isinstance(header, dict) and isinstance(header.get("meta", {}), dict):
                 return header.get("meta") or {}, DICParams.from_dict(header.get("params") or {})
-    except (KeyError, TypeError, ValueError, OSError):
+    except (KeyError, TypeError, ValueError, OSError, RecursionError, NotImplementedError):
         pass
     res = load_result(path)  # raises the reader's error for a file that is not a result
     return res.meta, res.params
@@ -420,7 +442,8 @@ def load_mat(path) -> list[DICResult]:
         raise ValueError(f"{path} is not a napari-aldic .mat export")
     _check_mat(d, path)
     try:
-        params = DICParams.from_dict(json.loads(str(np.ravel(d["params_json"])[0])))
+        params = DICParams.from_dict(parse_json(str(np.ravel(d["params_json"])[0]),
+                                                f"{path}: params_json"))
     except (TypeError, ValueError) as exc:
         raise ValueError(f"cannot read {path}: its params_json is invalid ({exc})") from None
     shape = tuple(int(s) for s in np.ravel(d["image_shape"]))
@@ -437,7 +460,12 @@ def load_mat(path) -> list[DICResult]:
         hanging = np.asarray(el["hanging"], np.int64).reshape(-1, 3)
         ul = vec(el, "u_local")
         vl = vec(el, "v_local")
-        meta = json.loads(str(np.ravel(el["meta_json"])[0]))
+        meta = parse_json(str(np.ravel(el["meta_json"])[0]), f"{path}: frames({j + 1}).meta_json")
+        problem = check_invariants({k: vec(el, k) for k in ("valid", "reason", "dudx", "dudy",
+                                                            "dvdx", "dvdy", "zncc")}
+                                   | {"u": vec(el, "u_px"), "v": vec(el, "v_px")})
+        if problem:
+            raise ValueError(f"cannot read {path}: frames({j + 1}): {problem}")
         out.append(DICResult(
             x=vec(el, "x_px"), y=vec(el, "y_px"), u=vec(el, "u_px"), v=vec(el, "v_px"),
             dudx=vec(el, "dudx"), dudy=vec(el, "dudy"), dvdx=vec(el, "dvdx"),

@@ -8,12 +8,13 @@ the earlier API. The format and every check live in :mod:`..core.settings`.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
 from typing import Any
 
-from ..core.files import atomic_write, target_path
+from ..core.files import atomic_write, read_json_file, target_path
 from ..core.params import DICParams
 from ..core.settings import Settings
 
@@ -33,16 +34,10 @@ def read_settings(path) -> Settings:
         file and the problem.
     """
     path = Path(os.fspath(path)).expanduser()
-    if not path.exists():
-        raise FileNotFoundError(f"no parameter file at {path} (no such file)")
-    if path.is_dir():
-        raise ValueError(f"parameter file {path} is a folder; expected a JSON file")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"parameter file {path} is not valid JSON: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"parameter file {path} is not UTF-8 text: {exc}") from None
+    if not os.path.lexists(path):
+        raise FileNotFoundError(errno.ENOENT, f"no parameter file at {path} (no such file)",
+                                str(path))
+    doc = read_json_file(path, "parameter file")
     if not isinstance(doc, dict):
         raise ValueError(f"parameter file {path} must hold a JSON object (a settings "
                          "document or DICParams fields)")

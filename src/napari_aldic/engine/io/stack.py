@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import struct
 import threading
 import warnings
 from collections.abc import Iterable
@@ -30,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.files import regular_file
 from ..core.images import as_gray_float
 
 __all__ = ["FrameSource", "open_stack", "read_image", "open_image", "image_files",
@@ -61,11 +63,9 @@ def image_files(folder) -> list[Path]:
 def _image_file(path) -> Path:
     """``path`` as a Path, checked to be an existing file."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no such file: {path}")
     if path.is_dir():
         raise ValueError(f"{path} is a folder; expected an image file")
-    return path
+    return regular_file(path, "image file")  # a pipe or device would block the reader
 
 
 def read_image(path) -> np.ndarray:
@@ -91,13 +91,16 @@ def read_image(path) -> np.ndarray:
             if path.suffix.lower() in TIFF_SUFFIXES:
                 import tifffile
 
-                return np.asarray(tifffile.imread(path))
+                with _tiff_log() as damage:  # tifffile logs a damaged file, and goes on
+                    img = np.asarray(tifffile.imread(path))
+                if damage or img.ndim < 2 or img.size == 0:
+                    raise ValueError(f"it is damaged ({damage[0] if damage else 'no image'})")
+                return img
             from skimage import io as skio
 
             return np.asarray(skio.imread(path))
     except Exception as exc:  # any reader failure is a bad input file
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"cannot read image {path}: {first}") from None
+        raise ValueError(f"cannot read image {path}: {_reader_error(exc)}") from None
 
 
 def open_image(source):
@@ -141,6 +144,17 @@ def _size(shape) -> str:
     return text + (f" x {shape[2]} channels" if len(shape) > 2 else "")
 
 
+def _reader_error(exc: Exception) -> str:
+    """A reader's exception in words: an internal error of the parser (an
+    index or a division on garbage) means a damaged header."""
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    if isinstance(exc, (IndexError, KeyError, ZeroDivisionError, OverflowError,
+                        struct.error, MemoryError)):
+        return (f"its header or page directory is damaged, or it is not an image file "
+                f"({type(exc).__name__}: {first})")
+    return first
+
+
 @contextmanager
 def _tiff_log():
     """Collect what tifffile logs while a file is opened: a broken chain of
@@ -150,7 +164,9 @@ def _tiff_log():
     class _Keep(logging.Handler):
         def emit(self, record):
             msg = record.getMessage()
-            if "offset" in msg or "corrupt" in msg.lower() or "truncat" in msg.lower():
+            low = msg.lower()
+            if any(w in low for w in ("offset", "corrupt", "truncat", "segments",
+                                      "incorrect")):
                 found.append(msg.split("> ", 1)[-1])
 
     log = logging.getLogger("tifffile")
@@ -257,6 +273,8 @@ class FrameSource:
             self._use_files(files)
         elif not path.exists():
             raise FileNotFoundError(f"no image stack at {path} (no such file or folder)")
+        elif not path.is_file():  # a pipe or device would block the reader
+            regular_file(path, "image stack")
         elif path.suffix.lower() in TIFF_SUFFIXES:
             self._open_tiff(path)
         else:
@@ -269,6 +287,13 @@ class FrameSource:
         self.shape = (len(files),) + self.frame_shape[:2]
 
     def _use_array(self, stack) -> None:
+        if isinstance(stack, (list, tuple)) and stack and all(hasattr(f, "shape")
+                                                              for f in stack):
+            bad = next((k for k, f in enumerate(stack) if f.shape != stack[0].shape), None)
+            if bad is not None:  # np.asarray would say "inhomogeneous shape"
+                raise ValueError(f"frame {bad} is {_size(stack[bad].shape)}, but frame 0 is "
+                                 f"{_size(stack[0].shape)}; every frame of a sequence must "
+                                 "have the same size")
         arr = stack if hasattr(stack, "ndim") else np.asarray(stack)
         if arr.ndim != 3:
             raise ValueError(f"a stack must be 3-D (frames, rows, cols); got shape {arr.shape}")
@@ -292,7 +317,7 @@ class FrameSource:
                     cut = (f"damaged: {damage[0]}; only pages 0 to {len(tf.pages) - 1} can be "
                            "read")
         except Exception as exc:
-            raise ValueError(f"cannot read TIFF stack {path}: {exc}") from None
+            raise ValueError(f"cannot read TIFF stack {path}: {_reader_error(exc)}") from None
         if cut:
             raise ValueError(f"TIFF stack {path} is {cut} (an interrupted copy or "
                              "acquisition?)")
@@ -331,19 +356,26 @@ class FrameSource:
     def _read_tiff(self, k: int) -> np.ndarray:
         import tifffile
 
+        page = f" (page {k})" if self._pages else ""
         try:
-            with self._lock:  # one open file, shared by the threads reading frames
+            with self._lock, _tiff_log() as damage:  # one open file, shared by the threads
                 if not self._pages:
                     if self._whole is None:
                         self._whole = tifffile.imread(self._tiff, series=0).reshape(
                             len(self), *self.frame_shape)
-                    return self._whole[k]
-                if self._handle is None:
-                    self._handle = tifffile.TiffFile(self._tiff)
-                return self._handle.asarray(series=0, key=k)
+                    frame = self._whole[k]
+                else:
+                    if self._handle is None:
+                        self._handle = tifffile.TiffFile(self._tiff)
+                    frame = self._handle.asarray(series=0, key=k)
         except Exception as exc:
-            page = f" (page {k})" if self._pages else ""
-            raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: {exc}") from None
+            raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: "
+                             f"{_reader_error(exc)}") from None
+        if damage:  # tifffile only logs it, and fills the lost strips with zeros
+            self._whole = None
+            raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: it is damaged "
+                             f"({damage[0]})")
+        return frame
 
     @property
     def in_memory(self) -> bool:

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.files import regular_file
+
 __all__ = ["LazyImage", "PixelSize", "open_lazy", "pixel_size_of", "is_lazy_source"]
 
 #: length units, normalised, and their size in metres
@@ -184,6 +186,7 @@ def open_lazy(source) -> LazyImage:
         raise FileNotFoundError(f"no such file: {path}")
     if path.is_dir():
         return _open_zarr(path)
+    regular_file(path, "image file")  # a pipe or device would block the reader
     if path.suffix.lower() in _TIFF:
         return _open_tiff(path)
     raise ValueError(f"{path}: not a TIFF file or zarr folder; these are the formats read "

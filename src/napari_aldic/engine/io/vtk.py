@@ -10,7 +10,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from ..core.files import atomic_write, numbered_path, target_path
+from ..core.files import AtomicFiles, numbered_path, target_path
 from ..core.results import DICResult
 from ..core.units import Units
 from .columns import UNTRUSTED_RULE, frame_columns, software_name
@@ -164,25 +164,31 @@ def export_vtu(data, path, *, units=None, strain=True, frames=None,
         targets = [path]
     else:
         targets = [numbered_path(path, fr.index) for fr in fr_list]
-    for fr, target in zip(fr_list, targets):
-        text = _vtu_text(fr, units, encoding, info, nan_value)
-        with atomic_write(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        written.append(target)
-    if len(fr_list) > 1:
-        pvd = path.with_suffix(".pvd")
-        lines = ['<?xml version="1.0"?>\n',
-                 '<VTKFile type="Collection" version="1.0" byte_order="LittleEndian">\n',
-                 "  <Collection>\n"]
+    with AtomicFiles() as files:  # the frame files and their .pvd appear together
         for fr, target in zip(fr_list, targets):
-            t = units.time(fr.index) if units.has_time else fr.index
-            lines.append(f'    <DataSet timestep="{t!r}" group="" part="0" '
-                         f'file={quoteattr(target.name)}/>\n')
-        lines.append("  </Collection>\n</VTKFile>\n")
-        with atomic_write(pvd) as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            fh.write("".join(lines))
-        written.append(pvd)
+            text = _vtu_text(fr, units, encoding, info, nan_value)
+            with files.write(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            written.append(target)
+        if len(fr_list) > 1:
+            written.append(_write_pvd(files, path, fr_list, targets, units))
     return written
+
+
+def _write_pvd(files, path: Path, fr_list, targets, units) -> Path:
+    """The ParaView collection of the frame files ``targets``."""
+    pvd = path.with_suffix(".pvd")
+    lines = ['<?xml version="1.0"?>\n',
+             '<VTKFile type="Collection" version="1.0" byte_order="LittleEndian">\n',
+             "  <Collection>\n"]
+    for fr, target in zip(fr_list, targets):
+        t = units.time(fr.index) if units.has_time else fr.index
+        lines.append(f'    <DataSet timestep="{t!r}" group="" part="0" '
+                     f'file={quoteattr(target.name)}/>\n')
+    lines.append("  </Collection>\n</VTKFile>\n")
+    with files.write(pvd) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write("".join(lines))
+    return pvd
 
 
 def read_vtu(path) -> dict[str, Any]:

@@ -28,6 +28,8 @@ Open it with ``zarr.open_group(folder / "fields.zarr", mode="r")`` or
 from __future__ import annotations
 
 import os
+import secrets
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -58,12 +60,21 @@ class FieldStore:
     """Writer of a run folder's ``fields.zarr`` (one process writes it, under
     the run folder's lock).
 
+    The frame result files are the record; the store is derived from them.
+    A new store is built under a temporary name and renamed into place, so a
+    run killed while creating it leaves no half store. A store that cannot
+    be used as it is (killed mid-write, an array missing, a damaged chunk, or
+    written for other frames) is built again and refilled from the frame
+    files (:attr:`rebuilt`; :meth:`trusted` then trusts no frame). A link or
+    a file in its place is refused before anything is written: nothing is
+    written through a link.
+
     Parameters
     ----------
     folder : Path
         The run folder.
     run_id : str
-        The run's identity digest; a store of another run is refused.
+        The run's identity digest.
     frames : list of int
         The analysed frame numbers (``T = len(frames)``).
     grid_xs, grid_ys : array
@@ -71,37 +82,71 @@ class FieldStore:
     """
 
     def __init__(self, folder: Path, run_id: str, frames: list[int], grid_xs, grid_ys):
-        import zarr
-
         self.path = Path(folder) / STORE_NAME
         self.frames = list(frames)
-        shape = (len(self.frames), len(grid_ys), len(grid_xs))
-        self.grid_shape = shape[1:]
-        fresh = not self.path.exists()
-        self.group = zarr.open_group(str(self.path), mode="a")
-        if not fresh:
-            old = dict(self.group.attrs)
-            if old.get("run_id") != run_id or old.get("frames") != self.frames:
-                raise ValueError(f"{self.path} holds the fields of another analysis (run "
-                                 f"{old.get('run_id')}, this run {run_id}); delete it to "
-                                 "write it again from the result files")
-            return
-        self.group.attrs.update({"format": STORE_FORMAT, "format_version": STORE_VERSION,
-                                 "run_id": run_id, "frames": self.frames,
-                                 "grid_xs": [float(x) for x in grid_xs],
-                                 "grid_ys": [float(y) for y in grid_ys]})
-        chunks = (1,) + shape[1:]
-        for name in STORE_FIELDS:
-            self.group.create_array(name, shape=shape, chunks=chunks, dtype="float64",
-                                    fill_value=np.nan)
-        self.group.create_array("valid", shape=shape, chunks=chunks, dtype=bool,
-                                fill_value=False)
-        self.group.create_array("reason", shape=shape, chunks=chunks, dtype="int8",
-                                fill_value=-1)
-        n = len(self.frames)
-        for name, (dtype, fill) in _PER_FRAME.items():
-            self.group.create_array(name, shape=(n,), chunks=(min(n, 4096),), dtype=dtype,
-                                    fill_value=fill)
+        self.grid_shape = (len(grid_ys), len(grid_xs))
+        self.attrs = {"format": STORE_FORMAT, "format_version": STORE_VERSION,
+                      "run_id": run_id, "frames": self.frames,
+                      "grid_xs": [float(x) for x in grid_xs],
+                      "grid_ys": [float(y) for y in grid_ys]}
+        if os.path.islink(self.path) or (os.path.lexists(self.path)
+                                         and not self.path.is_dir()):
+            raise ValueError(f"{self.path} is a link or a file, not the run's field store; "
+                             "nothing is written through it. Remove it and run again")
+        self.rebuilt = False
+        self.group = self._open() if self.path.is_dir() else None
+        if self.group is None:
+            self.rebuilt = os.path.lexists(self.path)
+            self.group = self._create()
+
+    def _shapes(self) -> dict:
+        t, (ny, nx) = len(self.frames), self.grid_shape
+        out = {name: ((t, ny, nx), np.dtype("float64")) for name in STORE_FIELDS}
+        out["valid"] = ((t, ny, nx), np.dtype(bool))
+        out["reason"] = ((t, ny, nx), np.dtype("int8"))
+        out.update({name: ((t,), np.dtype(dtype)) for name, (dtype, _) in _PER_FRAME.items()})
+        return out
+
+    def _open(self):
+        """The existing store if it is this run's and whole, else None."""
+        import zarr
+
+        for root, dirs, names in os.walk(self.path):  # a planted link: never written through
+            if any(os.path.islink(os.path.join(root, n)) for n in (*dirs, *names)):
+                return None
+        try:
+            group = zarr.open_group(str(self.path), mode="r+")
+            if dict(group.attrs) != self.attrs:
+                return None
+            for name, (shape, dtype) in self._shapes().items():
+                arr = group[name]
+                if tuple(arr.shape) != shape or np.dtype(arr.dtype) != dtype:
+                    return None
+            for name in _PER_FRAME:  # read: a damaged chunk here is found now
+                np.asarray(group[name][:])
+        except Exception:  # any damage: the store is built again from the frame files
+            return None
+        return group
+
+    def _create(self):
+        """A new, empty store: built beside, then renamed into place."""
+        import zarr
+
+        tmp = self.path.with_name(f".{STORE_NAME}.{secrets.token_hex(4)}.part")
+        group = zarr.open_group(str(tmp), mode="w")
+        group.attrs.update(self.attrs)
+        fills = {"valid": False, "reason": -1}
+        fills.update({name: fill for name, (_, fill) in _PER_FRAME.items()})
+        for name, (shape, dtype) in self._shapes().items():
+            chunks = (1,) + shape[1:] if len(shape) == 3 else (min(shape[0], 4096),)
+            group.create_array(name, shape=shape, chunks=chunks, dtype=dtype,
+                               fill_value=fills.get(name, np.nan))
+        if os.path.lexists(self.path):  # a damaged store of this run: replaced
+            aside = self.path.with_name(f".{STORE_NAME}.{secrets.token_hex(4)}.old.part")
+            os.rename(self.path, aside)
+            shutil.rmtree(aside, ignore_errors=True)
+        os.rename(tmp, self.path)
+        return zarr.open_group(str(self.path), mode="r+")
 
     def write(self, i: int, res) -> None:
         """Write the fields of ``frames[i]`` (its result ``res``); call
@@ -109,6 +154,7 @@ class FieldStore:
         if tuple(res.grid_shape) != self.grid_shape:
             raise ValueError(f"frame {self.frames[i]} has a node lattice of shape "
                              f"{tuple(res.grid_shape)}, the field store {self.grid_shape}")
+        self.group["done"][i] = False  # until mark_done: the slices are being replaced
         for name in STORE_FIELDS:
             self.group[name][i] = res.to_grid(name, invalid=None)
         on = res.grid_ix >= 0
@@ -129,8 +175,9 @@ class FieldStore:
         self.group["done"][i] = True
 
     def trusted(self) -> np.ndarray:
-        """Per analysed frame: finished in the store, and its result file is
-        the one written then (same size and modification time)."""
+        """Per analysed frame: finished in the store, its result file the one
+        written then (same size and modification time), and its slices
+        readable (a damaged chunk makes the frame be written again)."""
         done = np.asarray(self.group["done"][:])
         size = np.asarray(self.group["file_size"][:])
         mtime = np.asarray(self.group["file_mtime_ns"][:])
@@ -138,7 +185,11 @@ class FieldStore:
         for i in np.nonzero(done)[0]:
             try:
                 st = os.stat(self.path.parent / f"frame_{self.frames[i]:05d}.npz")
-            except OSError:
+                if st.st_size != size[i] or st.st_mtime_ns != mtime[i]:
+                    continue
+                for name in (*STORE_FIELDS, "valid", "reason"):
+                    self.group[name][i]
+            except Exception:  # missing file, damaged chunk
                 continue
-            ok[i] = st.st_size == size[i] and st.st_mtime_ns == mtime[i]
+            ok[i] = True
         return ok

@@ -18,14 +18,18 @@ Engineering stress is ``load / area`` (N / mm² = MPa).
 
 from __future__ import annotations
 
+import codecs
 import csv
+import errno
 import io
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..core.files import MAX_TEXT_BYTES, open_regular
 from .sampling import MISSING, OK
 from .table import Column, ProbeTable
 
@@ -70,10 +74,27 @@ class LoadRecord:
 
 
 def _read_text(path: Path) -> str:
+    """The file's text: UTF-16 or UTF-32 by its byte-order mark (spreadsheets
+    save "Unicode text" so), else UTF-8, else Latin-1."""
+    with open_regular(path, "load file") as fh:
+        raw = fh.read(MAX_TEXT_BYTES + 1)
+    if len(raw) > MAX_TEXT_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_TEXT_BYTES >> 20} MB; not a load table")
+    for bom, enc in ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"),
+                     (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16")):
+        if raw.startswith(bom):
+            try:
+                return raw.decode(enc)
+            except UnicodeDecodeError as exc:
+                raise ValueError(f"{path}: not readable {enc.upper()} text ({exc.reason})") \
+                    from None
+    if b"\0" in raw[:4096]:
+        raise ValueError(f"{path}: binary data (zero bytes), not a text table; save it as "
+                         "CSV (UTF-8)")
     try:
-        return path.read_text(encoding="utf-8-sig")
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        return path.read_text(encoding="latin-1")
+        return raw.decode("latin-1")
 
 
 def _split(line: str, delim: str) -> list[str]:
@@ -165,10 +186,35 @@ def _layout(rows: list[list[str]], path: Path) -> tuple[int, int | None, int]:
         raise ValueError(f"{path}: fewer than two rows of numbers at the end of the file")
     if start == 0:
         raise ValueError(f"{path}: no header row (column names) above the numbers")
+    width = len(rows[-1])
+    first = next((i for i in range(start) if len(rows[i]) == width
+                  and _names_columns(rows[i])), None)
+    if first is not None and first < start - 2:
+        _check_between(rows, first, start, path)
     if start >= 2 and (_unit_row(rows[start - 1]) or (
             _names_columns(rows[start - 2]) and not _names_columns(rows[start - 1]))):
         return start - 2, start - 1, start
     return start - 1, None, start
+
+
+def _check_between(rows: list[list[str]], header: int, start: int, path: Path) -> None:
+    """Rows between the header row and the numbers at the end that are not
+    numbers: a text cell, ``inf``, or the header repeated (two tables pasted
+    together) is named, not taken as a second header."""
+    for i in range(header + 1, start):
+        row = rows[i]
+        if i == header + 1 and _unit_row(row):
+            continue
+        if row == rows[header]:
+            raise ValueError(f"{path}: row {i + 1} repeats the header row (two tables pasted "
+                             "together?); keep one header")
+        bad = next((c for c in row if c and not _is_number(c)), None)
+        if bad is not None:
+            word = "a finite number" if bad.lower().lstrip("+-") in _NOT_FINITE else "a number"
+            raise ValueError(f"{path}: row {i + 1}: {bad[:40]!r} is not {word}")
+
+
+_NOT_FINITE = {"inf", "infinity", "nan", "1.#inf", "1.#ind"}
 
 
 def read_load_csv(path, *, load_column: str | None = None, time_column: str | None = None,
@@ -180,8 +226,8 @@ def read_load_csv(path, *, load_column: str | None = None, time_column: str | No
     found in the file. Raises ``ValueError`` naming the file and the problem.
     """
     path = Path(path).expanduser()
-    if not path.is_file():
-        raise FileNotFoundError(f"no load file at {path}")
+    if not os.path.lexists(path):
+        raise FileNotFoundError(errno.ENOENT, f"no load file at {path}", str(path))
     lines = [ln for ln in _read_text(path).splitlines() if ln.strip()]
     if len(lines) < 3:
         raise ValueError(f"{path}: too short for a load table (header and two rows)")

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.files import (
+    AtomicFiles,
     EncoderNotFoundError,
     ExportError,
     atomic_write,
@@ -41,11 +42,12 @@ def export_png(data, path, field: str = "u", *, frames=None, units=None, strain=
     fr_list = series.frames
     targets = [path] if len(fr_list) == 1 else [numbered_path(path, fr.index) for fr in fr_list]
     written = []
-    for fr, target in zip(fr_list, targets):
-        fig = frame_figure(series, fr, image=image, cmap=cmap)
-        with atomic_write(target) as tmp:
-            fig.savefig(tmp, format="png", dpi=dpi)
-        written.append(target)
+    with AtomicFiles() as files:  # a frame series appears whole or not at all
+        for fr, target in zip(fr_list, targets):
+            fig = frame_figure(series, fr, image=image, cmap=cmap)
+            with files.write(target) as tmp:
+                fig.savefig(tmp, format="png", dpi=dpi)
+            written.append(target)
     return written
 
 

@@ -26,9 +26,12 @@ worker with N threads runs N frames on N cores.
 from __future__ import annotations
 
 import os
+import re
 
+from ..core.files import array_digest
 from ..dic.correlate import correlate
 from ..io.stack import FrameSource
+from .runfolder import IMAGE_DIGEST
 
 
 def _pair_job(source, ref, ref_k: int, k: int, roi, params, refine):
@@ -38,7 +41,9 @@ def _pair_job(source, ref, ref_k: int, k: int, roi, params, refine):
     if ref is None:
         ref = source[ref_k]
     img = source[k] if isinstance(source, FrameSource) else source
-    return correlate(ref, img, roi=roi, params=params, refine=refine)
+    inc = correlate(ref, img, roi=roi, params=params, refine=refine)
+    inc.meta[IMAGE_DIGEST] = array_digest(img)  # hashed as read: checked when resuming
+    return inc
 
 
 class _Collector:
@@ -73,6 +78,24 @@ class _Collector:
 def one_thread(params):
     """``params`` with one Numba thread per task unless ``n_threads`` is set."""
     return params if params.n_threads is not None else params.replace(n_threads=1)
+
+
+def check_scheduler(scheduler, workers) -> None:
+    """Refuse a ``scheduler`` or ``workers`` that :func:`run_parallel` cannot
+    use, before anything is read or written."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 1):
+        raise ValueError(f"workers={workers!r} must be a whole number >= 1 (or None)")
+    if scheduler is None or scheduler in ("threads", "processes"):
+        return
+    if isinstance(scheduler, str):
+        if re.fullmatch(r"(tcp|tls|ucx|inproc|ws|wss)://\S+|[\w.\-]+:\d+", scheduler):
+            return
+    elif hasattr(scheduler, "submit") and hasattr(scheduler, "scatter"):
+        return  # a dask.distributed Client
+    raise ValueError(f"scheduler={scheduler!r} must be None, 'threads', 'processes', a "
+                     "dask.distributed Client or the address of its scheduler (e.g. "
+                     "'tcp://host:8786')")
 
 
 def run_parallel(run, todo: list[int], scheduler, workers, cancel) -> bool:

@@ -24,6 +24,8 @@ import dataclasses
 import hashlib
 import json
 import os
+import zipfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,11 +39,17 @@ from ..core.files import (
     clean_temporaries,
     explain_os_error,
     folder_lock,
+    parse_json,
+    read_json_file,
 )
+from ..core.npzfile import npz_headers
 from ..core.version import __version__
 from ..dic.quadtree import resolve_refinement
 
 MANIFEST = "sequence.json"
+#: the key of a frame result's meta holding the digest of the image it was computed
+#: from (frame k's pixels, read once), checked when a run resumes
+IMAGE_DIGEST = "image_sha256"
 FORMAT = "napari-aldic-run"
 FORMAT_VERSION = 2
 #: manifest entries that define a run, in the order differences are reported
@@ -132,7 +140,7 @@ def check_or_create(out: Path, info: dict) -> None:
     """Write the manifest of a new run folder, or check that the folder's
     manifest describes the same analysis as ``info`` (raises otherwise)."""
     manifest = out / MANIFEST
-    if not manifest.exists():
+    if not os.path.lexists(manifest):
         results = sorted(p.name for p in out.glob("*.npz"))
         if results:
             raise RunFolderError(
@@ -145,7 +153,7 @@ def check_or_create(out: Path, info: dict) -> None:
             tmp.write_text(json.dumps(doc, indent=1))
         return
     try:
-        old = json.loads(manifest.read_text())
+        old = read_json_file(manifest, "run manifest")
     except (OSError, ValueError) as exc:
         raise RunFolderError(f"cannot read the run manifest {manifest}: {exc}. Choose another "
                              "folder (or delete the folder's contents)", out) from None
@@ -252,3 +260,36 @@ def _stack_diff(a: dict, b: dict) -> list[str]:
             out.append(f"the image stack changed (the {end} analysed frame holds other pixel "
                        "values)")
     return out
+
+
+def record_digests(out: Path, digests: dict) -> None:
+    """Keep the digest of every analysed frame's image (frame number -> SHA-256,
+    as :data:`IMAGE_DIGEST` in each frame's result file) in the manifest too:
+    rewritten once when a run ends, not per frame (each frame's file holds
+    its own, so a killed run loses none)."""
+    manifest = out / MANIFEST
+    doc = read_json_file(manifest, "run manifest")
+    doc["frame_sha256"] = {str(k): digests[k] for k in sorted(digests)}
+    with atomic_write(manifest) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1))
+
+
+# ----------------------------------------------------------------- frame files
+def frame_file_meta(path: Path) -> dict:
+    """The ``meta`` of a finished frame's result file, after checking every
+    member's CRC (a bit flipped on disk is found when resuming, not by a
+    later export). Raises ``ValueError`` saying what is wrong (the caller
+    names the file)."""
+    npz_headers(path)  # refuses a FIFO, a truncated or foreign file, naming it
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+        if bad is not None:
+            raise ValueError(f"its member {bad} fails its CRC check")
+        with np.load(path, allow_pickle=False) as z:
+            doc = parse_json(str(z["header"]), f"the header of {path}")
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error,
+            NotImplementedError) as exc:
+        raise ValueError(f"it is damaged ({exc})") from None
+    meta = doc.get("meta") if isinstance(doc, dict) else None
+    return meta if isinstance(meta, dict) else {}

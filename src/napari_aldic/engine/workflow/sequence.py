@@ -24,6 +24,7 @@ carries the frames finished before it.
 
 from __future__ import annotations
 
+import os
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -32,18 +33,29 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.files import RunFolderError, array_digest, write_roi_file
+from ..core.files import RunFolderError, array_digest, explain_os_error, explained
 from ..core.images import validate_roi
 from ..core.params import DICParams
 from ..core.progress import Cancelled
 from ..core.reasons import Reason
 from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
+from ..core.roifile import write_roi_file
 from ..dic.correlate import correlate, reference_result
 from ..dic.roi_warp import carry_roi
 from ..io.stack import frame_numbers, open_stack
-from ..io.zarrstore import FieldStore
-from .cluster import run_parallel
-from .runfolder import MANIFEST, refine_record, roi_record, run_folder, run_id, stack_record
+from ..io.zarrstore import STORE_NAME, FieldStore
+from .cluster import check_scheduler, run_parallel
+from .runfolder import (
+    IMAGE_DIGEST,
+    MANIFEST,
+    frame_file_meta,
+    record_digests,
+    refine_record,
+    roi_record,
+    run_folder,
+    run_id,
+    stack_record,
+)
 
 __all__ = ["track", "TrackError", "RunFolderError"]
 
@@ -226,6 +238,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         raise ValueError(f"reference={reference!r} must be 'accumulative' or 'incremental'")
     if update_every is not None and (update_every < 1 or reference != "accumulative"):
         raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
+    check_scheduler(scheduler, workers)
     src = open_stack(stack)
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
@@ -268,6 +281,7 @@ class _SequenceRun:
         self._whole = None  # the one ROI array of a run without per-frame ROIs
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
         self._carried: tuple = (None, None)  # (frame, frame 0's ROI carried onto it)
+        self.digests: dict = {}  # frame -> SHA-256 of its image, as read
 
     # ------------------------------------------------------------ inputs
     def roi_for(self, k: int) -> np.ndarray:
@@ -341,9 +355,10 @@ class _SequenceRun:
                 entry[2] = write_roi_file(self.out, res.roi)
             ref = entry[2]
         i = self._pos[k]
-        self.store.write(i, res)  # the fields first: the result file says "done"
-        path = res.save(self.path_of(k), roi_file=ref)
-        self.store.mark_done(i, res, path)
+        with explained(self.store.path):  # e.g. a full disk under the field store
+            self.store.write(i, res)  # the fields first: the result file says "done"
+            path = res.save(self.path_of(k), roi_file=ref)
+            self.store.mark_done(i, res, path)
 
     def load_frame(self, i: int) -> DICResult:
         return load_result(self.path_of(self.idx[i]))
@@ -376,6 +391,8 @@ class _SequenceRun:
             cancelled = self.serial(todo, ref_img, cancel)
         else:
             cancelled = run_parallel(self, todo, scheduler, workers, cancel)
+        if self.out is not None:
+            record_digests(self.out, self.digests)
         return self.partial(seconds=time.perf_counter() - t0, cancelled=cancelled)
 
     def start(self):
@@ -385,12 +402,15 @@ class _SequenceRun:
         self.results[0] = reference_result(ref_img, roi=self.roi_for(0), params=self.params,
                                            refine=self.refine)
         self.results[0].meta.update(self.extra)
+        self.results[0].meta[IMAGE_DIGEST] = self.digests[0] = array_digest(ref_img)
         if self.out is not None:
             try:
                 self.store = FieldStore(self.out, self.run_id, self.idx,
                                         self.results[0].grid_xs, self.results[0].grid_ys)
             except ValueError as exc:
                 raise RunFolderError(str(exc), self.out) from None
+            except OSError as exc:
+                raise explain_os_error(exc, self.out / STORE_NAME) from None  # a full disk
             if not self.path_of(0).exists():
                 self.save(self.results[0], 0)
         return ref_img
@@ -406,11 +426,13 @@ class _SequenceRun:
         todo = []
         for i in range(len(self.idx)):
             pth = self.path_of(self.idx[i])
-            if not pth.exists():
+            if not os.path.lexists(pth):
                 todo.append(i)
-            elif not trusted[i]:
+                continue
+            self._check_frame(i, pth)
+            if not trusted[i]:
                 self._verify(i, pth)
-            if i and pth.exists():
+            if i:
                 self.results[i] = _ON_DISK
                 self.report(self.idx[i], i / (len(self.idx) - 1),
                             f"frame {self.idx[i]}: loaded from {pth.name}")
@@ -421,6 +443,26 @@ class _SequenceRun:
             if self.results[j] is _ON_DISK:
                 self.results[j] = self.load_frame(j)
         return todo
+
+    def _check_frame(self, i: int, pth: Path) -> None:
+        """A finished frame's file is whole (CRCs), and the image it was
+        computed from still holds the same pixels (its digest, recorded when
+        the frame was read): else the run is refused, naming the frame."""
+        k = self.idx[i]
+        try:
+            meta = frame_file_meta(pth)
+        except ValueError as exc:
+            raise RunFolderError(f"cannot read {pth} to resume the run: {exc}. Delete that "
+                                 f"file to compute frame {k} again", self.out) from None
+        recorded = meta.get(IMAGE_DIGEST)
+        if isinstance(recorded, str):
+            self.digests[k] = recorded
+        if isinstance(recorded, str) and array_digest(self.src[k]) != recorded:
+            raise RunFolderError(
+                f"frame {k} ({self.src.frame_name(k)}) has changed since it was analysed: its "
+                f"pixels differ from those {pth.name} was computed from. Resuming would mix "
+                "two image sequences; put the original images back, or analyse into an "
+                "empty folder", self.out)
 
     def _verify(self, i: int, pth: Path) -> None:
         """Check a result file not recorded in the store (a run killed
@@ -435,13 +477,15 @@ class _SequenceRun:
             raise RunFolderError(f"{pth} belongs to another analysis than "
                                  f"{self.out / MANIFEST} (results must not mix); remove "
                                  "it or choose an empty folder", self.out)
-        self.store.write(i, res)
-        self.store.mark_done(i, res, pth)
+        with explained(self.store.path):
+            self.store.write(i, res)
+            self.store.mark_done(i, res, pth)
 
     def finish(self, i: int, inc: DICResult) -> None:
         """Compose the increment of ``idx[i]`` back to frame 0, record, save
         and announce it."""
         k, r = self.idx[i], self.ref_of(i)
+        digest = inc.meta.pop(IMAGE_DIGEST, None)
         shared = self.roi_for(r)
         if inc.roi is not None and inc.roi is not shared and np.array_equal(inc.roi, shared):
             inc.roi = shared  # a copy from a worker process: keep one array per run
@@ -449,6 +493,8 @@ class _SequenceRun:
         res.meta.update(self.extra)
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
+        if digest is not None:
+            res.meta[IMAGE_DIGEST] = self.digests[k] = digest
         res.meta.setdefault("inputs", {"reference": self.src.frame_name(r),
                                        "deformed": self.src.frame_name(k), "frame": k})
         self.results[i] = res
@@ -481,7 +527,8 @@ class _SequenceRun:
             try:  # cancel also stops promptly inside a frame
                 if r != ref_k:
                     ref_k, ref_img, prev_inc, before = r, self.src[r], None, None
-                inc = correlate(ref_img, self.src[k], roi=self.roi_on(r), params=self.params,
+                img = self.src[k]
+                inc = correlate(ref_img, img, roi=self.roi_on(r), params=self.params,
                                 guess=_extrapolated(prev_inc, before), refine=self.refine,
                                 cancel=cancel,
                                 solver_cache=solvers)
@@ -489,6 +536,7 @@ class _SequenceRun:
                 return True
             except Exception as exc:  # a bad frame: keep what is finished
                 raise self.failed(k, exc) from exc
+            inc.meta[IMAGE_DIGEST] = array_digest(img)  # checked when the run resumes
             prev_inc, before = inc, prev_inc
             self.finish(i, inc)
         return False
