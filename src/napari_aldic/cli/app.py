@@ -22,11 +22,12 @@ from .params import params_command
 from .parser import build_parser
 from .probe import probe_command
 from .run import run_command
+from .watch import watch_command
 
 #: command name -> function(args) returning the exit code (None: 0)
 COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
             "params": params_command, "probe": probe_command, "advise": advise_command,
-            "noise-floor": noise_floor_command}
+            "noise-floor": noise_floor_command, "watch": watch_command}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -93,6 +93,8 @@ def run_camera(out, frames: int = 20, interval: float = 1.5, style: str = "chunk
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     shape = (size, size)
+    if not quiet:
+        print(f"camera: rendering {frames} frames of {size} x {size} px", flush=True)
     imgs = render_frames(frames, shape, rate, drift, seed=seed)
     truth = [{"frame": k, "G": [list(r) for r in frame_field(k, shape, rate, drift).G],
               "center": list(frame_field(k, shape, rate, drift).center),

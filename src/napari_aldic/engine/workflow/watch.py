@@ -120,7 +120,9 @@ def watch(folder, out_dir, *, pattern: str | None = None, roi=None,
         As for :func:`~napari_aldic.engine.track` (``reference`` is
         ``"accumulative"`` or ``"incremental"``).
     idle_timeout : float, optional
-        End after this many seconds without a new frame (default: never).
+        End after this many seconds without a new frame, counted from the
+        reference frame on (before it the watch waits for the camera;
+        default: never).
     poll, settle, stall : float
         Seconds between looks at the folder; how long a file's size and time
         must stay unchanged (see :mod:`.watch_files`); how long an undecodable
@@ -278,7 +280,7 @@ class _Loop:
                 k = self.src.append(*got)
                 self.found[k] = self.last
                 return k
-            if self.idle_timeout is not None and \
+            if self.idle_timeout is not None and len(self.src) and \
                     time.monotonic() - self.last > self.idle_timeout:
                 self.ended = "idle"
                 return None
