@@ -353,7 +353,7 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          # the steepest-descent images IC-GN (and AL-DIC's local
                          # step) matched with, when smoothed
                          jacobian=None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma),
-                         aldic=aldic)
+                         aldic=aldic, memo=im.memo if im.ref_cache is not None else None)
     timing["quality"] = time.perf_counter() - t
     return out
 
