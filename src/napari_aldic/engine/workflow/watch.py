@@ -132,7 +132,8 @@ def watch(folder, out_dir, *, pattern: str | None = None, roi=None,
     on_frame : callable(frame, result, info), optional
         Called after each frame's result is on disk; ``info`` holds
         ``seconds`` (the correlation), ``latency`` (seconds since the file
-        was found complete), ``path`` (the frame file) and ``resumed``.
+        was found complete), ``path`` (the frame file), ``files`` (every frame
+        file so far, frame 0 first) and ``resumed``.
     on_tick : callable(), optional
         Called at every look at the folder (e.g. to re-read a load file).
     stop : callable() -> bool, optional
@@ -318,6 +319,7 @@ class _Live:
         self.report.computed.append(k)
         if self.on_frame is not None:
             self.on_frame(k, res, {"seconds": now - self._t0, "path": self.run.src.files[k],
+                                   "files": list(self.run.src.files),
                                    "latency": now - self.loop.found.get(k, self._t0),
                                    "resumed": False})
 
