@@ -119,9 +119,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     """
     t_start = time.perf_counter()
     params = _merge_params(params, subset, step, method, kwargs)
-    if guess is not None and not isinstance(guess, DICResult):
-        raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
-                        f"{type(guess).__name__}")
+    _check_guess(guess)
     report, timing = _reporter(progress, cancel), {}  # timing: stage -> seconds
     f, g, mask, params = _validated(reference, deformed, roi, params)
     ref_spec = resolve_refinement(refine if refine is not None else params.refine)
@@ -139,6 +137,12 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
+
+
+def _check_guess(guess) -> None:
+    if guess is not None and not isinstance(guess, DICResult):
+        raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
+                        f"{type(guess).__name__}")
 
 
 def _reporter(progress, cancel):
