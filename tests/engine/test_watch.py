@@ -156,3 +156,16 @@ def test_live_probe_rows_wait_for_a_growing_load_file(tmp_path, frames):
     live.close(out)  # the whole run written as `napari-aldic probe` writes it
     final = csv.read_text().splitlines()
     assert len(final) == 4 and final[0] == rows[0] and final[3] == rows[2]
+
+
+def test_reference_kept_between_frames_changes_no_number(frames):
+    # track keeps the reference's spline, gradients, noise, speckle quality and lags
+    # between frames (correlate's solver_cache); a fresh correlate of one frame from
+    # the same guess must give the very same result
+    from napari_aldic.engine import correlate
+
+    seq = track(np.stack(frames[:3]))
+    fresh = correlate(frames[0], frames[2], guess=seq[1])
+    for name in ("u", "v", "dudx", "dvdy", "zncc", "u_std", "sssig"):
+        assert np.array_equal(getattr(fresh, name), getattr(seq[2], name), equal_nan=True), name
+    assert np.array_equal(fresh.reason, seq[2].reason)

@@ -43,6 +43,10 @@ class LiveModel:
     """
 
     def __init__(self):
+        self._thread: threading.Thread | None = None
+        self._reset()
+
+    def _reset(self) -> None:
         self.results: list = []
         self.strains: list = []
         self.files: list = []
@@ -55,7 +59,6 @@ class LiveModel:
         self.run_dir: Path | None = None
         self._queue: queue.Queue = queue.Queue()
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
     @property
     def running(self) -> bool:
@@ -70,7 +73,7 @@ class LiveModel:
         """Watch ``folder`` into ``run_dir`` (``options``: those of ``watch``)."""
         if self.running:
             raise RuntimeError("a watch is already running")
-        self.__init__()
+        self._reset()
         self.params, self.strain, self.reference = params, strain, reference
         self.run_dir = Path(run_dir)
 

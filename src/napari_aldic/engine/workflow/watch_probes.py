@@ -73,7 +73,8 @@ class LiveProbes:
     fields: tuple = DEFAULT_FIELDS
     strain: object = None
     grace: float = 3.0
-    pending: list = field(default_factory=list)  # (frame, result, monotonic time measured)
+    #: rows waiting for the load: (frame, result, time measured, load file stamp tried)
+    pending: list = field(default_factory=list)
     written: list = field(default_factory=list)  # frames with a row in the CSV
     _record: object = None
     _stamp: tuple | None = None
@@ -105,17 +106,21 @@ class LiveProbes:
 
     def add(self, k: int, res: DICResult) -> None:
         """Frame ``k`` was measured: its row is written now or when the load reaches it."""
-        self.pending.append((int(k), res, time.monotonic()))
+        self.pending.append((int(k), res, time.monotonic(), None))
         self.tick()
 
     def tick(self) -> None:
-        """Read a changed load file again and write the rows that are ready."""
+        """Read a changed load file again and write the rows that are ready
+        (a waiting row is measured again only when the load file changed)."""
         self._reload()
         while self.pending:
-            k, res, t = self.pending[0]
-            table = self._table(res)
+            k, res, t, tried = self.pending[0]
             late = time.monotonic() - t > self.grace
+            if not late and tried is not None and tried == self._stamp:
+                return  # nothing new since this row last waited
+            table = self._table(res)
             if self.load is not None and not late and _load_missing(table):
+                self.pending[0] = (k, res, t, self._stamp)
                 return  # the load record has not reached this frame yet
             self._append(probe_csv_lines(table))
             self.written.append(k)
