@@ -24,6 +24,7 @@ from .._analysis import Analysis, StrainSettings
 from ..engine import compute_strain, load_result, watch
 from ..i18n import tr
 from .controls import Panel
+from .results import geometry_of, prepare
 
 __all__ = ["LiveModel", "LivePanel", "LIVE_LAYER"]
 
@@ -36,10 +37,13 @@ TICK_MS = 150
 class LiveModel:
     """A watch in a background thread and what it measured so far (no Qt).
 
-    ``start(...)`` runs :func:`~napari_aldic.engine.watch`; :meth:`drain`
-    (main thread) moves the queued frames into ``results``/``strains``/
-    ``files`` and returns whether anything new came; ``follow`` says whether
-    the display should jump to the newest frame.
+    ``start(...)`` runs :func:`~napari_aldic.engine.watch`. The watch thread
+    also computes each frame's strain and, given ``display``, the result
+    layers' data (:func:`~.results.prepare`: the viewer's thread then only
+    puts them in, however many frames there are). :meth:`drain` (main thread)
+    takes the newest state (``analysis``, ``prepared``, ``files``) and returns
+    whether anything new came; ``follow`` says whether the display should
+    jump to the newest frame.
     """
 
     def __init__(self):
@@ -47,16 +51,16 @@ class LiveModel:
         self._reset()
 
     def _reset(self) -> None:
-        self.results: list = []
-        self.strains: list = []
+        self.analysis: Analysis | None = None
+        self.prepared = None
         self.files: list = []
-        self.params = None
-        self.strain = StrainSettings()
-        self.reference = "accumulative"
+        self.display = None  # the dock's display options, set by the panel
+        self.geometry = None  # the frames layer's world transform, set by the panel
         self.follow = True
         self.error = ""
         self.report = None
         self.run_dir: Path | None = None
+        self._work: tuple = ([], [])  # the watch thread's results and strains
         self._queue: queue.Queue = queue.Queue()
         self._stop = threading.Event()
 
@@ -65,17 +69,21 @@ class LiveModel:
         return self._thread is not None and self._thread.is_alive()
 
     @property
+    def results(self) -> list:
+        return [] if self.analysis is None else self.analysis.results
+
+    @property
     def newest(self) -> int:
         return len(self.results) - 1
 
     def start(self, folder, run_dir, params, strain: StrainSettings,
-              reference: str = "accumulative", **options) -> None:
+              reference: str = "accumulative", display=None, **options) -> None:
         """Watch ``folder`` into ``run_dir`` (``options``: those of ``watch``)."""
         if self.running:
             raise RuntimeError("a watch is already running")
         self._reset()
-        self.params, self.strain, self.reference = params, strain, reference
-        self.run_dir = Path(run_dir)
+        self.run_dir, self.display = Path(run_dir), display
+        self._setup = (params, strain, reference)
 
         def target():
             try:
@@ -91,17 +99,33 @@ class LiveModel:
         self._thread.start()
 
     def _measured(self, k: int, res, info: dict) -> None:
-        """Watch thread: frame ``k`` is on disk; its strain is computed here too."""
-        s = self.strain
-        strain = compute_strain(res, window=s.window, method=s.method, measure=s.measure)
-        self._queue.put((k, res, strain, list(info["files"])))
+        """Watch thread: frame ``k`` is on disk; its strain and layer data are made here."""
+        params, s, reference = self._setup
+        results, strains = self._work
+        if not results:  # frame 0, the reference: its zero field from the run folder
+            ref = load_result(self.run_dir / "frame_00000.npz")
+            results.append(ref)
+            strains.append(compute_strain(ref, window=s.window, method=s.method,
+                                          measure=s.measure))
+        while len(results) <= k:
+            results.append(None)
+            strains.append(None)
+        results[k] = res
+        strains[k] = compute_strain(res, window=s.window, method=s.method, measure=s.measure)
+        n = len(results)
+        analysis = Analysis(list(results), list(strains), list(range(n)), n, params, reference,
+                            s, source=str(self.run_dir))
+        display, geometry = self.display, self.geometry
+        prepared = None if display is None or geometry is None else \
+            prepare(analysis, geometry, display)
+        self._queue.put((analysis, prepared, list(info["files"])))
 
     def stop(self) -> None:
         self._stop.set()
 
     def drain(self) -> bool:
-        """Take the queued frames (main thread); True when something new came
-        (a frame, or the end of the watch)."""
+        """Take the newest queued state (main thread); True when something
+        new came (a frame, or the end of the watch)."""
         new = False
         while True:
             try:
@@ -109,29 +133,12 @@ class LiveModel:
             except queue.Empty:
                 return new
             new = True
-            if item is None:
-                continue
-            k, res, strain, files = item
-            self.files = files
-            if not self.results:  # frame 0, the reference: its zero field from the folder
-                ref = load_result(self.run_dir / "frame_00000.npz")
-                self.results, self.strains = [ref], [compute_strain(ref)]
-            while len(self.results) <= k:
-                self.results.append(None)
-                self.strains.append(None)
-            self.results[k], self.strains[k] = res, strain
+            if item is not None:
+                self.analysis, self.prepared, self.files = item
 
     def user_moved(self, frame: int) -> None:
         """The user moved the time slider to ``frame``: follow only on the newest."""
         self.follow = frame >= self.newest
-
-    def analysis(self) -> Analysis | None:
-        """The frames so far as the dock shows an analysis (None before frame 1)."""
-        if len(self.results) < 2:
-            return None
-        n = len(self.results)
-        return Analysis(list(self.results), list(self.strains), list(range(n)), n,
-                        self.params, self.reference, self.strain, source=str(self.run_dir))
 
 
 def frames_stack(files: list, first: np.ndarray):
@@ -198,7 +205,7 @@ class LivePanel(Panel):
         strain = StrainSettings(**{k: v for k, v in (strain or {}).items()
                                    if k in ("window", "method", "measure")})
         self._first = None
-        self.model.start(folder, run, params, strain, reference)
+        self.model.start(folder, run, params, strain, reference, display=self._display())
         self.start_button.enabled, self.stop_button.enabled = False, True
         self.state.value = tr("Watching {folder} (waiting for frames)...").format(folder=folder)
         self._timer.start()
@@ -229,10 +236,14 @@ class LivePanel(Panel):
     def _update(self) -> None:
         m = self.model
         layer = self._frames_layer()
-        analysis = m.analysis()
-        if analysis is not None:
-            self._results.analysis, self._results.image = analysis, layer
-            self._results.show(self._display(), layer)
+        if m.analysis is not None and len(m.results) > 1:
+            self._results.analysis, self._results.image = m.analysis, layer
+            display = m.display = self._display()  # a change applies from the next frame
+            if m.prepared is not None and m.prepared.display == display:
+                for _ in self._results.steps(m.prepared):  # made in the watch thread
+                    pass
+            else:
+                self._results.show(display, layer)
         self.state.value = tr("Live: frame {k} of {folder}, {trusted:.0%} of the nodes "
                               "trusted").format(k=m.newest, folder=Path(self.folder.value).name,
                                                 trusted=m.results[-1].n_valid /
@@ -252,7 +263,9 @@ class LivePanel(Panel):
             layer = self._viewer.layers[LIVE_LAYER]
             layer.data = data
             return layer
-        return self._viewer.add_image(data, name=LIVE_LAYER, colormap="gray")
+        layer = self._viewer.add_image(data, name=LIVE_LAYER, colormap="gray")
+        self.model.geometry = geometry_of(layer)  # the watch thread's result layers follow it
+        return layer
 
     def _go_to(self, k: int) -> None:
         self._viewer.dims.set_point(0, float(k))
