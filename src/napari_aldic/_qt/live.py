@@ -172,6 +172,8 @@ class LivePanel(Panel):
     def _setup_ui(self) -> None:
         self.folder = FileEdit(mode="d", label=tr("Camera folder"))
         self.run_dir = FileEdit(mode="d", label=tr("Run folder"))
+        for edit in (self.folder, self.run_dir):  # magicgui's own button text is English
+            edit.choose_btn.text = tr("Choose folder...")
         self.start_button = PushButton(text=tr("Start live"))
         self.stop_button = PushButton(text=tr("Stop"), enabled=False)
         self.state = Label(value=tr("Not watching."))
