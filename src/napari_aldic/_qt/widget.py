@@ -30,6 +30,7 @@ from .export import ExportPanel
 from .inputs import InputsPanel
 from .language import LanguageSelector, apply_ui_language
 from .layout import divider, sections_area
+from .live import LivePanel
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
 from .settings import SettingsPanel
@@ -65,6 +66,7 @@ SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
             (tr_noop("5. Display"), "display", True),
             (tr_noop("6. Export"), "exports", False),
             (tr_noop("Project and parameters"), "settings", False),
+            (tr_noop("Live (watch a camera folder)"), "live", False),
             (tr_noop("Log"), "log", True))
 
 
@@ -97,6 +99,9 @@ class DICWidget(Container):
         self.settings = SettingsPanel(self.inputs, self.correlation, self.strain_panel,
                                       self.units, self.display, log=self.run_panel.write_log,
                                       apply_units=self._apply_units, viewer=self._viewer)
+        self.live = LivePanel(self._viewer, lambda: (  # issue 26: live mode, its own panel
+            self._current_params(), self.strain_panel.as_dict(),
+            self.correlation.reference.value), self._display_options, self._results)
         self.language = LanguageSelector()
         self.settings.append(self.language)
         for panel, names in CONTROLS.items():

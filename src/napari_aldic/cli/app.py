@@ -26,12 +26,14 @@ from .parser import build_parser
 from .probe import probe_command
 from .run import run_command
 from .sem import sem_calibrate_command, sem_drift_command
+from .watch import watch_command
 
 #: command name -> function(args) returning the exit code (None: 0)
 COMMANDS = {"demo": demo_command, "run": run_command, "export": export_command,
             "params": params_command, "probe": probe_command, "advise": advise_command,
             "noise-floor": noise_floor_command,
-            "sem-calibrate": sem_calibrate_command, "sem-drift": sem_drift_command}
+            "sem-calibrate": sem_calibrate_command, "sem-drift": sem_drift_command,
+            "watch": watch_command}
 
 
 def main(argv: list[str] | None = None, restore_sigint=None) -> int:

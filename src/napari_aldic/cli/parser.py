@@ -75,6 +75,14 @@ TEXTS = {
                 "reference); the scan timing comes from the FEI/Zeiss metadata or "
                 "--dwell/--line-time. Use the file with 'napari-aldic run --drift FILE'. "
                 "See docs/sem.md.")),
+    "watch": (
+        tr_noop("live DIC: analyse frames as a camera writes them into a folder"),
+        tr_noop("Watch FOLDER and correlate every frame file once it is complete (the first "
+                "one, in natural order, is the reference) into the run folder RUN_DIR, the "
+                "format of 'run' (rerun the same command to resume). Prints one line per "
+                "frame; with --probes, a probe CSV grows a row per frame. Ends after "
+                "--idle-timeout seconds without a new frame, or on Ctrl+C. See "
+                "docs/live.md.")),
 }
 
 
@@ -113,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_noise_floor(sub)
     add_sem_calibrate(sub)
     add_sem_drift(sub)
+    add_watch(sub)
     return parser
 
 
@@ -409,3 +418,59 @@ def add_sem_drift(sub) -> None:
     dr.add_argument("--distortion", type=Path, metavar="DISTORTION.json",
                     help=tr("correct the series for this distortion calibration first"))
     add_param_options(dr)
+def add_watch(sub) -> None:
+    """``napari-aldic watch`` (issue 26)."""
+    w = _command(sub, "watch")
+    w.add_argument("folder", type=Path, metavar="FOLDER", help=tr("folder the camera writes into"))
+    w.add_argument("-o", "--output", type=Path, metavar="RUN_DIR",
+                   help=tr("run folder (sequence.json + frame_#####.npz), resumed by the same "
+                           "command"))
+    w.add_argument("--pattern", metavar="GLOB",
+                   help=tr("frame file names, e.g. 'img_*.tif' (default: every image file)"))
+    w.add_argument("--roi", type=Path, metavar="MASK",
+                   help=tr("ROI mask: image file (nonzero = analysed) or .npy array"))
+    add_param_options(w)
+    w.add_argument("--reference", choices=REFERENCE_MODES, default="accumulative",
+                   help=tr("correlate every frame against frame 0 (accumulative) or against "
+                           "the previous frame (incremental); results refer to frame 0"))
+    w.add_argument("--idle-timeout", type=float, dest="idle_timeout", metavar="SECONDS",
+                   help=tr("stop after SECONDS without a new frame (default: wait until "
+                           "Ctrl+C)"))
+    w.add_argument("--poll", type=float, default=0.05, metavar="SECONDS",
+                   help=tr("seconds between looks at the folder (default 0.05)"))
+    w.add_argument("--settle", type=float, default=0.25, metavar="SECONDS",
+                   help=tr("a frame file counts as complete when it decodes and its size and "
+                           "time stayed unchanged this long (default 0.25)"))
+    w.add_argument("--stall", type=float, default=10.0, metavar="SECONDS",
+                   help=tr("skip a file that stays unreadable this long while later frames "
+                           "are complete (default 10; empty files are always waited for)"))
+    w.add_argument("--max-frames", type=int, dest="max_frames", metavar="N",
+                   help=tr("stop after N frames, the reference included"))
+    xy = {"type": float, "action": "append"}
+    w.add_argument("--probes", type=Path, metavar="FILE.json",
+                   help=tr("probes from a file (as 'probe --probes'), measured at every frame"))
+    w.add_argument("--line", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
+                   help=tr("line gauge between two points, px (repeat for more)"))
+    w.add_argument("--point", nargs=2, metavar=("X", "Y"), **xy, help=tr("point probe, px"))
+    w.add_argument("--area", nargs=4, metavar=("X0", "Y0", "X1", "Y1"), **xy,
+                   help=tr("rectangular area probe, px"))
+    w.add_argument("--circle", nargs=3, metavar=("CX", "CY", "R"), **xy,
+                   help=tr("circular area probe, px"))
+    w.add_argument("--field", nargs="+", dest="fields", metavar="FIELD",
+                   help=tr("fields of point and area probes (default u v exx eyy exy)"))
+    w.add_argument("--probe-csv", type=Path, dest="probe_csv", metavar="OUT.csv",
+                   help=tr("probe CSV, a row appended per frame (the columns of 'probe')"))
+    w.add_argument("--load", type=Path, metavar="LOAD.csv",
+                   help=tr("testing-machine CSV, read again as it grows"))
+    w.add_argument("--load-column", dest="load_column", metavar="NAME",
+                   help=tr("name of the load column (default: found by name)"))
+    w.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
+                   help=tr("cross-section in mm² (stress = load / A in MPa)"))
+    w.add_argument("--sync", choices=("frame", "time"),
+                   help=tr("match load rows to frames by a frame column, or by time = "
+                           "frame / fps + offset (default: frame when the file has one)"))
+    w.add_argument("--fps", type=float, metavar="F", help=tr("camera frames per second"))
+    w.add_argument("--offset", type=float, default=0.0, metavar="S",
+                   help=tr("time of frame 0 on the load file's clock, s (default 0)"))
+    add_unit_options(w)
+    add_strain_options(w)

@@ -48,6 +48,8 @@ from .viz.report import export_report
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
+from .workflow.watch import watch
+from .workflow.watch_probes import LiveProbes
 
 __all__ = [
     # analysis
@@ -67,6 +69,8 @@ __all__ = [
     "io", "viz", "synthetic", "probes",
     # HRDIC in the SEM (issue 27; calibration in engine.sem)
     "sem", "correlate_sem", "correct_distortion",
+    # live DIC (issue 26)
+    "watch", "LiveProbes",
 ]
 
 #: names this module exported before the engine was split into subpackages;

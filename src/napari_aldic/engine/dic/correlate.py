@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
+from ..core.files import array_digest
 from ..core.images import as_gray_float, validate_pair, validate_roi
 from ..core.params import DICParams
 from ..core.progress import CancelFn, check_cancel
@@ -118,13 +119,12 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     """
     t_start = time.perf_counter()
     params = _merge_params(params, subset, step, method, kwargs)
-    if guess is not None and not isinstance(guess, DICResult):
-        raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
-                        f"{type(guess).__name__}")
+    _check_guess(guess)
     report, timing = _reporter(progress, cancel), {}  # timing: stage -> seconds
     f, g, mask, params = _validated(reference, deformed, roi, params)
     ref_spec = resolve_refinement(refine if refine is not None else params.refine)
-    im, base, grid, qmesh = _prepare(f, g, mask, ref_spec, params, timing, report)
+    im, base, grid, qmesh = _prepare(f, g, mask, ref_spec, params, timing, report,
+                                     _reference_cache(solver_cache, reference))
     meta = {"versions": _versions(),
             "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
     with _numba_threads(params.n_threads):
@@ -137,6 +137,12 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
     report(1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
+
+
+def _check_guess(guess) -> None:
+    if guess is not None and not isinstance(guess, DICResult):
+        raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
+                        f"{type(guess).__name__}")
 
 
 def _reporter(progress, cancel):
@@ -156,7 +162,18 @@ def _validated(reference, deformed, roi, params: DICParams):
     return f, g, validate_roi(roi, f.shape), params.fitted_to(f.shape)
 
 
-def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
+def _reference_cache(solver_cache: dict | None, reference) -> dict | None:
+    """The part of ``solver_cache`` kept for this reference image (the same
+    array object as in the last call; it must not change in place)."""
+    if solver_cache is None:
+        return None
+    held = solver_cache.get("reference")
+    if held is None or held[0] is not reference:
+        held = solver_cache["reference"] = (reference, {})
+    return held[1]
+
+
+def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report, ref_cache=None):
     """Node grid (with the quadtree when refining) and the interpolating splines."""
     t = time.perf_counter()
     base = make_grid(mask, params.subset, params.step)
@@ -164,7 +181,8 @@ def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
     timing["setup"] = time.perf_counter() - t
     report(0.05, f"{grid.n} nodes")
     t = time.perf_counter()
-    im = prepare_images(f, g, params.interpolation, params.extra.get("jacobian_sigma"))
+    im = prepare_images(f, g, params.interpolation, params.extra.get("jacobian_sigma"),
+                        ref_cache)
     timing["prefilter"] = time.perf_counter() - t
     report(0.15, "interpolation ready")
     return im, base, grid, qmesh
@@ -312,7 +330,8 @@ def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPara
     stats = SubsetStats.empty(grid.n)
     image_var = params.extra.get("image_var")  # a tiled run's, of the whole pair
     if image_var is None:
-        image_var = 0.5 * (image_noise(im.f, roi) ** 2 + image_noise(im.g, roi) ** 2)
+        f_noise = im.memo(("noise", array_digest(roi)), lambda: image_noise(im.f, roi))
+        image_var = 0.5 * (f_noise ** 2 + image_noise(im.g, roi) ** 2)
     timing["validity"] = time.perf_counter() - t
     return Validity(stats, image_var, gradient_noise_gain(im.g_spline.order), params)
 
@@ -343,7 +362,7 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          # the steepest-descent images IC-GN (and AL-DIC's local
                          # step) matched with, when smoothed
                          jacobian=None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma),
-                         aldic=aldic)
+                         aldic=aldic, memo=im.memo if im.ref_cache is not None else None)
     timing["quality"] = time.perf_counter() - t
     return out
 

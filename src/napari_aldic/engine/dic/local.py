@@ -69,20 +69,42 @@ class Images:
     jgx: np.ndarray | None = None
     jgy: np.ndarray | None = None
     j_sigma: float = 0.0
+    #: what was computed from the reference image alone, kept for the next
+    #: pair with the same reference (a sequence's frames); None: not kept
+    ref_cache: dict | None = None
+
+    def memo(self, key, compute: Callable):
+        """``compute()``, or its value for ``key`` kept from an earlier pair
+        with this reference (the inputs of ``compute`` must be in ``key``
+        unless they are the reference image itself)."""
+        if self.ref_cache is None:
+            return compute()
+        if key not in self.ref_cache:
+            self.ref_cache[key] = compute()
+        return self.ref_cache[key]
 
 
 def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
-                   jacobian_sigma: float | None = None) -> Images:
+                   jacobian_sigma: float | None = None, ref_cache: dict | None = None) -> Images:
     """Prefilter once: reference gradients and deformed-image coefficients
     (``interpolation="auto"`` picks the order from the speckle size);
     ``jacobian_sigma``: the smoothing of the steepest-descent images (px)
     when chosen beforehand on the whole reference (tiled runs), else chosen
-    on ``f`` (:func:`~.interpolation.jacobian_smoothing`)."""
-    order = choose_order(interpolation, f)
-    fgx, fgy = reference_gradients(prefilter(f, order))
-    sigma = jacobian_smoothing(f) if jacobian_sigma is None else float(jacobian_sigma)
-    jgx, jgy = steepest_descent_gradients(f, order, sigma)
-    return Images(f, g, fgx, fgy, prefilter(g, order), jgx, jgy, sigma)
+    on ``f`` (:func:`~.interpolation.jacobian_smoothing`). ``ref_cache``: a
+    dictionary kept while the reference image stays the same (``correlate``'s
+    ``solver_cache``), where the reference's spline and gradients are kept."""
+    im = Images(f, g, None, None, None, ref_cache=ref_cache)
+
+    def reference():
+        order = choose_order(interpolation, f)
+        fgx, fgy = reference_gradients(prefilter(f, order))
+        sigma = jacobian_smoothing(f) if jacobian_sigma is None else float(jacobian_sigma)
+        return (order, fgx, fgy, sigma) + tuple(steepest_descent_gradients(f, order, sigma))
+
+    order, im.fgx, im.fgy, im.j_sigma, im.jgx, im.jgy = im.memo(
+        ("images", interpolation, jacobian_sigma), reference)
+    im.g_spline = prefilter(g, order)
+    return im
 
 
 class _State:

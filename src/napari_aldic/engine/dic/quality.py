@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from ..core.files import array_digest
 from ..kernels.covariance import covariance_diag, gather_matrices, mean_noise_factor
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms, window_moments
 from .interpolation import (
@@ -427,7 +428,8 @@ def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "
 
 
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
-                   shape_function: str = "affine", jacobian=None, aldic=None) -> dict:
+                   shape_function: str = "affine", jacobian=None, aldic=None,
+                   memo=None) -> dict:
     """The quality fields ``correlate`` stores with a result: ``sssig``,
     ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
     subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
@@ -436,14 +438,22 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     and the smoothing (px) they were made with.
     ``aldic``: an :class:`~.uncertainty_aldic.ADMMLinearisation` of the run
     when ``u``, ``v`` are AL-DIC's local estimates: ``u_std``, ``v_std`` then
-    describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`)."""
+    describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`).
+    ``memo``: :meth:`~.local.Images.memo` of the pair, which keeps the speckle
+    quality (the reference's alone) for the next pair with this reference."""
     xi = np.rint(np.asarray(x, float)).astype(np.int64)
     yi = np.rint(np.asarray(y, float)).astype(np.int64)
     sd_images = jacobian if jacobian is not None else gradients
     if zncc is None:
         jacobian = None
-    q = speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function, order=order,
-                        gradients=gradients, jacobian=jacobian)
+
+    def quality():
+        return speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function,
+                               order=order, gradients=gradients, jacobian=jacobian)
+    key = ("speckle", array_digest(np.asarray(roi)) if roi is not None else None,
+           array_digest(xi), array_digest(yi), subset, shape_function, order,
+           None if jacobian is None else float(jacobian[2]))
+    q = quality() if memo is None else memo(key, quality)
     out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)

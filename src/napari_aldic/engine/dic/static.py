@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import fft as sp_fft
 
+from ..core.files import array_digest
 from ..core.reasons import Reason
 from ..kernels.static import lag_peaks, static_evidence
 
@@ -216,7 +217,8 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     """Per node (n,) the height of the highest isolated second peak of the
     reference subset's autocorrelation within ``params.search`` (``-inf``
     where there is none or the node is not ``active``)."""
-    tile, ys, xs, lags = candidate_lags(im.f, roi, params.subset, params.search)
+    tile, ys, xs, lags = im.memo(("lags", array_digest(roi), params.subset, params.search),
+                                 lambda: candidate_lags(im.f, roi, params.subset, params.search))
     if not lags.any():
         return np.full(grid.n, -np.inf)  # nothing repeats: no per-node search
     cand, ncand = _node_candidates(grid, tile, ys, xs, lags, np.asarray(active), params.half)

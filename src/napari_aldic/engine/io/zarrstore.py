@@ -148,6 +148,21 @@ class FieldStore:
         os.rename(tmp, self.path)
         return zarr.open_group(str(self.path), mode="r+")
 
+    def extend(self, frames: list[int], run_id: str) -> None:
+        """Grow the store to the analysed ``frames`` (the old ones first, as
+        before) of a run whose identity is now ``run_id`` (``watch``: frames
+        are added as they arrive); the new frames are not done."""
+        frames = list(frames)
+        if frames[:len(self.frames)] != self.frames:
+            raise ValueError(f"{self.path}: frames {frames} do not extend {self.frames}")
+        n = len(frames)
+        for name in STORE_FIELDS + ("valid", "reason"):
+            self.group[name].resize((n,) + self.grid_shape)
+        for name in _PER_FRAME:
+            self.group[name].resize((n,))
+        self.frames = frames
+        self.group.attrs.update({"run_id": run_id, "frames": frames})
+
     def write(self, i: int, res) -> None:
         """Write the fields of ``frames[i]`` (its result ``res``); call
         :meth:`mark_done` once its result file is on disk."""

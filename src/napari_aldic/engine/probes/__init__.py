@@ -27,7 +27,7 @@ from .measure import (
     probe_frames,
 )
 from .sampling import DEGRADED, MISSING, OK, STATUS_NAMES, FrameSampler, Sampled
-from .table import Column, ProbeTable, export_probes_csv
+from .table import Column, ProbeTable, export_probes_csv, probe_csv_lines
 
 __all__ = [
     # probes
@@ -40,6 +40,7 @@ __all__ = [
     "read_load_csv", "LoadRecord", "load_at_frames", "attach_load", "LOAD_UNITS",
     # exports
     "export_probes_csv", "export_kymograph_csv", "export_probe_plot", "export_kymograph_plot",
+    "probe_csv_lines",
     # drawing (matplotlib axes)
     "draw_probe_curves", "draw_stress_strain", "draw_kymograph", "probe_figure",
 ]

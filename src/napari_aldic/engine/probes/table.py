@@ -20,7 +20,7 @@ from ..io.columns import software_name
 from .geometry import ProbeSet
 from .sampling import MISSING, OK, STATUS_NAMES
 
-__all__ = ["Column", "ProbeTable", "export_probes_csv"]
+__all__ = ["Column", "ProbeTable", "export_probes_csv", "probe_csv_lines"]
 
 
 @dataclass
@@ -195,6 +195,25 @@ def export_probes_csv(table: ProbeTable, path, *, sidecar: bool = True) -> Path:
     so the CSV itself stays one header line and one row per frame.
     """
     path = target_path(path, (".csv", ".txt"))
+    lines = probe_csv_lines(table)
+    with atomic_write(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    if sidecar:
+        units = {"frame": "", **({"time": table.units.time_unit}
+                                 if table.times is not None else {}), **table.units_of()}
+        meta = {"software": software_name(), "csv": path.name, "units": units,
+                "length_unit": table.units.unit, "settings": table.units.to_dict(),
+                "status_words": {"ok": "trusted", "degraded": "computed, read with care "
+                                 "(see the reason)", "missing": "no value (empty cell)"},
+                "probes": table.probes.to_dict(), "info": _plain(table.info)}
+        with atomic_write(path.with_suffix(".json")) as tmp:
+            tmp.write_text(json.dumps(meta, indent=1, ensure_ascii=False), encoding="utf-8")
+    return path
+
+
+def probe_csv_lines(table: ProbeTable) -> list[str]:
+    """The lines of :func:`export_probes_csv`'s CSV: the header, then one row
+    per frame (a live watch appends rows one by one)."""
     groups = table.groups()
     header = ["frame"] + (["time"] if table.times is not None else [])
     for g, names in groups.items():
@@ -209,16 +228,4 @@ def export_probes_csv(table: ProbeTable, path, *, sidecar: bool = True) -> Path:
             row += [_cell(table.columns[n].values[i]) for n in names]
             row += [STATUS_NAMES[int(status[g][0][i])], _quoted(status[g][1][i])]
         lines.append(",".join(row))
-    with atomic_write(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    if sidecar:
-        units = {"frame": "", **({"time": table.units.time_unit}
-                                 if table.times is not None else {}), **table.units_of()}
-        meta = {"software": software_name(), "csv": path.name, "units": units,
-                "length_unit": table.units.unit, "settings": table.units.to_dict(),
-                "status_words": {"ok": "trusted", "degraded": "computed, read with care "
-                                 "(see the reason)", "missing": "no value (empty cell)"},
-                "probes": table.probes.to_dict(), "info": _plain(table.info)}
-        with atomic_write(path.with_suffix(".json")) as tmp:
-            tmp.write_text(json.dumps(meta, indent=1, ensure_ascii=False), encoding="utf-8")
-    return path
+    return lines

@@ -2,7 +2,7 @@
 
 The frame pairs do not depend on each other, so they run concurrently; the
 client composes their increments back to frame 0 in frame order (``run``:
-the ``_SequenceRun`` of :mod:`.sequence`).
+the ``SequenceRun`` of :mod:`.sequence`).
 
 On a dask cluster nothing large travels with a task:
 

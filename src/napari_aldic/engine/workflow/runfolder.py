@@ -147,10 +147,7 @@ def check_or_create(out: Path, info: dict) -> None:
                 f"{out} holds result files ({', '.join(results[:3])}"
                 f"{', ...' if len(results) > 3 else ''}) but no {MANIFEST}: results of "
                 "another analysis. Choose an empty folder", out)
-        doc = {"format": FORMAT, "format_version": FORMAT_VERSION, "software": __version__,
-               **info, "run_id": run_id(info)}
-        with atomic_write(manifest) as tmp:
-            tmp.write_text(json.dumps(doc, indent=1))
+        write_manifest(out, info)
         return
     try:
         old = read_json_file(manifest, "run manifest")
@@ -176,6 +173,19 @@ def check_or_create(out: Path, info: dict) -> None:
         raise RunFolderError(
             f"{out} holds results of a different analysis: {'; '.join(changed)}. Choose an "
             "empty folder, or rerun with the same inputs and settings to resume", out)
+
+
+def write_manifest(out: Path, info: dict) -> str:
+    """Write (or replace, atomically) the manifest of run folder ``out`` for
+    the identity ``info``; returns its run id. A growing run (``watch``)
+    rewrites it as frames are added."""
+    info = _plain(info)
+    rid = run_id(info)
+    doc = {"format": FORMAT, "format_version": FORMAT_VERSION, "software": __version__,
+           **info, "run_id": rid}
+    with atomic_write(out / MANIFEST) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1))
+    return rid
 
 
 # ----------------------------------------------------------------- differences

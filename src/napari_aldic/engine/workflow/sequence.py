@@ -57,7 +57,7 @@ from .runfolder import (
     stack_record,
 )
 
-__all__ = ["track", "TrackError", "RunFolderError"]
+__all__ = ["track", "TrackError", "RunFolderError", "SequenceRun", "Chain"]
 
 _ON_DISK = object()  # a finished frame kept only in the run folder
 
@@ -243,7 +243,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
     idx = frame_numbers(frames, len(src))
-    run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
+    run = SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
                        dict(meta or {}), progress or (lambda k, frac, msg: None), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
@@ -254,9 +254,11 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
 
 
 @dataclass
-class _SequenceRun:
+class SequenceRun:
     """One ``track`` run: its frames, the results so far (index ``i`` of
-    ``idx``), and how a frame's increment becomes its frame-0 result."""
+    ``idx``), and how a frame's increment becomes its frame-0 result. A run
+    whose frames arrive while it runs (``watch``) grows with :meth:`extend`
+    and correlates them one by one with :meth:`step`."""
 
     src: object  # the frame source (open_stack)
     idx: list  # analysed frame numbers, idx[0] == 0
@@ -511,35 +513,69 @@ class _SequenceRun:
                 if m and self._users[m] <= 0:
                     self.results[m] = _ON_DISK
 
+    def extend(self, k: int) -> int:
+        """Append frame ``k`` (after the last one) to a growing run; returns
+        its index. The field store and the manifest are the caller's."""
+        self.idx.append(int(k))
+        self.results.append(None)
+        i = self._pos[int(k)] = len(self.idx) - 1
+        j = self._pos[self.ref_of(i)]
+        self._users[j] += 1
+        if self.results[j] is _ON_DISK:  # composed with frame k: needed in memory
+            self.results[j] = self.load_frame(j)
+        return i
+
     def serial(self, todo: list[int], ref_img, cancel) -> bool:
         """Correlate the frames of ``todo`` one after the other, each from the
         previous increment of its reference block; ``ref_img`` is frame 0.
         Returns True if cancelled."""
-        ref_k, prev_inc, before = 0, None, None
-        solvers: dict = {}  # AL-DIC global factor, reused while the mesh stays
+        chain = Chain(ref_img=ref_img)
         for i in todo:
             if cancel is not None and cancel():
                 return True
-            r, k = self.ref_of(i), self.idx[i]
             if i - 1 not in todo and i > 1:
-                prev_inc = before = None  # previous frame came from disk: no increment
-            self.report(k, (i - 1) / (len(self.idx) - 1), f"frame {k} against frame {r}")
+                chain.prev = chain.before = None  # previous frame came from disk
             try:  # cancel also stops promptly inside a frame
-                if r != ref_k:
-                    ref_k, ref_img, prev_inc, before = r, self.src[r], None, None
-                img = self.src[k]
-                inc = correlate(ref_img, img, roi=self.roi_on(r), params=self.params,
-                                guess=_extrapolated(prev_inc, before), refine=self.refine,
-                                cancel=cancel,
-                                solver_cache=solvers)
+                self.step(i, chain, cancel)
             except Cancelled:
                 return True
-            except Exception as exc:  # a bad frame: keep what is finished
-                raise self.failed(k, exc) from exc
-            inc.meta[IMAGE_DIGEST] = array_digest(img)  # checked when the run resumes
-            prev_inc, before = inc, prev_inc
-            self.finish(i, inc)
         return False
+
+    def step(self, i: int, chain: Chain, cancel=None) -> DICResult:
+        """Correlate ``idx[i]`` from the guess ``chain`` holds (updated), then
+        compose, save and announce it (:meth:`finish`); returns its increment.
+        Raises :class:`~napari_aldic.engine.Cancelled` or :class:`TrackError`."""
+        r, k = self.ref_of(i), self.idx[i]
+        self.report(k, (i - 1) / max(len(self.idx) - 1, 1), f"frame {k} against frame {r}")
+        try:
+            if r != chain.ref_k:
+                chain.ref_k, chain.ref_img, chain.prev, chain.before = r, self.src[r], None, None
+            img = self.src[k]
+            inc = correlate(chain.ref_img, img, roi=self.roi_on(r), params=self.params,
+                            guess=_extrapolated(chain.prev, chain.before), refine=self.refine,
+                            cancel=cancel, solver_cache=chain.solvers)
+        except Cancelled:
+            raise
+        except Exception as exc:  # a bad frame: keep what is finished
+            raise self.failed(k, exc) from exc
+        inc.meta[IMAGE_DIGEST] = array_digest(img)  # checked when the run resumes
+        chain.prev, chain.before = inc, chain.prev
+        self.finish(i, inc)
+        return inc
+
+
+@dataclass
+class Chain:
+    """What serial correlation carries from frame to frame: the reference
+    frame and image, the last two increments against it (the next frame's
+    guess, :func:`_extrapolated`), and the AL-DIC solver cache (the global
+    factor, reused while the mesh stays)."""
+
+    ref_k: int = 0
+    ref_img: object = None
+    prev: DICResult | None = None
+    before: DICResult | None = None
+    solvers: dict = field(default_factory=dict)
 
 
 def _extrapolated(prev: DICResult | None, before: DICResult | None) -> DICResult | None:
