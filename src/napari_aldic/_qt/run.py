@@ -36,6 +36,8 @@ STEP_PAUSE_MS = 15
 DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
+#: progress events written to the log (the others move the bar only)
+LOGGED_STAGES = ("frame_done", "frame_loaded", "stopped", "strain")
 
 
 def format_seconds(s: float) -> str:
@@ -80,6 +82,7 @@ class RunPanel(Panel):
         self._cancel = threading.Event()
         self._t0 = 0.0
         self._frac = 0.0
+        self._eta: tuple | None = None  # (seconds left, when the engine said so)
         self._n_deformed = 0
         self._problems: tuple[list, list] = ([], [])
         #: each step of showing the last run's results: (start, end) in
@@ -183,7 +186,7 @@ class RunPanel(Panel):
         worker.errored.connect(self._on_errored)
         worker.finished.connect(self._on_finished)
         self._worker, self._worker_done = worker, False
-        self._t0, self._frac = time.perf_counter(), 0.0
+        self._t0, self._frac, self._eta = time.perf_counter(), 0.0, None
         self._set_running(True)
         self.progress.value = 0
         self._show_time()
@@ -211,20 +214,20 @@ class RunPanel(Panel):
         done = int(round(frac * self._n_deformed))
         parts = [tr("{done}/{total} frames").format(done=done, total=self._n_deformed),
                  tr("{time} elapsed").format(time=format_seconds(elapsed))]
-        if 0 < frac < 1:
-            parts.append(tr("about {time} left").format(
-                time=format_seconds(elapsed * (1 - frac) / frac)))
+        if 0 < frac < 1 and self._eta is not None:  # the engine's estimate
+            left = self._eta[0] - (time.perf_counter() - self._eta[1])  # counts down
+            parts.append(tr("about {time} left").format(time=format_seconds(left)))
         if self.preparing and frac == 0:
             parts.append(tr(PREPARING))
         self.eta.value = " · ".join(parts)
 
-    def _on_progress(self, item) -> None:
-        frame, frac, msg = item
-        self._frac = float(min(max(frac, 0.0), 1.0))
+    def _on_progress(self, event) -> None:
+        self._frac = float(min(max(event.fraction, 0.0), 1.0))
+        self._eta = None if event.eta_s is None else (event.eta_s, time.perf_counter())
         self.progress.value = int(round(1000 * self._frac))
         self._show_time()
-        if "done" in msg or "strain" in msg:
-            self.write_log(msg)
+        if event.stage in LOGGED_STAGES:
+            self.write_log(str(event))
 
     def _on_returned(self, outcome) -> None:
         from napari.utils.notifications import show_info
