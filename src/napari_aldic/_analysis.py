@@ -24,6 +24,7 @@ from .engine import (
     DICResult,
     ProgressEvent,
     Refinement,
+    StrainParams,
     TrackError,
     compute_strain,
     resolve_refinement,
@@ -37,13 +38,9 @@ __all__ = ["Analysis", "StrainSettings", "Job", "run_analysis", "run_in_thread",
 ProgressFn = Callable[[ProgressEvent], None]
 
 
-@dataclass(frozen=True)
-class StrainSettings:
-    """How strain is computed from each frame's displacement field."""
-
-    window: int = 5
-    method: str = "plane_fit"
-    measure: str = "green_lagrange"
+#: how strain is computed from each frame's displacement field (the engine's defaults)
+StrainSettings = StrainParams
+_STRAIN = StrainParams()
 
 
 @dataclass
@@ -125,7 +122,7 @@ def _relative_frames(n: int, start: int, stop: int, stride: int) -> list[int]:
 def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
                  start: int = 0, stop: int | None = None, stride: int = 1,
                  brush: np.ndarray | None = None,
-                 strain: StrainSettings | None = StrainSettings(),
+                 strain: StrainSettings | None = _STRAIN,
                  progress: ProgressFn | None = None, cancel: Callable[[], bool] | None = None,
                  source: str = "") -> Analysis:
     """Track frames ``start, start + stride, ... <= stop`` of ``stack`` against

@@ -310,7 +310,7 @@ class RunPanel(Panel):
     def _on_errored(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
 
-        msg = with_explanation(str(exc) or exc.__class__.__name__)
+        msg = with_explanation(exc)
         self.write_log(tr("ERROR: {msg}").format(msg=msg))
         self.eta.value = tr("failed (see log)")
         show_error(f"napari-aldic: {msg}")

@@ -299,7 +299,7 @@ class DICWidget(Container):
             job = self._job()
         except Exception as exc:
             show_error(tr("napari-aldic: could not prepare the run: {exc}").format(
-                exc=with_explanation(str(exc))))
+                exc=with_explanation(exc)))
             self.run_panel.write_log(tr("ERROR preparing the run: {exc}").format(exc=exc))
             return
         self._remember()

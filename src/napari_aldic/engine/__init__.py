@@ -28,9 +28,9 @@ import warnings
 
 from . import io, probes, synthetic, viz
 from .core.files import EncoderNotFoundError, ExportError, RunFolderError
-from .core.params import DICParams
+from .core.params import DICParams, StrainParams
 from .core.progress import Cancelled, ProgressEvent
-from .core.reasons import Reason
+from .core.reasons import DICError, Reason
 from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
 from .core.units import Units
@@ -50,7 +50,7 @@ from .workflow.tiled import correlate_tiled, needs_tiling
 __all__ = [
     # analysis
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
-    "Settings", "Refinement",
+    "Settings", "Refinement", "StrainParams",
     "resolve_refinement", "Cancelled", "ProgressEvent",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
@@ -59,7 +59,7 @@ __all__ = [
     "load_run", "open_stack",
     # files
     "export_result", "export_report", "save_params", "load_params",
-    "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
+    "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError", "DICError",
     # subpackages
     "io", "viz", "synthetic", "probes",
 ]

@@ -57,8 +57,9 @@ def _versions() -> dict[str, str]:
             "scipy": scipy.__version__, "numba": numba.__version__}
 
 
-def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
-              method: str = "local", *, params: DICParams | None = None,
+def correlate(reference, deformed, roi=None, subset: int | None = None,
+              step: int | None = None, method: str | None = None, *,
+              params: DICParams | None = None,
               refine=None, guess: DICResult | None = None,
               progress: ProgressFn | None = None, cancel: CancelFn | None = None,
               solver_cache: dict | None = None, **kwargs) -> DICResult:
@@ -71,15 +72,17 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     roi : (H, W) bool array or None
         Region of interest, True where material is analysed; holes and
         cracks False. None analyses the whole image.
-    subset : int
-        Odd full subset width in pixels (31 -> 31 x 31).
-    step : int
-        Node spacing in pixels.
-    method : {"local", "aldic"}
-        Local IC-GN, or augmented Lagrangian DIC.
+    subset : int, optional
+        Odd full subset width in pixels (31 -> 31 x 31); default
+        :class:`~napari_aldic.engine.DICParams`' (31).
+    step : int, optional
+        Node spacing in pixels (default 8, from ``DICParams``).
+    method : {"local", "aldic"}, optional
+        Local IC-GN (the default), or augmented Lagrangian DIC.
     params : DICParams, optional
-        All parameters at once; ``subset``, ``step``, ``method`` and
-        ``kwargs`` then override its fields only when given explicitly.
+        All parameters at once. ``subset``, ``step``, ``method`` and
+        ``kwargs`` given explicitly override its fields, always (also when
+        equal to the default).
     refine : None, "light", "medium", "strong", Refinement or dict
         Adaptive quadtree refinement of the mesh (see
         :mod:`napari_aldic.engine.dic.quadtree`); overrides ``params.refine``.
@@ -119,7 +122,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     (0.4, -0.2)
     """
     t_start = time.perf_counter()
-    params = _merge_params(params, subset, step, method, kwargs)
+    params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     if guess is not None and not isinstance(guess, DICResult):
         raise TypeError("guess must be a DICResult (e.g. the previous frame's result), not "
                         f"{type(guess).__name__}")
@@ -256,18 +259,6 @@ def reference_result(image, roi=None, params: DICParams | None = None,
                              zncc=None, u=None, v=None, grad=None,
                              shape_function=getattr(params, "shape_function", "affine"))
     return _assemble(sol, grid, img.shape, params, meta, mask, quality)
-
-
-def _merge_params(params, subset, step, method, kwargs) -> DICParams:
-    """One validated DICParams from ``params`` and explicit arguments."""
-    if params is None:
-        return DICParams(subset=subset, step=step, method=method, **kwargs)
-    changes = dict(kwargs)
-    defaults = DICParams()
-    for name, val in (("subset", subset), ("step", step), ("method", method)):
-        if val != getattr(defaults, name):
-            changes[name] = val
-    return params.replace(**changes) if changes else params
 
 
 def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: dict,

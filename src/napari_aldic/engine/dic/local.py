@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core.params import DICParams
-from ..core.reasons import Reason
+from ..core.reasons import DICError, Reason
 from .icgn import icgn_solve
 from .init_guess import ncc_search_widening
 from .interpolation import (
@@ -236,8 +236,8 @@ def _seed_nodes(st: _State) -> np.ndarray:
     for sx, sy in seeds:
         ix, iy = int(round(sx)), int(round(sy))
         if not (0 <= ix < cols and 0 <= iy < rows) or not roi[iy, ix]:
-            raise ValueError(f"seed ({sx:g}, {sy:g}) is outside the ROI; place seeds on "
-                             "analysed material")
+            raise DICError("seed_outside_roi", f"seed ({sx:g}, {sy:g}) is outside the ROI; "
+                           "place seeds on analysed material", x=sx, y=sy)
         seed_region.append(labels[iy, ix])
     node_region = labels[grid.y, grid.x]
     for r in np.unique(node_region[st.usable]):
@@ -281,8 +281,8 @@ def _propagate_seeds(st: _State) -> None:
     if missing.size:  # perhaps a large rotation
         solved[_rotated_rescue(st, missing, zmin, whole, all_nodes=True)] = True
     if not solved.any():
-        raise ValueError("no seed could be matched in the deformed image; move the seeds to "
-                         "well-textured material")
+        raise DICError("no_seed_match", "no seed could be matched in the deformed image; "
+                       "move the seeds to well-textured material")
     tries = _grow(st, lattice_neighbours(st.grid, st.roi, radius=1), solved, st.usable,
                   zmin, max_tries=1)
     # unreachable from any seed through converged nodes

@@ -159,9 +159,10 @@ class TrackError(ValueError):
         self.frame = frame
 
 
-def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
-          reference: str = "accumulative", *, update_every: int | None = None,
-          rois=None, frames=None, out_dir=None, params: DICParams | None = None,
+def track(stack, roi=None, subset: int | None = None, step: int | None = None,
+          method: str | None = None, reference: str = "accumulative", *,
+          update_every: int | None = None, rois=None, frames=None, out_dir=None,
+          params: DICParams | None = None,
           scheduler=None, workers: int | None = None, refine=None, meta: dict | None = None,
           progress: Callable[[ProgressEvent], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
@@ -173,6 +174,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     stack : (T, H, W) array, dask array, TIFF stack path or image folder
     roi : (H, W) bool, optional
         ROI in frame 0 (holes and cracks False).
+    subset, step, method, params, **kwargs
+        As for :func:`~napari_aldic.engine.correlate`: arguments given
+        explicitly override ``params``, always.
     reference : {"accumulative", "incremental"}
     update_every : int, optional
         With ``"accumulative"``: use frame N, 2N, ... as the new reference.
@@ -233,8 +237,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     if update_every is not None and (update_every < 1 or reference != "accumulative"):
         raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
     src = open_stack(stack)
-    if params is None:
-        params = DICParams(subset=subset, step=step, method=method, **kwargs)
+    params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     idx = frame_numbers(frames, len(src))
     run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
                        dict(meta or {}), event_callback(progress, "track"), on_frame)
