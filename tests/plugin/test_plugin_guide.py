@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
+from napari_aldic._qt import DICWidget
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -47,6 +47,7 @@ def _open_guide(viewer):
                             edge_color="yellow", edge_width=2)
     crack = viewer.add_shapes([np.array([(y, x) for x, y in GUIDE_CRACK], float)],
                               shape_type="path", name="crack", edge_color="red", edge_width=3)
+    widget.roi_subtract.value = [crack]  # the guide's step: the crack is chosen as a hole
     viewer.reset_view()
     return image, widget, roi, crack
 

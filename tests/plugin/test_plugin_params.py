@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
+from napari_aldic._qt import DICWidget
 from napari_aldic.engine import DICParams, Units, save_params
 from napari_aldic.engine.io import load_settings
 

@@ -15,16 +15,13 @@ from psygnal import Signal
 from ..engine import DICParams
 from ..i18n import tr
 from .controls import Panel, Plan, put
+from .model import DEFAULT_PARAMS, PARAM_CONTROLS
 
 __all__ = ["CorrelationPanel", "PARAM_CONTROLS"]
 
-#: the controls' starting values: the engine's defaults (the method excepted: the dock
-#: starts on AL-DIC, the more robust of the two for a first analysis)
-DEFAULTS = DICParams(method="aldic")
+#: the controls' starting values (the model's: the engine's defaults but the method)
+DEFAULTS = DEFAULT_PARAMS
 
-#: DICParams fields that the panel shows (the others are kept from a loaded file)
-PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth",
-                  "shape_function")
 
 
 class CorrelationPanel(Panel):

@@ -15,7 +15,7 @@ import numpy as np
 from ..engine import DICError, Reason, RunFolderError
 from ..i18n import tr, tr_noop
 
-__all__ = ["reason_text", "error_code", "explain_error", "with_explanation",
+__all__ = ["message", "reason_text", "error_code", "explain_error", "with_explanation",
            "result_summary", "REASON_TEXTS", "ERROR_HINTS"]
 
 #: reason code -> the engine's English text (translated where shown)
@@ -37,6 +37,14 @@ ERROR_HINTS = {
     "run_folder": tr_noop("The run folder cannot be used: choose another output folder."),
     "memory": tr_noop("Not enough memory: analyse a smaller region or fewer frames."),
 }
+
+
+def message(exc: BaseException) -> str:
+    """One line describing an error."""
+    msg = str(exc) or exc.__class__.__name__
+    if isinstance(exc, FileNotFoundError) and not str(exc).strip():
+        msg = tr("no such file: {filename}").format(filename=exc.filename)
+    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
 
 def reason_text(code: int) -> str:

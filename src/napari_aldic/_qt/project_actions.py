@@ -14,6 +14,8 @@ from pathlib import Path
 
 from ..engine import Settings
 from ..i18n import tr, tr_noop
+from .explain import message
+from .model import DockModel
 from .project import (
     image_record,
     is_probe_layer,
@@ -39,12 +41,19 @@ def _same_path(layer, path) -> bool:
 
 
 class ProjectActions:
-    """Project files for a :class:`~.settings.SettingsPanel` (``panel``) in ``viewer``."""
+    """Project files of the dock's :class:`~.model.DockModel` and its layers.
 
-    def __init__(self, panel, inputs, correlation, display, viewer,
-                 log: Callable[[str], None]):
-        self._panel, self._viewer, self._log = panel, viewer, log
-        self._inputs, self._correlation, self._display = inputs, correlation, display
+    A document is the model's :meth:`~.model.DockModel.storable` plus the image
+    and the layers with their roles. ``parent`` is the panel that applies a
+    document's settings to the controls (``apply``, ``set_init``,
+    ``set_display``) and places the file dialogs (``start_folder``, ``stem``);
+    it is passed in, never imported (no cycle).
+    """
+
+    def __init__(self, model: DockModel, inputs, viewer, log: Callable[[str], None], *,
+                 parent):
+        self._model, self._panel, self._viewer, self._log = model, parent, viewer, log
+        self._inputs = inputs
 
     # ------------------------------------------------------------ saving
     def document(self) -> dict:
@@ -68,13 +77,11 @@ class ProjectActions:
             if is_probe_layer(lay) and id(lay) not in seen:
                 records.append(layer_record(lay, "probe"))
         return {"software": f"napari-aldic {__version__}", "image": image_record(img),
-                **self._panel.storable(), "layers": records}
+                **self._model.storable(), "layers": records}
 
     def save(self, path) -> Path | None:
         """Write the project file ``path``; ``None`` after an error notification."""
         from napari.utils.notifications import show_error
-
-        from .settings import message
 
         try:
             written = write_project(path, self.document())
@@ -92,8 +99,6 @@ class ProjectActions:
         """Open the project file ``path``; ``False`` after an error notification."""
         from napari.utils.notifications import show_error
 
-        from .settings import message
-
         try:
             doc = read_project(path)
             settings = Settings.from_dict(doc.get("settings") or {})
@@ -109,8 +114,8 @@ class ProjectActions:
         self._panel.apply(settings, str(path), "fft")
         self._add_layers(doc.get("layers", []))
         if init == "seeds" and self._inputs.seeds.value is not None:
-            self._correlation.init.value = "seeds"
-        self._display.set_choices(doc.get("display") or {})
+            self._panel.set_init("seeds")
+        self._panel.set_display(doc.get("display") or {})
         self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
                      "layer(s)").format(
                          path=path, image_name=image.name, n_get=len(doc.get('layers', []))))

@@ -36,6 +36,8 @@ STEP_PAUSE_MS = 15
 DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
+#: the status line while a run computes or shows its results
+RUNNING = tr_noop("Running…")
 #: progress events written to the log (the others move the bar only)
 LOGGED_STAGES = ("frame_done", "frame_loaded", "stopped", "strain")
 
@@ -114,11 +116,18 @@ class RunPanel(Panel):
         self.log.native.setMinimumHeight(80)
         self._clock = QTimer(self.native)
         self._clock.setInterval(500)  # elapsed time moves between frames too
+        # the next display step: a timer owned by the panel dies with it (a bare
+        # singleShot would call into a closed panel and abort napari)
+        self._step_timer = QTimer(self.native)
+        self._step_timer.setSingleShot(True)
+        self._closed = False
+        self._final = ""
 
     def _setup_callbacks(self) -> None:
         self.run_button.changed.connect(self.run_requested.emit)
         self.cancel_button.changed.connect(self.cancel)
         self._clock.timeout.connect(self._show_time)
+        self._step_timer.timeout.connect(lambda: self._drive(self._final))
 
     # ------------------------------------------------------------ state
     @property
@@ -140,7 +149,9 @@ class RunPanel(Panel):
         self._problems = (list(errors), list(warnings))
         lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
         lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warnings]
-        if not errors:
+        if self._running:  # never "Ready." while a run computes or shows its results
+            lines.insert(0, "<span style='color:#8ab4f8'>" + tr(RUNNING) + "</span>")
+        elif not errors:
             lines.insert(0, "<span style='color:#6bd66b'>" + tr("Ready.") + "</span>")
         if self.preparing:
             lines.insert(0, f"<span style='color:#8ab4f8'>{tr(PREPARING)}</span>")
@@ -203,7 +214,31 @@ class RunPanel(Panel):
     def stopper(self) -> Callable[[], None]:
         """A function that asks a run to stop after its frame (the widget is
         closed); it works while the panel is torn down."""
-        return self._cancel.set
+        return self.shutdown
+
+    def shutdown(self) -> None:
+        """The dock or the viewer closes: stop the run after its frame, stop the
+        timers and the display, and disconnect the worker, so that nothing calls
+        into the closed panel (it works while the panel is torn down)."""
+        self._closed = True
+        self._cancel.set()
+        self._steps = None
+        worker = self._worker
+        if worker is not None:
+            for signal, slot in ((worker.yielded, self._on_progress),
+                                 (worker.returned, self._on_returned),
+                                 (worker.errored, self._on_errored),
+                                 (worker.finished, self._on_finished)):
+                try:
+                    signal.disconnect(slot)
+                except (TypeError, RuntimeError):  # gone already
+                    pass
+        for timer in (self._clock, self._step_timer):
+            try:
+                timer.stop()
+            except RuntimeError:  # deleted with the panel
+                pass
+        gc.unfreeze()  # see _frozen_gc
 
     def _show_time(self) -> None:
         """Frames done, time elapsed and left (also between frames: the clock)."""
@@ -274,8 +309,8 @@ class RunPanel(Panel):
     def _drive(self, final: str) -> None:
         """One step of showing the results; the next one in the next turn of the
         event loop."""
-        from qtpy.QtCore import QTimer
-
+        if self._closed:
+            return
         try:
             if self._steps is not None:
                 t0, c0 = time.perf_counter(), time.thread_time()
@@ -286,8 +321,8 @@ class RunPanel(Panel):
                                                time.thread_time() - c0))
                 # a pause: the event loop (paint, input) runs between two steps, and a
                 # layer just made visible is drawn before the next one is added
-                pause = DRAW_PAUSE_MS if hint == "draw" else STEP_PAUSE_MS
-                QTimer.singleShot(pause, lambda: self._drive(final))
+                self._final = final
+                self._step_timer.start(DRAW_PAUSE_MS if hint == "draw" else STEP_PAUSE_MS)
                 return
         except StopIteration:
             pass
