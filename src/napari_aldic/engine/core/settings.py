@@ -1,7 +1,7 @@
 """The analysis settings: parameters, units, strain and tracking in one type.
 
 A settings file (written by ``napari-aldic params``, ``run --params-out``, the
-widget's "Save parameters" or :func:`~napari_aldic.engine.save_params`) is the
+widget's "Save parameters" or :func:`~napari_aldic.engine.write_settings`) is the
 JSON form of :class:`Settings`::
 
     {"format": "napari-aldic-settings", "format_version": 1,
