@@ -117,7 +117,7 @@ class DICParams:
         component containing the node must keep; smaller ones are flagged.
     refine : {None, "light", "medium", "strong"}, default None
         Adaptive quadtree refinement preset (``correlate(refine=...)`` also
-        takes a full :class:`~napari_aldic.engine.quadtree.Refinement`).
+        takes a full :class:`~napari_aldic.engine.dic.quadtree.Refinement`).
     mu : float, default 0.1
         AL-DIC displacement penalty, dimensionless: the local step's penalty
         stiffness is ``mu`` times the subset's mean Gauss-Newton stiffness.
