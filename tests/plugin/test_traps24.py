@@ -201,3 +201,65 @@ def test_trap18_closing_the_viewer_mid_run_or_mid_display_never_aborts(tmp_path)
     assert proc.returncode == 0, out[-3000:]
     assert "closed mid-run" in out and "closed mid-display" in out
     assert "Fatal Python error" not in out and "wrapped C/C++ object" not in out
+
+
+# ------------------------------------------------------------------ 6
+def test_trap06_the_display_section_grows_with_its_legend(make_napari_viewer_proxy, qtbot,
+                                                         speckle_stack):
+    from napari_aldic.engine import Reason
+
+    viewer = make_napari_viewer_proxy(show=True)
+    viewer.add_image(speckle_stack(3, SHAPE), name="speckle")
+    w = _dock(viewer)
+    box = w.sections["5. Display"]
+    assert box.isExpanded()
+    qtbot.wait(50)
+    w.display.set_legend({int(r): 10 + int(r) for r in list(Reason)[1:10]})  # 9 reasons
+    content = box.content()  # superqt's content frame of the section
+    # the open section is as tall as its panel needs (superqt fixes it when it opens)
+    qtbot.waitUntil(lambda: content.maximumHeight() >= content.sizeHint().height(),
+                    timeout=3000)
+    legend = w.display.legend.native
+    qtbot.waitUntil(lambda: legend.height() >= legend.heightForWidth(legend.width()),
+                    timeout=3000)  # every reason shown, none clipped
+
+
+# ------------------------------------------------------------------ 12
+def test_trap12_the_export_note_says_the_restored_units(make_napari_viewer_proxy, tmp_path,
+                                                       speckle_stack):
+    import tifffile
+
+    tif = tmp_path / "stack.tif"
+    tifffile.imwrite(tif, speckle_stack(3, SHAPE), photometric="minisblack")
+    viewer = make_napari_viewer_proxy()
+    viewer.open(str(tif), plugin="napari-aldic")
+    w = _dock(viewer)
+    w.unit.value, w.pixel_size.value = "mm", 0.02
+    assert "mm" in w.exports.units_note.value
+    path = w.save_project(tmp_path / "analysis")
+    other = make_napari_viewer_proxy()
+    w2 = _dock(other)
+    assert "px" in w2.exports.units_note.value
+    assert w2.open_project(path)
+    assert w2.model.units is not None and w2.model.units.unit == "mm"
+    assert "mm" in w2.exports.units_note.value and "Lengths in px" not in \
+        w2.exports.units_note.value
+
+
+# ------------------------------------------------------------------ 17
+def test_trap17_folded_sections_point_right(make_napari_viewer_proxy):
+    from napari_aldic._qt.layout import COLLAPSED, EXPANDED
+
+    w = DICWidget(make_napari_viewer_proxy())
+    folded, open_ = w.sections["3. Strain"], w.sections["1. Images and region"]
+    assert not folded.isExpanded() and open_.isExpanded()
+    assert (COLLAPSED, EXPANDED) == ("▶", "▼")
+    icon = folded.toggleButton().icon()
+    assert not icon.isNull()
+    # the icon superqt draws from the glyph: compare with one drawn from "▲"
+    from superqt import QCollapsible
+
+    up = QCollapsible("x", collapsedIcon="▲")
+    right = QCollapsible("x", collapsedIcon="▶")
+    img = lambda b: b.toggleButton().icon().pixmap(16, 16).toImage()  # noqa: E731
+    assert img(folded) == img(right) and img(folded) != img(up)

@@ -8,14 +8,16 @@ line, Run, Cancel and the progress stay in view.
 
 from __future__ import annotations
 
-from qtpy.QtCore import QEvent, QSize, Qt
+from qtpy.QtCore import QEvent, QObject, QSize, Qt
 from qtpy.QtWidgets import QComboBox, QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
 from ..i18n import tr
 
-__all__ = ["sections_area", "divider", "Section"]
+__all__ = ["sections_area", "divider", "Section", "EXPANDED", "COLLAPSED"]
 
+#: the marks of an open and a folded section
+EXPANDED, COLLAPSED = "▼", "▶"
 #: ``(title, widget, expanded)``
 Section = tuple[str, QWidget, bool]
 
@@ -44,6 +46,21 @@ class _Scroll(QScrollArea):
         return self._wide(super().sizeHint())
 
 
+class _Refit(QObject):
+    """Keeps an open section as tall as its panel needs: superqt fixes the height
+    of an open section when it opens, so a panel that grows later (the Display
+    legend after a run) was clipped until folded and unfolded again."""
+
+    def __init__(self, box: QCollapsible):
+        super().__init__(box)
+        self._box = box
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
+        if event.type() == QEvent.Type.LayoutRequest and self._box.isExpanded():
+            self._box.expand(animate=False)
+        return False
+
+
 def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QCollapsible]]:
     """A scroll area holding one collapsible section per ``(title, widget,
     expanded)``; returns it and the sections by title."""
@@ -53,10 +70,12 @@ def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QColl
     layout.setSpacing(0)
     found: dict[str, QCollapsible] = {}
     for title, widget, expanded in sections:
-        box = QCollapsible(tr(title))  # the English title stays the key
+        # "▶" folded, "▼" open (superqt's "▲" for a folded section reads as "open above")
+        box = QCollapsible(tr(title), expandedIcon=EXPANDED, collapsedIcon=COLLAPSED)
         box.setDuration(0)  # no animation: the scroll area resizes at once
         box.layout().setContentsMargins(0, 0, 0, 4)
         box.addWidget(widget)
+        widget.installEventFilter(_Refit(box))
         if expanded:
             box.expand(animate=False)
         else:

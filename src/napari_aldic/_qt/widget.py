@@ -120,6 +120,9 @@ class DICWidget(Container):
         for panel in (self.correlation, self.strain_panel, self.units, self.display):
             panel.changed.connect(self._write_model)  # any control of the panel
         self._write_model()
+        # the export note says the model's units, whichever way they changed
+        self.model.changed.connect(lambda part: self.exports.refresh() if part == "units"
+                                   else None)
         self.inputs.image.changed.connect(self._on_image_changed)
         self.inputs.inputs_changed.connect(self._validate)
         self.inputs.seeds_assigned.connect(self._use_seeds)
@@ -251,8 +254,7 @@ class DICWidget(Container):
         if self.inputs.image_layer is None:
             return
         inputs = self.inputs.input_layers
-        # probe layers are drawn on the image too: they rescale with it (else every probe
-        # reads "outside the image" after a pixel size is set)
+        # probe layers lie on the image too: they rescale with it (trap 3 of issue 24)
         probes = [lay for lay in self._viewer.layers
                   if is_probe_layer(lay) and not any(lay is x for x in inputs)]
         self.units.apply_to([*inputs, *probes], self._results.layers)
