@@ -16,6 +16,8 @@ from ..i18n import tr
 
 __all__ = ["sections_area", "divider", "Section", "EXPANDED", "COLLAPSED"]
 
+#: the least height of the sections' scroll area (about four rows of controls)
+MIN_ROWS_PX = 120
 #: the marks of an open and a folded section
 EXPANDED, COLLAPSED = "▼", "▶"
 #: ``(title, widget, expanded)``
@@ -26,15 +28,16 @@ class _Scroll(QScrollArea):
     """A vertical scroll area at least as wide as its content needs, so that the
     dock never cuts controls off at the right."""
 
-    def _wide(self, hint: QSize) -> QSize:
+    def _wide(self, hint: QSize, tall: int = 0) -> QSize:
         inner = self.widget()
         if inner is None:
             return hint
         need = inner.minimumSizeHint().width() + self.verticalScrollBar().sizeHint().width()
-        return QSize(max(hint.width(), need + 2 * self.frameWidth()), hint.height())
+        return QSize(max(hint.width(), need + 2 * self.frameWidth()), max(hint.height(), tall))
 
     def minimumSizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
-        return self._wide(super().minimumSizeHint())
+        # a few rows of controls always in view, also beside another dock (the probes)
+        return self._wide(super().minimumSizeHint(), MIN_ROWS_PX)
 
     def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
         # the content's needs changed (e.g. a long layer name): ask the dock again
@@ -43,7 +46,9 @@ class _Scroll(QScrollArea):
         return super().eventFilter(obj, event)
 
     def sizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
-        return self._wide(super().sizeHint())
+        inner = self.widget()
+        tall = min(inner.sizeHint().height(), 700) if inner is not None else 0
+        return self._wide(super().sizeHint(), tall)
 
 
 class _Refit(QObject):

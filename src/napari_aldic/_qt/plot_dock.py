@@ -115,7 +115,8 @@ class ProbePlotDock(QWidget):
         load_box.setLayout(load_form)
         self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
         self.canvas = FigureCanvasQTAgg(self.figure)
-        self.canvas.setMinimumHeight(320)
+        # small enough that the DIC dock above keeps several rows (1600 x 1000, both docks)
+        self.canvas.setMinimumHeight(140)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
