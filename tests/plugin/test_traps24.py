@@ -263,3 +263,23 @@ def test_trap17_folded_sections_point_right(make_napari_viewer_proxy):
     right = QCollapsible("x", collapsedIcon="▶")
     img = lambda b: b.toggleButton().icon().pixmap(16, 16).toImage()  # noqa: E731
     assert img(folded) == img(right) and img(folded) != img(up)
+
+
+# ------------------------------------------------------------------ 4
+def test_trap04_a_long_load_description_never_widens_the_probes_dock(
+        make_napari_viewer_proxy, qtbot, tmp_path, speckle_stack):
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    viewer = make_napari_viewer_proxy(show=True)
+    viewer.add_image(speckle_stack(3, SHAPE), name="speckle")
+    dock = ProbePlotDock(viewer)
+    viewer.window.add_dock_widget(dock, area="right", name="Probes")
+    before = dock.minimumSizeHint().width()
+    load = tmp_path / ("testing_machine_export_of_the_long_fatigue_campaign_" * 4 + ".csv")
+    load.write_text("Frame;Force\n(-);(kN)\n0;0,0\n1;1,2\n2;2,4\n", encoding="utf-8")
+    assert dock.load_csv(load, area_mm2=12.0)
+    assert len(dock.load_label.text()) > 60  # the description is long
+    qtbot.wait(50)
+    # the label's own minimum would be its longest word (~1500 px here): it is not asked for
+    assert dock.load_label.minimumSizeHint().width() > 600
+    assert dock.minimumSizeHint().width() < max(400, before + 60) and dock.width() < 600
