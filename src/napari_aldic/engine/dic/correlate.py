@@ -72,17 +72,14 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
     roi : (H, W) bool array or None
         Region of interest, True where material is analysed; holes and
         cracks False. None analyses the whole image.
-    subset : int, optional
-        Odd full subset width in pixels (31 -> 31 x 31); default
-        :class:`~napari_aldic.engine.DICParams`' (31).
-    step : int, optional
-        Node spacing in pixels (default 8, from ``DICParams``).
+    subset, step : int, optional
+        Odd full subset width (31 -> 31 x 31) and node spacing in pixels
+        (defaults: :class:`~napari_aldic.engine.DICParams`', 31 and 8).
     method : {"local", "aldic"}, optional
         Local IC-GN (the default), or augmented Lagrangian DIC.
     params : DICParams, optional
-        All parameters at once. ``subset``, ``step``, ``method`` and
-        ``kwargs`` given explicitly override its fields, always (also when
-        equal to the default).
+        All parameters at once; ``subset``, ``step``, ``method`` and
+        ``kwargs`` given explicitly override its fields, always.
     refine : None, "light", "medium", "strong", Refinement or dict
         Adaptive quadtree refinement of the mesh (see
         :mod:`napari_aldic.engine.dic.quadtree`); overrides ``params.refine``.
@@ -94,9 +91,7 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
         cross-correlation or seed guess; nodes that then fail are rescued as
         usual. ``track`` passes the previous frame.
     progress : callable(ProgressEvent), optional
-        Called as the analysis advances with a
-        :class:`~napari_aldic.engine.ProgressEvent` (``str(event)`` is its
-        text); a 0.1 callback ``(fraction, message)`` still works (deprecated).
+        Called as the analysis advances; 0.1's ``(fraction, message)`` is deprecated.
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.

@@ -162,8 +162,8 @@ class TrackError(ValueError):
 def track(stack, roi=None, subset: int | None = None, step: int | None = None,
           method: str | None = None, reference: str = "accumulative", *,
           update_every: int | None = None, rois=None, frames=None, out_dir=None,
-          params: DICParams | None = None,
-          scheduler=None, workers: int | None = None, refine=None, meta: dict | None = None,
+          params: DICParams | None = None, scheduler=None, workers: int | None = None,
+          refine=None, meta: dict | None = None,
           progress: Callable[[ProgressEvent], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
@@ -174,9 +174,7 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
     stack : (T, H, W) array, dask array, TIFF stack path or image folder
     roi : (H, W) bool, optional
         ROI in frame 0 (holes and cracks False).
-    subset, step, method, params, **kwargs
-        As for :func:`~napari_aldic.engine.correlate`: arguments given
-        explicitly override ``params``, always.
+    subset, step, method, params, **kwargs : as for ``correlate`` (explicit ones win)
     reference : {"accumulative", "incremental"}
     update_every : int, optional
         With ``"accumulative"``: use frame N, 2N, ... as the new reference.
@@ -184,13 +182,12 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
         Per-frame ROI of the *reference* image used for frame k (e.g. a
         growing crack); the frame-0 ROI defaults to ``roi``.
     frames : sequence of int, optional
-        Frames to analyse (must start with 0 and increase); default all.
+        Frames to analyse (starting with 0, increasing); default all.
     out_dir : path, optional
-        A run folder: each frame is written as it finishes (``frame_#####.npz``
-        and the field store ``fields.zarr``) and a rerun resumes. The folder is
-        locked while written; a folder of another analysis, or whose inputs
-        changed, is refused (:mod:`~napari_aldic.engine.workflow.runfolder`).
-        Only frames later frames are composed with stay in memory.
+        A run folder: each frame is written as it finishes (``frame_#####.npz``,
+        ``fields.zarr``) and a rerun resumes; locked while written, refused when
+        of another analysis or its inputs changed (``workflow.runfolder``). Only
+        frames later frames are composed with stay in memory.
     scheduler : None, "threads", "processes", a ``dask.distributed.Client`` or its address
         ``None``: frames one after the other, each started from the previous
         field. Otherwise frames run concurrently (threads, a local cluster of
@@ -206,12 +203,8 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
     progress : callable(ProgressEvent), optional
-        Called with a :class:`~napari_aldic.engine.ProgressEvent` when a frame
-        starts, is loaded from ``out_dir`` or is done, and at the stages of
-        each frame's ``correlate`` (serial runs); ``event.frame`` is the
-        frame number in ``stack``, ``event.fraction`` the share of the run
-        done, ``event.eta_s`` the time left. A 0.1 callback ``(frame,
-        fraction, message)`` still works (deprecated; frame events only).
+        Each frame's start, end (or load) and correlation stages, ``event.frame``
+        its number in ``stack``; 0.1's ``(frame, fraction, message)`` is deprecated.
     on_frame : callable(frame, result), optional
         Called with each frame's final (frame-0 referenced) result as soon as
         it is computed, e.g. to save or display it.
@@ -243,8 +236,7 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
                        dict(meta or {}), event_callback(progress, "track"), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
-    info = run.identity()
-    with run_folder(out_dir, info) as out:
+    with run_folder(out_dir, info := run.identity()) as out:
         run.out, run.run_id = out, run_id(info)
         return run.execute(stack, scheduler, workers, cancel)
 
