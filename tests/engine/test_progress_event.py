@@ -64,3 +64,17 @@ def test_callbacks_of_0_1_get_the_text_with_a_deprecation_warning(stack):
     assert seq == [(1, 0.0, "frame 1 against frame 0"), seq[1], (2, 0.5, "frame 2 against "
                                                                   "frame 0"), seq[3]]
     assert seq[1][2].startswith("frame 1 done: ") and seq[3][:2] == (2, 1.0)
+
+
+def test_a_callback_needing_one_argument_gets_the_event_without_a_warning(stack):
+    import warnings
+
+    seen: list = []
+
+    def report(event, extra=None):  # a second argument with a default is not needed
+        seen.append(event)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        correlate(stack[0], stack[1], progress=report, **FAST)
+    assert seen and all(isinstance(e, ProgressEvent) for e in seen)

@@ -225,7 +225,7 @@ def test_trap06_the_display_section_grows_with_its_legend(make_napari_viewer_pro
 
 
 # ------------------------------------------------------------------ 12
-def test_trap12_the_export_note_says_the_restored_units(make_napari_viewer_proxy, tmp_path,
+def test_trap11_12_a_reopened_analysis_in_its_units_and_in_view(make_napari_viewer_proxy, tmp_path,
                                                        speckle_stack):
     import tifffile
 
@@ -234,6 +234,7 @@ def test_trap12_the_export_note_says_the_restored_units(make_napari_viewer_proxy
     viewer = make_napari_viewer_proxy()
     viewer.open(str(tif), plugin="napari-aldic")
     w = _dock(viewer)
+    viewer.add_shapes([_rect(10, 10, 80, 80)], shape_type="rectangle", name="ROI")
     w.unit.value, w.pixel_size.value = "mm", 0.02
     assert "mm" in w.exports.units_note.value
     path = w.save_project(tmp_path / "analysis")
@@ -241,6 +242,12 @@ def test_trap12_the_export_note_says_the_restored_units(make_napari_viewer_proxy
     w2 = _dock(other)
     assert "px" in w2.exports.units_note.value
     assert w2.open_project(path)
+    # trap 11: the restored layers in the image's unit, and the image in view
+    img2, [roi2] = w2.image.value, w2.roi_add.value
+    assert [str(u) for u in roi2.units] == [str(u) for u in img2.units][-2:]
+    assert "mm" in str(roi2.units[-1]) or "millimeter" in str(roi2.units[-1])
+    centre = np.asarray(other.camera.center)[-2:]
+    assert np.allclose(centre, 0.02 * (SHAPE[0] - 1) / 2, atol=0.05)
     assert w2.model.units is not None and w2.model.units.unit == "mm"
     assert "mm" in w2.exports.units_note.value and "Lengths in px" not in \
         w2.exports.units_note.value

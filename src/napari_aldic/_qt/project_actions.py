@@ -112,10 +112,11 @@ class ProjectActions:
         self._inputs.image.value = image
         init = doc.get("init") or "fft"
         self._panel.apply(settings, str(path), "fft")
-        self._add_layers(doc.get("layers", []))
+        self._add_layers(doc.get("layers", []), image)
         if init == "seeds" and self._inputs.seeds.value is not None:
             self._panel.set_init("seeds")
         self._panel.set_display(doc.get("display") or {})
+        self._viewer.reset_view()  # the project's image in view (not a speck of the old view)
         self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
                      "layer(s)").format(
                          path=path, image_name=image.name, n_get=len(doc.get('layers', []))))
@@ -156,15 +157,19 @@ class ProjectActions:
             raise ValueError(tr("{path} did not open as an image").format(path=path))
         return images[0]
 
-    def _add_layers(self, records: list) -> None:
-        """Add the stored layers (after the units: they carry their own scale) and
-        choose them for their roles."""
+    def _add_layers(self, records: list, image) -> None:
+        """Add the stored layers (after the units: they carry their own scale, and
+        take the image's unit names) and choose them for their roles."""
         from napari.layers import Layer
 
         chosen: dict[str, list] = {role: [] for role in (*_CHOICES, *_SINGLE)}
         for rec in records:
             data, kw, kind = layer_data(rec)
             layer = self._viewer.add_layer(Layer.create(data, kw, kind))
+            try:  # the same length unit as the image (not "pixel" beside mm)
+                layer.units = [str(u) for u in image.units][-layer.ndim:]
+            except (ValueError, TypeError):  # another number of axes: left as stored
+                pass
             if rec["role"] in chosen:
                 chosen[rec["role"]].append(layer)
         for role in _CHOICES:

@@ -82,8 +82,9 @@ class ProgressEvent:
 
 
 def _positional(fn) -> int:
-    """How many positional arguments ``fn`` takes (1 when it takes ``*args``
-    or its signature cannot be read: it is then given the event)."""
+    """How many positional arguments ``fn`` needs (those without a default; 1
+    when it takes ``*args`` or its signature cannot be read: it is then given
+    the event)."""
     try:
         sig = inspect.signature(fn)
     except (TypeError, ValueError):
@@ -92,7 +93,7 @@ def _positional(fn) -> int:
     for p in sig.parameters.values():
         if p.kind is p.VAR_POSITIONAL:
             return max(n, 1)
-        if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD):
+        if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty:
             n += 1
     return n
 
