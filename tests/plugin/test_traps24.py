@@ -246,7 +246,7 @@ def test_trap11_12_a_reopened_analysis_in_its_units_and_in_view(make_napari_view
     img2, [roi2] = w2.image.value, w2.roi_add.value
     assert [str(u) for u in roi2.units] == [str(u) for u in img2.units][-2:]
     assert "mm" in str(roi2.units[-1]) or "millimeter" in str(roi2.units[-1])
-    centre = np.asarray(other.camera.center)[-2:]
+    centre = np.asarray(other.scene.camera.center)[-2:]
     assert np.allclose(centre, 0.02 * (SHAPE[0] - 1) / 2, atol=0.05)
     assert w2.model.units is not None and w2.model.units.unit == "mm"
     assert "mm" in w2.exports.units_note.value and "Lengths in px" not in \
