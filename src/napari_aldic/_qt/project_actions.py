@@ -77,7 +77,7 @@ class ProjectActions:
             if is_probe_layer(lay) and id(lay) not in seen:
                 records.append(layer_record(lay, "probe"))
         return {"software": f"napari-aldic {__version__}", "image": image_record(img),
-                **self._model.storable(), "layers": records}
+                **self._panel.storable(), "layers": records}
 
     def save(self, path) -> Path | None:
         """Write the project file ``path``; ``None`` after an error notification."""

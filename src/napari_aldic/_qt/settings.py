@@ -62,6 +62,8 @@ class SettingsPanel(Panel):
                  strain: StrainPanel, units: UnitsPanel, display: DisplayPanel,
                  log: Callable[[str], None], apply_units: Callable[[], None], viewer=None):
         self._model = model
+        #: writes the panels' values into the model (set by the dock; before a save)
+        self.sync: Callable[[], None] = lambda: None
         self._inputs, self._correlation = inputs, correlation
         self._strain, self._units, self._display = strain, units, display
         self._log, self._apply_units = log, apply_units
@@ -140,6 +142,7 @@ class SettingsPanel(Panel):
 
     def storable(self, frame_range: bool = True) -> dict:
         """The model's settings without seed points (see :meth:`DockModel.storable`)."""
+        self.sync()
         return self._model.storable(frame_range)
 
     def set_init(self, init: str) -> None:

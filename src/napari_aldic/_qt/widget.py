@@ -120,9 +120,9 @@ class DICWidget(Container):
         for panel in (self.correlation, self.strain_panel, self.units, self.display):
             panel.changed.connect(self._write_model)  # any control of the panel
         self._write_model()
+        self.settings.sync = self._write_model
         # the export note says the model's units, whichever way they changed
-        self.model.changed.connect(lambda part: self.exports.refresh() if part == "units"
-                                   else None)
+        self.model.changed.connect(lambda part: part == "units" and self.exports.refresh())
         self.inputs.image.changed.connect(self._on_image_changed)
         self.inputs.inputs_changed.connect(self._validate)
         self.inputs.seeds_assigned.connect(self._use_seeds)
