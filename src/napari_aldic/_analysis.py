@@ -11,7 +11,6 @@ is imported.
 from __future__ import annotations
 
 import queue
-import re
 import threading
 import time
 from collections.abc import Callable, Generator
@@ -23,7 +22,9 @@ import numpy as np
 from .engine import (
     DICParams,
     DICResult,
+    ProgressEvent,
     Refinement,
+    StrainParams,
     TrackError,
     compute_strain,
     resolve_refinement,
@@ -34,16 +35,12 @@ from .i18n import tr
 __all__ = ["Analysis", "StrainSettings", "Job", "run_analysis", "run_in_thread", "zero_field",
            "brush_refinement", "describe_fields"]
 
-ProgressFn = Callable[[int, float, str], None]
+ProgressFn = Callable[[ProgressEvent], None]
 
 
-@dataclass(frozen=True)
-class StrainSettings:
-    """How strain is computed from each frame's displacement field."""
-
-    window: int = 5
-    method: str = "plane_fit"
-    measure: str = "green_lagrange"
+#: how strain is computed from each frame's displacement field (the engine's defaults)
+StrainSettings = StrainParams
+_STRAIN = StrainParams()
 
 
 @dataclass
@@ -125,7 +122,7 @@ def _relative_frames(n: int, start: int, stop: int, stride: int) -> list[int]:
 def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
                  start: int = 0, stop: int | None = None, stride: int = 1,
                  brush: np.ndarray | None = None,
-                 strain: StrainSettings | None = StrainSettings(),
+                 strain: StrainSettings | None = _STRAIN,
                  progress: ProgressFn | None = None, cancel: Callable[[], bool] | None = None,
                  source: str = "") -> Analysis:
     """Track frames ``start, start + stride, ... <= stop`` of ``stack`` against
@@ -144,8 +141,10 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
         (its preset, or two levels of refinement when no preset is chosen).
     strain : StrainSettings or None
         ``None`` skips strain.
-    progress : callable(frame, fraction, message)
-        ``frame`` is the index in ``stack``; ``fraction`` of the tracking done.
+    progress : callable(ProgressEvent)
+        ``event.frame`` is the index in ``stack`` (not in the tracked slice);
+        ``event.fraction`` of the tracking done; stages of ``track`` plus
+        ``"stopped"`` (a bad frame ended the run) and ``"strain"``.
     cancel : callable() -> bool
         Polled between frames; finished frames are kept.
     """
@@ -155,12 +154,13 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     rel = _relative_frames(n, start, stop, stride)
     frames = [start + k for k in rel]
     sub = stack[start:stop + 1]
-    report = progress or (lambda k, frac, msg: None)
+    report = progress or (lambda ev: None)
 
-    def rel_report(k: int, frac: float, msg: str) -> None:
+    def rel_report(ev: ProgressEvent) -> None:
         # the engine counts frames in the sliced stack; report stack indices
-        msg = re.sub(r"frame (\d+)", lambda m: f"frame {int(m.group(1)) + start}", msg)
-        report(start + k, frac, msg)
+        ref = None if ev.reference is None else ev.reference + start
+        report(replace(ev, frame=None if ev.frame is None else ev.frame + start,
+                       reference=ref))
 
     refine = None
     if brush is not None and np.any(brush):
@@ -175,8 +175,9 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
         if not any(r is not None for r in exc.partial.frames[1:]):
             raise
         seq, error = exc.partial, str(exc)
-        rel_report(exc.frame, 1.0, f"stopped at a bad frame, finished frames kept (done "
-                                   f"before it): {error}")
+        report(ProgressEvent("stopped", 1.0, frame=start + exc.frame, n_frames=len(rel) - 1,
+                             message="stopped at a bad frame, finished frames kept (done "
+                                     f"before it): {error}"))
     results, cancelled = list(seq.frames), bool(seq.meta.get("cancelled", False))
     for k, r in zip(frames, results):
         if r is not None:
@@ -185,7 +186,8 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
     if strain is not None:
         # the fraction of the frames tracked (below 1 after a cancel)
         done = sum(r is not None for r in results[1:]) / max(1, len(results) - 1)
-        report(frames[-1], done, "computing strain")
+        report(ProgressEvent("strain", done, frame=frames[-1], n_frames=len(rel) - 1,
+                             message="computing strain"))
         for i, r in enumerate(results):
             if r is not None:
                 strains[i] = compute_strain(r, window=strain.window, method=strain.method,
@@ -273,9 +275,9 @@ class Job:
 def run_in_thread(job: Job, cancel: threading.Event,
                   after: Callable[[Analysis], Any] | None = None,
                   before: Callable[[], Any] | None = None
-                  ) -> Generator[tuple[int, float, str], None, tuple[Analysis, Any]]:
+                  ) -> Generator[ProgressEvent, None, tuple[Analysis, Any]]:
     """Run ``job`` in a helper thread; yield its progress reports
-    ``(frame, fraction, message)`` and return ``(analysis, after(analysis))``
+    (:class:`~napari_aldic.engine.ProgressEvent`) and return ``(analysis, after(analysis))``
     (``None`` for the second without ``after``).
 
     The engine reports through a callback; the callback queues the reports
@@ -292,8 +294,7 @@ def run_in_thread(job: Job, cancel: threading.Event,
         try:
             if before is not None:
                 before()
-            box["result"] = job.run(lambda k, frac, msg: reports.put((k, frac, msg)),
-                                    cancel.is_set)
+            box["result"] = job.run(reports.put, cancel.is_set)
         except BaseException as exc:  # re-raised in the generator
             box["error"] = exc
         finally:

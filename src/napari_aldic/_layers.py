@@ -58,23 +58,11 @@ MESH = "mesh"
 RESULT_KEYS = (*DISPLAY_FIELDS, VECTORS, UNRELIABLE, MESH)
 _NAME = re.compile(r"^DIC (.+?)( \[[^\]]*\])?$")
 
-#: colour of each reason code in the unreliable-nodes layer (RGBA)
-REASON_COLORS = {
-    int(Reason.SMALL_COMPONENT): (0.6, 0.6, 0.6, 1.0),
-    int(Reason.NOT_CONVERGED): (1.0, 0.6, 0.0, 1.0),
-    int(Reason.OUT_OF_IMAGE): (0.5, 0.3, 1.0, 1.0),
-    int(Reason.LOW_CORRELATION): (1.0, 0.0, 0.0, 1.0),
-    int(Reason.NO_TEXTURE): (0.0, 0.8, 0.8, 1.0),
-    int(Reason.DIVERGED): (1.0, 0.0, 1.0, 1.0),
-    int(Reason.NO_INITIAL_GUESS): (1.0, 1.0, 0.0, 1.0),
-    int(Reason.OUTLIER): (1.0, 0.4, 0.7, 1.0),
-    int(Reason.POOR_MATCH): (0.9, 0.3, 0.1, 1.0),
-    int(Reason.BEYOND_SEARCH): (0.3, 0.6, 1.0, 1.0),
-    int(Reason.UNCERTAIN): (0.8, 0.8, 0.5, 1.0),
-    int(Reason.GLOBAL_MISMATCH): (0.2, 1.0, 0.4, 1.0),
-    int(Reason.STATIC_FEATURE): (0.33, 0.42, 0.18, 1.0),
-    int(Reason.AMBIGUOUS_MATCH): (1.0, 0.08, 0.58, 1.0),
-}
+#: colour of each flagged reason code in the unreliable-nodes layer (RGBA), from the
+#: engine's one reason table (the figures use the same colours)
+REASON_COLORS = {int(code): tuple(int(Reason.colour(code)[i:i + 2], 16) / 255
+                                  for i in (1, 3, 5)) + (1.0,)
+                 for code in Reason if code != Reason.OK}
 
 
 def layer_name(key: str, unit: str | None = None) -> str:

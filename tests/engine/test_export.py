@@ -11,13 +11,14 @@ from PIL import Image
 from napari_aldic.engine import (
     DICParams,
     EncoderNotFoundError,
+    Settings,
     Units,
     compute_strain,
     export_report,
     export_result,
-    load_params,
     load_run,
-    save_params,
+    read_settings,
+    write_settings,
 )
 from napari_aldic.engine.io import (
     collect_frames,
@@ -26,7 +27,6 @@ from napari_aldic.engine.io import (
     export_mat,
     export_vtu,
     load_mat,
-    load_settings,
     read_csv,
     read_vtu,
     result_cells,
@@ -406,18 +406,19 @@ def test_run_folder_and_cli_style_folders_load(tmp_path, export_run_folder, expo
 # ------------------------------------------------------------------ parameters
 def test_parameters_save_and_load(tmp_path):
     p = DICParams(subset=25, step=10, method="aldic", seeds=((10.0, 20.0),), refine="light")
-    path = save_params(tmp_path / "analysis", p, units=UM, strain={"window": 7},
-                       tracking={"reference": "incremental"})
+    path = write_settings(tmp_path / "analysis", Settings(p, UM, {"window": 7},
+                                                          {"reference": "incremental"}))
     assert path.name == "analysis.json"
     doc = json.loads(path.read_text(encoding="utf-8"))
     assert doc["params"]["subset"] == 25 and doc["units"]["unit"] == "µm"
-    s = load_settings(path)
-    assert s["params"] == p and s["units"] == UM
-    assert s["strain"] == {"window": 7, "method": "plane_fit", "measure": "green_lagrange"}
-    assert s["tracking"] == {"reference": "incremental"}
+    s = read_settings(path)
+    assert s.params == p and s.units == UM
+    assert s.strain_options() == {"window": 7, "method": "plane_fit",
+                                  "measure": "green_lagrange"}
+    assert s.tracking == {"reference": "incremental"}
     plain = tmp_path / "plain.json"
     plain.write_text(json.dumps(p.to_dict()))
-    assert load_params(plain) == p
+    assert read_settings(plain).params == p
     plain.write_text(json.dumps({"subset": 21, "bogus": 1}))
     with pytest.raises(ValueError, match="bogus"):
-        load_params(plain)
+        read_settings(plain)

@@ -6,13 +6,13 @@ import os
 
 import pytest
 
-from napari_aldic.engine import DICParams, ExportError, export_report, save_params
+from napari_aldic.engine import DICParams, ExportError, Settings, export_report, write_settings
 from napari_aldic.engine.io import export_csv, export_davis, export_mat, export_vtu
 from napari_aldic.engine.viz import export_gif, export_mp4, export_png
 
 
 def _params_writer(data, path):
-    return save_params(path, data.params)
+    return write_settings(path, Settings(data.params))
 
 
 WRITERS = {
@@ -158,9 +158,9 @@ def test_interrupted_export_leaves_nothing(tmp_path, monkeypatch, one):
 
 def test_params_file_errors(tmp_path):
     with pytest.raises(ExportError, match="does not exist"):
-        save_params(tmp_path / "nope" / "p.json", DICParams())
-    with pytest.raises(TypeError, match="DICParams"):
-        save_params(tmp_path / "p.json", {"subset": 21})
+        write_settings(tmp_path / "nope" / "p.json", Settings(DICParams()))
+    with pytest.raises(TypeError, match="Settings"):
+        write_settings(tmp_path / "p.json", {"subset": 21})
 
 
 def test_result_save_uses_the_same_atomic_write(tmp_path, full_disk, one):

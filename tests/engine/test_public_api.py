@@ -22,13 +22,17 @@ def test_public_api_is_curated_and_importable():
         assert internal not in engine.__all__
 
 
-@pytest.mark.parametrize("name, home", [("export_csv", "io"), ("read_vtu", "io"),
-                                        ("plot_displacement", "viz"),
-                                        ("export_png", "viz"), ("prefilter", "dic")])
-def test_moved_names_still_import_with_a_warning_naming_the_new_home(name, home):
-    with pytest.warns(DeprecationWarning, match=rf"napari_aldic\.engine\.{home}"):
-        obj = getattr(engine, name)
-    assert callable(obj)
+def test_the_0_1_shims_are_retired():
+    """Names of 0.1 moved into subpackages, and save_params/load_params/load_settings
+    (write_settings/read_settings and Settings replace them), are gone (issue 24)."""
+    import napari_aldic.engine.io as io
+
+    for name in ("export_csv", "prefilter", "plot_displacement", "save_params",
+                 "load_params", "load_settings"):
+        assert not hasattr(engine, name), name
+    for name in ("save_params", "load_params", "load_settings"):
+        assert not hasattr(io, name), name
+    assert callable(io.export_csv) and callable(engine.read_settings)
 
 
 def test_old_user_imports_keep_working_without_warnings():

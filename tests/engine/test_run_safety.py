@@ -268,7 +268,7 @@ def test_plugin_run_keeps_frames_before_a_bad_frame(export_stack):
 
     messages = []
     analysis = run_analysis(Stack(), None, DICParams(**FAST),
-                            progress=lambda k, f, m: messages.append(m))
+                            progress=lambda ev: messages.append(str(ev)))
     assert analysis.n_done == 2 and analysis.results[2] is None
     assert "truncated file" in analysis.error and analysis.strains[1] is not None
     assert any("done" in m and "truncated file" in m for m in messages)  # shown in the log

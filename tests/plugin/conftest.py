@@ -153,7 +153,7 @@ def _add_inputs(viewer, stack):
     cx, cy, r = HOLE
     hole = viewer.add_shapes([np.array([[cy, cx], [r, r]])], shape_type="ellipse",
                              name="hole", face_color="transparent", edge_color="red",
-                             edge_width=2)
+                             edge_width=2, metadata={"napari_aldic_role": "roi_subtract"})  # chosen
     seeds = viewer.add_points([[40.0, 44.0]], name="seeds", size=6, face_color="cyan")
     return image, roi, hole, seeds
 

@@ -6,7 +6,7 @@ import napari  # noqa: F401  (testing extra: missing, these tests fail, not skip
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
+from napari_aldic._qt import DICWidget
 from napari_aldic.engine import advise_subset
 
 pytestmark = pytest.mark.gui

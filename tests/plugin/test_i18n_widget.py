@@ -19,11 +19,11 @@ import pytest
 import pytestqt  # noqa: F401
 
 from napari_aldic import i18n
+from napari_aldic._qt import DICWidget
 from napari_aldic._qt.language import SYSTEM
 from napari_aldic._qt.plot_dock import ProbePlotDock
 from napari_aldic._qt.prefs import read_language
 from napari_aldic._qt.units import LENGTH_UNITS, TIME_UNITS
-from napari_aldic._widget import DICWidget
 from napari_aldic.engine.probes import LINE_QUANTITIES
 from napari_aldic.i18n.pseudo import CLOSE, OPEN
 

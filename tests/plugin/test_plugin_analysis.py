@@ -13,10 +13,14 @@ def test_frame_range_and_stride_map_to_stack_indices(speckle_stack):
     stack = speckle_stack(5, (128, 128))
     reports = []
     a = run_analysis(stack, None, DICParams(subset=21, step=16), start=1, stop=4, stride=2,
-                     progress=lambda k, f, m: reports.append((k, m)))
+                     progress=reports.append)
     assert a.frames == [1, 3] and a.n_frames == 5 and not a.cancelled
     assert a.results[1].meta["frame"] == 3
-    assert any(k == 3 and "frame 3 done" in m for k, m in reports)
+    # stack indices in the events and their text (no frame number rewritten in a message)
+    done = [e for e in reports if e.stage == "frame_done"]
+    assert [(e.frame, e.reference) for e in done] == [(3, 1)]
+    assert str(done[0]).startswith("frame 3 done")
+    assert {e.frame for e in reports} == {3} and reports[-1].stage == "strain"
     # frame 3 against frame 1: the translation difference of the synthetic stack
     r = a.results[1]
     assert np.allclose(np.nanmedian(r.u[r.valid]), 0.6, atol=0.02)

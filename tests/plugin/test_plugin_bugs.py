@@ -12,8 +12,8 @@ import pytestqt  # noqa: F401
 
 from napari_aldic._analysis import Analysis, Job, zero_field
 from napari_aldic._layers import Display, Geometry, analysis_layers
+from napari_aldic._qt import DICWidget
 from napari_aldic._roi import shape_mask
-from napari_aldic._widget import DICWidget
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -57,11 +57,12 @@ def test_bug01_renamed_layers_stay_chosen_and_names_are_read_again(make_napari_v
     np.testing.assert_array_equal(mask, rect)  # the ROI, not the whole image
     assert "Ready." in w.status.value
 
-    # a layer renamed like a hole is moved to the holes; one renamed 'refine' is picked up
+    # a layer renamed like a hole keeps its role (issue 24: roles are the user's choice,
+    # never read from a name); one renamed 'refine' is picked up
     other = viewer.add_shapes([_rect(80, 80, 100, 100)], shape_type="rectangle", name="Shapes")
     assert other in w.roi_add.value
     other.name = "hole 1"
-    assert other in w.roi_subtract.value and other not in w.roi_add.value
+    assert other in w.roi_add.value and other not in w.roi_subtract.value
     w.brush.value = None
     painted = viewer.add_labels(np.zeros(SHAPE, np.uint8), name="Labels")
     assert w.brush.value is None

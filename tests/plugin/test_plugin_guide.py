@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
+from napari_aldic._qt import DICWidget
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -47,6 +47,7 @@ def _open_guide(viewer):
                             edge_color="yellow", edge_width=2)
     crack = viewer.add_shapes([np.array([(y, x) for x, y in GUIDE_CRACK], float)],
                               shape_type="path", name="crack", edge_color="red", edge_width=3)
+    widget.roi_subtract.value = [crack]  # the guide's step: the crack is chosen as a hole
     viewer.reset_view()
     return image, widget, roi, crack
 
@@ -134,12 +135,24 @@ def test_dock_at_common_screen_sizes(make_napari_viewer, qtbot, tmp_path, size,
     viewer = make_napari_viewer(show=True)
     viewer.window.resize(*size)
     viewer.add_image(np.zeros((3, 192, 192), np.uint8), name="speckle")
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    # both docks, as the user guide has them (issue 24, trap 10: the DIC dock kept one row);
+    # at 1280 x 720 the two cannot stand one above the other: the DIC dock is a tab in
+    # front of the probes
+    tabs = size[1] < 800
     w = DICWidget(viewer)
-    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right")
+    if tabs:
+        viewer.window.add_dock_widget(ProbePlotDock(viewer), area="right", name="Probes")
+    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right", tabify=tabs)
+    if not tabs:
+        viewer.window.add_dock_widget(ProbePlotDock(viewer), area="right", name="Probes")
     w.show_analysis(small_analysis)
     qtbot.wait(300)
     window = viewer.window._qt_window
     assert (window.width(), window.height()) == size
+    # the sections stay readable: several rows of controls in view, not one
+    assert w.scroll_area.viewport().height() >= 0.2 * size[1], w.scroll_area.viewport().height()
     # Run, Cancel, the status line and the progress always in view
     for control in (w.run_button, w.cancel_button, w.status, w.progress):
         assert _inside(control.native, window), control

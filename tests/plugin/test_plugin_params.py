@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
-from napari_aldic.engine import DICParams, Units, save_params
-from napari_aldic.engine.io import load_settings
+from napari_aldic._qt import DICWidget
+from napari_aldic.engine import DICParams, Settings, Units, read_settings, write_settings
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -105,18 +104,19 @@ def test_saved_file_reads_with_the_engine(make_napari_viewer_proxy, qtbot, tmp_p
     _set(widget, CUSTOM)
     path = widget.save_settings(tmp_path / "analysis.json")
 
-    s = load_settings(path)
-    assert s["params"] == DICParams(method="local", subset=41, step=6, search=30,
-                                    refine="medium", init="fft", smooth=7.5)
-    assert s["units"] == Units(0.25, "µm", 2.5, "ms")
-    assert s["strain"] == {"window": 7, "method": "fem", "measure": "infinitesimal"}
-    assert s["tracking"] == {"reference": "incremental", "start": 1, "stop": 3, "stride": 2}
-    assert widget.current_settings() == s
+    s = read_settings(path)
+    assert s.params == DICParams(method="local", subset=41, step=6, search=30,
+                                 refine="medium", init="fft", smooth=7.5)
+    assert s.units == Units(0.25, "µm", 2.5, "ms")
+    assert s.strain == {"window": 7, "method": "fem", "measure": "infinitesimal"}
+    assert s.tracking == {"reference": "incremental", "start": 1, "stop": 3, "stride": 2}
+    assert widget.current_settings() == {"params": s.params, "units": s.units,
+                                         "strain": s.strain, "tracking": s.tracking}
 
     # frame numbers only (time unit 'frame'): no frame interval in the file
     widget.time_unit.value = "frame"
-    s = load_settings(widget.save_settings(tmp_path / "frames.json"))
-    assert s["units"] == Units(0.25, "µm") and s["units"].frame_interval is None
+    s = read_settings(widget.save_settings(tmp_path / "frames.json"))
+    assert s.units == Units(0.25, "µm") and s.units.frame_interval is None
     widget.time_unit.value = "s"
     assert widget.load_settings(tmp_path / "frames.json")
     assert widget.time_unit.value == "frame" and widget.frame_interval.value == 1.0
@@ -184,11 +184,10 @@ def test_file_from_cli_or_engine_loads_and_keeps_advanced_fields(make_napari_vie
                                                                  qtbot, tmp_path, speckle_stack):
     viewer = make_napari_viewer_proxy()
     widget, image = _stack_widget(viewer, speckle_stack)
-    path = save_params(tmp_path / "engine.json",
-                       DICParams(method="aldic", subset=25, step=5, interpolation="quintic",
-                                 mu=0.2, search=16, search_max=40),
-                       units={"pixel_size": 0.05, "unit": "um"},
-                       tracking={"reference": "incremental", "start": 1, "stop": None})
+    path = write_settings(tmp_path / "engine.json", Settings(
+        DICParams(method="aldic", subset=25, step=5, interpolation="quintic", mu=0.2,
+                  search=16, search_max=40), Units(pixel_size=0.05, unit="um"),
+        tracking={"reference": "incremental", "start": 1, "stop": None}))
     n0 = len(_records())
     assert widget.load_settings(path)
     assert not _errors_since(n0)
@@ -201,7 +200,7 @@ def test_file_from_cli_or_engine_loads_and_keeps_advanced_fields(make_napari_vie
     params = widget.current_settings()["params"]
     assert params.interpolation == "quintic" and params.mu == 0.2 and params.search_max == 40
     again = widget.save_settings(tmp_path / "again.json")
-    assert load_settings(again)["params"] == DICParams(
+    assert read_settings(again).params == DICParams(
         method="aldic", subset=25, step=5, interpolation="quintic", mu=0.2, search=16,
         search_max=40)
 
@@ -221,7 +220,8 @@ def test_file_from_cli_or_engine_loads_and_keeps_advanced_fields(make_napari_vie
     assert not _errors_since(n0)
 
     # a pixel size finer than the spin box showed is kept exactly
-    save_params(tmp_path / "fine.json", DICParams(), units=Units(0.000325, "mm", 0.0125, "s"))
+    write_settings(tmp_path / "fine.json",
+                   Settings(DICParams(), Units(0.000325, "mm", 0.0125, "s")))
     assert widget.load_settings(tmp_path / "fine.json")
     assert widget.pixel_size.value == pytest.approx(0.000325, rel=1e-9)
     assert widget.frame_interval.value == pytest.approx(0.0125, rel=1e-9)
@@ -306,7 +306,7 @@ def test_saved_file_runs_with_the_cli(make_napari_viewer_proxy, qtbot, tmp_path,
     out = tmp_path / "result.npz"
     assert main(["run", str(tif), "--params", str(saved), "-o", str(out)]) == 0
     res = load_result(out)
-    assert res.params == load_settings(saved)["params"] == widget.current_settings()["params"]
+    assert res.params == read_settings(saved).params == widget.current_settings()["params"]
     assert (res.params.method, res.params.subset, res.params.step, res.params.search) == \
         ("local", 21, 8, 10)
     assert res.meta["units"] == Units(0.5, "µm", 2.0, "s").to_dict()

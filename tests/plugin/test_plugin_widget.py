@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
+from napari_aldic._qt import DICWidget
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -180,7 +180,7 @@ def test_cancel_stops_and_keeps_finished_frames(make_napari_viewer_proxy, qtbot,
     widget.cancel_button.clicked()
     assert not widget.cancel_button.enabled
     qtbot.waitUntil(lambda: not widget.running, timeout=TIMEOUT_MS)
-    analysis = widget._analysis
+    analysis = widget.analysis
     assert analysis is not None and analysis.cancelled
     done = [r is not None for r in analysis.results]
     assert done[0] and done[1] and not all(done)  # finished frames kept, the rest skipped

@@ -10,9 +10,8 @@ import pytest
 import pytestqt  # noqa: F401
 import tifffile
 
-from napari_aldic._qt import warmup
+from napari_aldic._qt import DICWidget, warmup
 from napari_aldic._qt.project import PROBE_KEY
-from napari_aldic._widget import DICWidget
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -74,6 +73,7 @@ def test_project_saves_and_reopens_layers_and_controls(make_napari_viewer_proxy,
     roi = viewer.add_shapes([_rect(10, 10, 86, 86)], shape_type="rectangle", name="ROI")
     hole = viewer.add_shapes([np.array([[40.0, 40.0], [56.0, 56.0]])], shape_type="ellipse",
                              name="hole")
+    w.roi_subtract.value = [hole]  # the user's choice (never by its name)
     painted = np.zeros(SHAPE, np.uint8)
     painted[5:90, 8:92] = 1
     labels = viewer.add_labels(painted, name="roi labels")
@@ -176,7 +176,9 @@ def test_last_used_parameters_come_back_and_defaults_restore(make_napari_viewer_
     again = make_napari_viewer_proxy()
     again.add_image(speckle_stack(3, SHAPE), name="speckle")
     w2 = _dock(again)
-    assert _values(w2, used) == used
+    # every setting comes back but the calibration: it belongs to one image (issue 24)
+    assert _values(w2, used) == {**used, "unit": "px", "pixel_size": 1.0}
+    assert "units" not in stored["settings"]
     assert "last session" in w2.log.value
     w2.restore_defaults()
     assert _values(w2, used) == {"method": "aldic", "subset": 31, "step": 8,

@@ -6,9 +6,8 @@ import napari  # noqa: F401  (testing extra: missing, these tests fail, not skip
 import pytest
 import pytestqt  # noqa: F401
 
-from napari_aldic._widget import DICWidget
-from napari_aldic.engine import DICParams, save_params
-from napari_aldic.engine.io import load_settings
+from napari_aldic._qt import DICWidget
+from napari_aldic.engine import DICParams, Settings, read_settings, write_settings
 
 # needs a display: without one these tests are skipped (tests/plugin/conftest.py)
 pytestmark = pytest.mark.gui
@@ -24,12 +23,12 @@ def test_shape_control_maps_saves_and_loads(make_napari_viewer_proxy, qtbot, tmp
     assert tuple(widget.shape_function.choices) == ("affine", "quadratic")
     widget.shape_function.value = "quadratic"
     path = widget.save_settings(tmp_path / "shape")
-    assert load_settings(path)["params"].shape_function == "quadratic"
+    assert read_settings(path).params.shape_function == "quadratic"
 
     widget.shape_function.value = "affine"
     assert widget.load_settings(path) is True
     assert widget.shape_function.value == "quadratic"
     # a file written by the engine sets the control too
-    other = save_params(tmp_path / "affine.json", DICParams(shape_function="affine"))
+    other = write_settings(tmp_path / "affine.json", Settings(DICParams(shape_function="affine")))
     assert widget.load_settings(other) is True
     assert widget.shape_function.value == "affine"

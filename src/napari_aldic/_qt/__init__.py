@@ -12,20 +12,26 @@
 * :mod:`.layout` -- the collapsible sections in one scroll area;
 * :mod:`.widget` -- :class:`DICWidget`, the dock widget that composes them.
 
-Qt-free helpers: :mod:`.checks` (the input check before a run), :mod:`.results`
-(result layers in the viewer), :mod:`.project` (project files), :mod:`.prefs`
-(the last used parameters) and :mod:`.warmup` (preparing the Numba kernels).
+Qt-free: :mod:`.model` (:class:`~.model.DockModel`, the analysis set up in the dock: the
+panels write it, Run reads its job, projects save and restore it), :mod:`.checks` (the
+input check before a run), :mod:`.results` (result layers in the viewer), :mod:`.project`
+(project files), :mod:`.prefs` (the last used parameters) and :mod:`.warmup` (preparing
+the Numba kernels).
 """
 
-from .correlation import CorrelationPanel
-from .display import DisplayPanel
-from .export import ExportPanel
-from .inputs import InputsPanel
-from .run import RunPanel
-from .settings import SettingsPanel
-from .strain import StrainPanel
-from .units import UnitsPanel
-from .widget import DICWidget
+from importlib import import_module
 
 __all__ = ["DICWidget", "InputsPanel", "CorrelationPanel", "StrainPanel", "UnitsPanel",
            "DisplayPanel", "ExportPanel", "SettingsPanel", "RunPanel"]
+
+#: each panel's module: imported when first asked for, so that the Qt-free modules
+#: (the model, the checks, project files) can be imported without Qt
+_HOMES = {"DICWidget": "widget", "InputsPanel": "inputs", "CorrelationPanel": "correlation",
+          "StrainPanel": "strain", "UnitsPanel": "units", "DisplayPanel": "display",
+          "ExportPanel": "export", "SettingsPanel": "settings", "RunPanel": "run"}
+
+
+def __getattr__(name: str):
+    if name in _HOMES:
+        return getattr(import_module(f".{_HOMES[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

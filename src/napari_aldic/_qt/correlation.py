@@ -15,12 +15,13 @@ from psygnal import Signal
 from ..engine import DICParams
 from ..i18n import tr
 from .controls import Panel, Plan, put
+from .model import DEFAULT_PARAMS, PARAM_CONTROLS
 
 __all__ = ["CorrelationPanel", "PARAM_CONTROLS"]
 
-#: DICParams fields that the panel shows (the others are kept from a loaded file)
-PARAM_CONTROLS = ("method", "subset", "step", "search", "refine", "init", "smooth",
-                  "shape_function")
+#: the controls' starting values (the model's: the engine's defaults but the method)
+DEFAULTS = DEFAULT_PARAMS
+
 
 
 class CorrelationPanel(Panel):
@@ -42,16 +43,17 @@ class CorrelationPanel(Panel):
         super().__init__()
 
     def _setup_ui(self) -> None:
-        self.method = ComboBox(label=tr("Method"), value="aldic",
+        self.method = ComboBox(label=tr("Method"), value=DEFAULTS.method,
                                choices=[(tr("AL-DIC"), "aldic"), (tr("Local (IC-GN)"), "local")],
                                tooltip=tr("AL-DIC couples the subsets to a compatible finite-"
                                        "element field (smoother, robust); Local solves every "
                                        "subset on its own (faster)."))
-        self.subset = SpinBox(label=tr("Subset (px)"), value=31, min=7, max=2001, step=2,
+        self.subset = SpinBox(label=tr("Subset (px)"), value=DEFAULTS.subset, min=7, max=2001,
+                              step=2,
                               tooltip=tr("Odd full width of the square correlation subset in "
                                       "pixels (31 = 31 x 31). Larger: less noise, less "
                                       "spatial resolution. It should hold ~3 speckles across."))
-        self.step = SpinBox(label=tr("Step (px)"), value=8, min=1, max=1000,
+        self.step = SpinBox(label=tr("Step (px)"), value=DEFAULTS.step, min=1, max=1000,
                             tooltip=tr("Node spacing in pixels."))
         self.target_noise = FloatSpinBox(
             label=tr("Target noise (px)"), value=0.01, min=0.0005, max=1.0, step=0.001,
@@ -62,7 +64,7 @@ class CorrelationPanel(Panel):
             tooltip=tr("Predict the displacement noise of each subset size from the "
                        "reference frame's speckle and noise, and log the smallest subset "
                        "that meets the target noise."))
-        self.search = SpinBox(label=tr("Search (px)"), value=20, min=1, max=100000,
+        self.search = SpinBox(label=tr("Search (px)"), value=DEFAULTS.search, min=1, max=100000,
                               tooltip=tr("Initial half-range of the FFT cross-correlation "
                                       "search; it widens by itself when the peak lies on "
                                       "its border."))
@@ -86,12 +88,12 @@ class CorrelationPanel(Panel):
                                       tooltip=tr("Displacement waves shorter than ~2 pi x this "
                                               "length are damped (fixed smoothing only)."))
         self.shape_function = ComboBox(
-            label=tr("Subset shape"), value="affine",
+            label=tr("Subset shape"), value=DEFAULTS.shape_function,
             choices=[(tr("affine"), "affine"), (tr("quadratic"), "quadratic")],
             tooltip=tr("affine: subsets stretch, shear and rotate. quadratic: they may also "
                        "bend, which keeps displacement detail finer than a subset (more "
                        "noise, slower). With AL-DIC it shapes the first local step."))
-        self.init = ComboBox(label=tr("Initial guess"), value="fft",
+        self.init = ComboBox(label=tr("Initial guess"), value=DEFAULTS.init,
                              choices=[(tr("FFT cross-correlation"), "fft"),
                                       (tr("Seed points"), "seeds")],
                              tooltip=tr("FFT: automatic search. Seed points: propagate from the "

@@ -2,80 +2,87 @@
 
 Engine exceptions and reason texts stay in English (they are searched for and
 quoted in issues); the widget shows them unchanged and adds a translated
-explanation where it knows one: the reason codes of unreliable nodes, and the
-kinds of error a run commonly meets (matched by a phrase of the English text).
+explanation where it knows one: the reason codes of unreliable nodes (the
+engine's one table, :meth:`~napari_aldic.engine.Reason.describe`), and the typed
+errors of a run (:class:`~napari_aldic.engine.DICError` by its ``code``, a run
+folder that cannot be used, a lack of memory), never by the English words.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..engine import Reason
+from ..engine import DICError, Reason, RunFolderError
 from ..i18n import tr, tr_noop
 
-__all__ = ["reason_text", "explain_error", "with_explanation", "result_summary",
-           "REASON_TEXTS", "ERROR_HINTS"]
+__all__ = ["message", "reason_text", "error_code", "explain_error", "with_explanation",
+           "result_summary", "REASON_TEXTS", "ERROR_HINTS"]
 
-#: reason code -> what it means (translated where shown); see engine.Reason
-REASON_TEXTS = {
-    int(Reason.OK): tr_noop("converged"),
-    int(Reason.SMALL_COMPONENT): tr_noop("subset component too small (mask)"),
-    int(Reason.NOT_CONVERGED): tr_noop("not converged (iteration cap)"),
-    int(Reason.OUT_OF_IMAGE): tr_noop("deformed subset leaves the image"),
-    int(Reason.LOW_CORRELATION): tr_noop("low correlation (ZNCC below threshold)"),
-    int(Reason.NO_TEXTURE): tr_noop("no texture in subset"),
-    int(Reason.DIVERGED): tr_noop("diverged"),
-    int(Reason.NO_INITIAL_GUESS): tr_noop("no initial guess"),
-    int(Reason.OUTLIER): tr_noop("outlier (median test)"),
-    int(Reason.POOR_MATCH): tr_noop("poor match (residual above image noise)"),
-    int(Reason.BEYOND_SEARCH): tr_noop("motion beyond the search range"),
-    int(Reason.UNCERTAIN): tr_noop("uncertain (noise)"),
-    int(Reason.GLOBAL_MISMATCH): tr_noop("global field departs from the subset match (AL-DIC)"),
-    int(Reason.STATIC_FEATURE): tr_noop("static feature (part of the subset does not move)"),
-    int(Reason.AMBIGUOUS_MATCH): tr_noop(
-        "ambiguous match (texture repeats within the search range)"),
+#: reason code -> the engine's English text (translated where shown)
+REASON_TEXTS = {int(r): Reason.describe(r) for r in Reason}
+
+#: error code -> translated explanation (see :func:`error_code`)
+ERROR_HINTS = {
+    "subset_too_large": tr_noop("The subset is larger than the image: choose a smaller "
+                                "subset."),
+    "seed_outside_roi": tr_noop("A seed point lies outside the region of interest: move it "
+                                "onto the analysed material."),
+    "no_seed_match": tr_noop("No seed point was found in the deformed image: move the seeds "
+                             "or widen the search."),
+    "shape_mismatch": tr_noop("The region of interest and the images have different "
+                              "sizes."),
+    "not_odd": tr_noop("This value must be an odd number."),
+    "invalid_parameter": tr_noop("A correlation parameter is not valid: check the Mesh and "
+                                 "correlation section."),
+    "run_folder": tr_noop("The run folder cannot be used: choose another output folder."),
+    "memory": tr_noop("Not enough memory: analyse a smaller region or fewer frames."),
 }
 
-#: (phrase of the engine's English message, translated explanation); first match wins
-ERROR_HINTS = (
-    ("is larger than the image", tr_noop("The subset is larger than the image: choose a "
-                                         "smaller subset.")),
-    ("outside the ROI", tr_noop("A seed point lies outside the region of interest: move it "
-                                "onto the analysed material.")),
-    ("no seed could be matched", tr_noop("No seed point was found in the deformed image: "
-                                         "move the seeds or widen the search.")),
-    ("differs from image shape", tr_noop("The region of interest and the images have "
-                                         "different sizes.")),
-    ("must be an odd", tr_noop("This value must be an odd number.")),
-    ("Invalid DIC parameter", tr_noop("A correlation parameter is not valid: check the "
-                                      "Mesh and correlation section.")),
-    ("run folder", tr_noop("The run folder cannot be used: choose another output folder.")),
-    ("out of memory", tr_noop("Not enough memory: analyse a smaller region or fewer frames.")),
-    ("MemoryError", tr_noop("Not enough memory: analyse a smaller region or fewer frames.")),
-)
+
+def message(exc: BaseException) -> str:
+    """One line describing an error."""
+    msg = str(exc) or exc.__class__.__name__
+    if isinstance(exc, FileNotFoundError) and not str(exc).strip():
+        msg = tr("no such file: {filename}").format(filename=exc.filename)
+    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
 
 def reason_text(code: int) -> str:
     """The translated meaning of a reason code (the engine's English text for an
     unknown code)."""
-    text = REASON_TEXTS.get(int(code))
-    return tr(text) if text is not None else Reason.describe(code)
+    text = Reason.describe(code)
+    return tr(text) if int(code) in REASON_TEXTS else text
 
 
-def explain_error(message: str) -> str | None:
-    """A translated explanation of an engine error message, or ``None``."""
-    for phrase, hint in ERROR_HINTS:
-        if phrase in message:
-            return tr(hint)
+def error_code(exc: BaseException | None) -> str | None:
+    """The code of an error or of the error it was raised from (a frame of
+    ``track`` that could not be analysed wraps the cause), or ``None``."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, DICError):
+            return exc.code
+        if isinstance(exc, RunFolderError):
+            return "run_folder"
+        if isinstance(exc, MemoryError):
+            return "memory"
+        exc = exc.__cause__ or exc.__context__
     return None
 
 
-def with_explanation(message: str) -> str:
-    """``message`` (English, unchanged) followed by its translated explanation when
-    one is known and the language is not English."""
+def explain_error(exc: BaseException | None) -> str | None:
+    """A translated explanation of an engine error, or ``None``."""
+    hint = ERROR_HINTS.get(error_code(exc))
+    return tr(hint) if hint is not None else None
+
+
+def with_explanation(exc: BaseException) -> str:
+    """The error's message (English, unchanged) followed by its translated
+    explanation when one is known and the language is not English."""
     from ..i18n import current_language
 
-    hint = explain_error(message)
+    message = str(exc) or exc.__class__.__name__
+    hint = explain_error(exc)
     if hint is None or current_language() == "en":
         return message
     return f"{message} ({hint})"

@@ -1,9 +1,9 @@
 """The Input panel: the image stack and the layers that shape the analysis.
 
-Shapes layers add to or cut holes in the ROI, a Labels layer restricts it, a
-Labels layer painted with the brush marks where the mesh is refined and a
-Points layer holds seed points. Layers are preselected by their names
-(:meth:`InputsPanel.auto_assign`) and the choices follow the layer list.
+Shapes layers add to or cut holes in the ROI, Labels restrict it or mark where the
+mesh is refined, Points hold seeds. A layer's role is the user's choice in the combos
+and stays with the layer (:func:`~.model.layer_role`; renaming it or reopening the
+dock changes nothing): no layer is a hole unless chosen as one.
 """
 
 from __future__ import annotations
@@ -20,15 +20,13 @@ from .._layers import is_result_name
 from .._roi import build_roi, labels_fit, labels_mask, points_xy
 from ..i18n import tr
 from .controls import Panel
+from .model import layer_role, remember_role
 from .project import is_probe_layer
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
 
-__all__ = ["InputsPanel", "is_result_layer", "SUBTRACT_WORDS"]
-
-#: Shapes layers named with one of these words are holes (subtracted from the ROI)
-SUBTRACT_WORDS = ("hole", "crack", "mask", "exclude", "subtract", "notch", "cut")
+__all__ = ["InputsPanel", "is_result_layer"]
 
 
 def is_result_layer(layer) -> bool:
@@ -65,6 +63,7 @@ class InputsPanel(Panel):
 
     def __init__(self, viewer: napari.viewer.Viewer):
         self._viewer = viewer
+        self._chosen: dict[str, list] = {}  # the ROI and holes chosen last
         super().__init__()
 
     # ------------------------------------------------------------ setup
@@ -89,9 +88,9 @@ class InputsPanel(Panel):
                                       "(cracks)."))
         self.roi_subtract = Select(label=tr("Holes (shapes)"), choices=layers_of("Shapes"),
                                    tooltip=tr("Shapes layers whose shapes are removed from the "
-                                           "ROI (holes, notches, background). Layers named "
-                                           "like 'hole', 'crack', 'mask' are chosen here "
-                                           "automatically."))
+                                           "ROI (holes, notches, background). A layer is a "
+                                           "hole only when chosen here; the choice stays "
+                                           "with the layer."))
         self.roi_labels = OptionalLayer(label=tr("ROI labels"), choices=layers_of("Labels"),
                                         tooltip=tr("Labels layer: nonzero pixels are analysed "
                                                 "(intersected with the ROI shapes). It is "
@@ -128,6 +127,8 @@ class InputsPanel(Panel):
             self._watch(lay)
         for w in (self.roi_add, self.roi_subtract, self.roi_labels, self.brush, self.seeds):
             w.changed.connect(self._emit_changed)
+        self.roi_add.changed.connect(lambda *_: self._remember_roles(self.roi_add))
+        self.roi_subtract.changed.connect(lambda *_: self._remember_roles(self.roi_subtract))
         self.new_roi_labels.changed.connect(lambda *_: self.new_labels("roi_labels"))
         self.new_refine.changed.connect(lambda *_: self.new_labels("brush"))
 
@@ -220,25 +221,39 @@ class InputsPanel(Panel):
             if now is not before[w] and now != before[w]:
                 w.changed.emit(now)
 
-    def auto_assign(self, layer, renamed: bool = False) -> None:
-        """Preselect inputs by layer name: Shapes named 'hole'/'crack'/... -> subtract,
-        other Shapes -> ROI; Labels 'roi' -> ROI labels, 'refine'/'brush' -> refinement
-        region (only labels that fit the chosen image); Points 'seed' -> seeds.
+    def _remember_roles(self, chosen) -> None:
+        """The user's choice of ROI and holes (``chosen``: the one just changed) stays
+        with each Shapes layer; a layer is in one of the two at most."""
+        other = self.roi_subtract if chosen is self.roi_add else self.roi_add
+        now = list(chosen.value)
+        keep = [lay for lay in other.value if not any(lay is x for x in now)]
+        if len(keep) != len(other.value):
+            with other.changed.blocked():
+                other.value = keep
+        role = "roi_add" if chosen is self.roi_add else "roi_subtract"
+        for lay in now:
+            remember_role(lay, role)
+        for lay in self._chosen.get(role, []):
+            if not any(lay is x for x in now) and layer_role(lay) == role:
+                remember_role(lay, "none")
+        self._chosen = {"roi_add": list(self.roi_add.value),
+                        "roi_subtract": list(self.roi_subtract.value)}
 
-        ``renamed``: the layer was renamed; a Shapes layer of the ROI renamed like a
-        hole moves to the holes, and no new Shapes layer is added to the ROI."""
+    def auto_assign(self, layer, renamed: bool = False) -> None:
+        """Preselect a layer's input: the role chosen for it before (kept with the
+        layer), else a new Shapes layer adds to the ROI (never a hole by its name:
+        napari names a new Shapes layer after the image, 'open_hole - Shapes');
+        Labels 'roi' -> ROI labels, 'refine'/'brush' -> refinement region (only
+        labels that fit the chosen image); Points 'seed' -> seeds.
+
+        ``renamed``: the layer was renamed; its role does not change."""
         kind = layer.__class__.__name__
         name = layer.name.lower()
         if is_probe_layer(layer):
             return  # a probe (gauge, area, point) measures; it shapes no input
         if kind == "Shapes":
-            hole = any(w in name for w in SUBTRACT_WORDS)
-            if hole and layer not in self.roi_subtract.value:
-                self.roi_add.value = [lay for lay in self.roi_add.value if lay is not layer]
-                self.roi_subtract.value = [*self.roi_subtract.value, layer]
-            elif not hole and not renamed and layer not in self.roi_add.value:
-                # every other new Shapes layer (e.g. a new "Shapes") adds to the ROI
-                self.roi_add.value = [*self.roi_add.value, layer]
+            if not renamed:
+                self._place_shapes(layer, layer_role(layer) or "roi_add")
         elif kind == "Labels":
             img = self.image.value
             if img is not None and not labels_fit(layer, img):
@@ -250,6 +265,19 @@ class InputsPanel(Panel):
         elif kind == "Points" and "seed" in name and self.seeds.value is None:
             self.seeds.value = layer
             self.seeds_assigned.emit()
+
+    def _place_shapes(self, layer, role: str) -> None:
+        """Put a Shapes layer in the ROI or the holes (or neither) as ``role`` says."""
+        add = [lay for lay in self.roi_add.value if lay is not layer]
+        sub = [lay for lay in self.roi_subtract.value if lay is not layer]
+        if role == "roi_add":
+            add.append(layer)
+        elif role == "roi_subtract":
+            sub.append(layer)
+        if add != list(self.roi_add.value):
+            self.roi_add.value = add
+        if sub != list(self.roi_subtract.value):
+            self.roi_subtract.value = sub
 
     def match_image(self) -> None:
         """The chosen image changed: labels that do not fit it are let go, and the

@@ -8,14 +8,18 @@ line, Run, Cancel and the progress stay in view.
 
 from __future__ import annotations
 
-from qtpy.QtCore import QEvent, QSize, Qt
+from qtpy.QtCore import QEvent, QObject, QSize, Qt
 from qtpy.QtWidgets import QComboBox, QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
 from ..i18n import tr
 
-__all__ = ["sections_area", "divider", "Section"]
+__all__ = ["sections_area", "divider", "Section", "EXPANDED", "COLLAPSED"]
 
+#: the least height of the sections' scroll area (about four rows of controls)
+MIN_ROWS_PX = 120
+#: the marks of an open and a folded section
+EXPANDED, COLLAPSED = "▼", "▶"
 #: ``(title, widget, expanded)``
 Section = tuple[str, QWidget, bool]
 
@@ -24,15 +28,16 @@ class _Scroll(QScrollArea):
     """A vertical scroll area at least as wide as its content needs, so that the
     dock never cuts controls off at the right."""
 
-    def _wide(self, hint: QSize) -> QSize:
+    def _wide(self, hint: QSize, tall: int = 0) -> QSize:
         inner = self.widget()
         if inner is None:
             return hint
         need = inner.minimumSizeHint().width() + self.verticalScrollBar().sizeHint().width()
-        return QSize(max(hint.width(), need + 2 * self.frameWidth()), hint.height())
+        return QSize(max(hint.width(), need + 2 * self.frameWidth()), max(hint.height(), tall))
 
     def minimumSizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
-        return self._wide(super().minimumSizeHint())
+        # a few rows of controls always in view, also beside another dock (the probes)
+        return self._wide(super().minimumSizeHint(), MIN_ROWS_PX)
 
     def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
         # the content's needs changed (e.g. a long layer name): ask the dock again
@@ -41,7 +46,24 @@ class _Scroll(QScrollArea):
         return super().eventFilter(obj, event)
 
     def sizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
-        return self._wide(super().sizeHint())
+        inner = self.widget()
+        tall = min(inner.sizeHint().height(), 700) if inner is not None else 0
+        return self._wide(super().sizeHint(), tall)
+
+
+class _Refit(QObject):
+    """Keeps an open section as tall as its panel needs: superqt fixes the height
+    of an open section when it opens, so a panel that grows later (the Display
+    legend after a run) was clipped until folded and unfolded again."""
+
+    def __init__(self, box: QCollapsible):
+        super().__init__(box)
+        self._box = box
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
+        if event.type() == QEvent.Type.LayoutRequest and self._box.isExpanded():
+            self._box.expand(animate=False)
+        return False
 
 
 def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QCollapsible]]:
@@ -53,10 +75,12 @@ def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QColl
     layout.setSpacing(0)
     found: dict[str, QCollapsible] = {}
     for title, widget, expanded in sections:
-        box = QCollapsible(tr(title))  # the English title stays the key
+        # "▶" folded, "▼" open (superqt's "▲" for a folded section reads as "open above")
+        box = QCollapsible(tr(title), expandedIcon=EXPANDED, collapsedIcon=COLLAPSED)
         box.setDuration(0)  # no animation: the scroll area resizes at once
         box.layout().setContentsMargins(0, 0, 0, 4)
         box.addWidget(widget)
+        widget.installEventFilter(_Refit(box))
         if expanded:
             box.expand(animate=False)
         else:

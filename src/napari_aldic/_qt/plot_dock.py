@@ -25,6 +25,7 @@ from qtpy.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QSizePolicy,
     QVBoxLayout,
     QWidget,
 )
@@ -99,6 +100,9 @@ class ProbePlotDock(QWidget):
         form.addRow(tr("Points, areas show"), self.field_combo)
         self.load_button = QPushButton(tr("Load CSV..."))
         self.load_label = QLabel(tr("no load data"))
+        self.load_label.setWordWrap(True)  # a long file description never widens the dock
+        self.load_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+        self.load_label.setMinimumWidth(40)  # not the width of its longest word (a file name)
         self.area_spin = QDoubleSpinBox(decimals=3, minimum=0.001, maximum=1e7, value=10.0,
                                         suffix=" mm²")
         self.sync_combo = combo_of([(tr("frame"), "frame"), (tr("time"), "time")])
@@ -115,14 +119,14 @@ class ProbePlotDock(QWidget):
         load_box.setLayout(load_form)
         self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
         self.canvas = FigureCanvasQTAgg(self.figure)
-        self.canvas.setMinimumHeight(320)
+        self.canvas.setMinimumHeight(140)  # the DIC dock above keeps rows (1600 x 1000)
         self.status_label = QLabel("")
         self.status_label.setWordWrap(True)
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
             QPushButton(tr("Save plot..."))
         buttons = QHBoxLayout()
-        buttons.addWidget(self.save_csv_button)
-        buttons.addWidget(self.save_plot_button)
+        for button in (self.save_csv_button, self.save_plot_button):
+            buttons.addWidget(button)
         lay = QVBoxLayout(self)
         lay.addLayout(form)
         lay.addWidget(load_box)
@@ -370,19 +374,16 @@ class ProbePlotDock(QWidget):
         return fn(self, title, "", filt)[0]
 
     def _ask_load(self) -> None:
-        path = self._ask(tr("Testing-machine CSV"), tr("CSV or text (*.csv *.txt *.tsv *.dat)"),
-                         save=False)
-        if path:
+        if path := self._ask(tr("Testing-machine CSV"),
+                             tr("CSV or text (*.csv *.txt *.tsv *.dat)"), save=False):
             self.load_csv(path)
 
     def _ask_save_csv(self) -> None:
-        path = self._ask(tr("Save probe values"), tr("CSV (*.csv)"))
-        if path:
+        if path := self._ask(tr("Save probe values"), tr("CSV (*.csv)")):
             self._report(self.save_csv, path)
 
     def _ask_save_plot(self) -> None:
-        path = self._ask(tr("Save probe plot"), "PNG (*.png);;PDF (*.pdf)")
-        if path:
+        if path := self._ask(tr("Save probe plot"), "PNG (*.png);;PDF (*.pdf)"):
             self._report(self.save_plot, path)
 
     def _report(self, fn, path) -> None:

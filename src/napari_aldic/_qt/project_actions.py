@@ -16,6 +16,8 @@ import numpy as np
 
 from ..engine import Settings
 from ..i18n import tr, tr_noop
+from .explain import message
+from .model import DockModel
 from .project import (
     image_changed,
     image_record,
@@ -42,12 +44,19 @@ def _same_path(layer, path) -> bool:
 
 
 class ProjectActions:
-    """Project files for a :class:`~.settings.SettingsPanel` (``panel``) in ``viewer``."""
+    """Project files of the dock's :class:`~.model.DockModel` and its layers.
 
-    def __init__(self, panel, inputs, correlation, display, viewer,
-                 log: Callable[[str], None]):
-        self._panel, self._viewer, self._log = panel, viewer, log
-        self._inputs, self._correlation, self._display = inputs, correlation, display
+    A document is the model's :meth:`~.model.DockModel.storable` plus the image
+    and the layers with their roles. ``parent`` is the panel that applies a
+    document's settings to the controls (``apply``, ``set_init``,
+    ``set_display``) and places the file dialogs (``start_folder``, ``stem``);
+    it is passed in, never imported (no cycle).
+    """
+
+    def __init__(self, model: DockModel, inputs, viewer, log: Callable[[str], None], *,
+                 parent):
+        self._model, self._panel, self._viewer, self._log = model, parent, viewer, log
+        self._inputs = inputs
 
     # ------------------------------------------------------------ saving
     def document(self) -> dict:
@@ -77,8 +86,6 @@ class ProjectActions:
         """Write the project file ``path``; ``None`` after an error notification."""
         from napari.utils.notifications import show_error
 
-        from .settings import message
-
         try:
             written = write_project(path, self.document())
         except Exception as exc:  # nothing to refer to, unwritable file: explain
@@ -94,8 +101,6 @@ class ProjectActions:
     def open(self, path) -> bool:
         """Open the project file ``path``; ``False`` after an error notification."""
         from napari.utils.notifications import show_error
-
-        from .settings import message
 
         try:
             doc = read_project(path)
@@ -115,10 +120,11 @@ class ProjectActions:
         self._inputs.image.value = image
         init = doc.get("init") or "fft"
         self._panel.apply(settings, str(path), "fft")
-        self._add_layers(doc.get("layers", []))
+        self._add_layers(doc.get("layers", []), image)
         if init == "seeds" and self._inputs.seeds.value is not None:
-            self._correlation.init.value = "seeds"
-        self._display.set_choices(doc.get("display") or {})
+            self._panel.set_init("seeds")
+        self._panel.set_display(doc.get("display") or {})
+        self._viewer.reset_view()  # the project's image in view (not a speck of the old view)
         self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
                      "layer(s)").format(
                          path=path, image_name=image.name, n_get=len(doc.get('layers', []))))
@@ -159,15 +165,19 @@ class ProjectActions:
             raise ValueError(tr("{path} did not open as an image").format(path=path))
         return images[0]
 
-    def _add_layers(self, records: list) -> None:
-        """Add the stored layers (after the units: they carry their own scale) and
-        choose them for their roles."""
+    def _add_layers(self, records: list, image) -> None:
+        """Add the stored layers (after the units: they carry their own scale, and
+        take the image's unit names) and choose them for their roles."""
         from napari.layers import Layer
 
         chosen: dict[str, list] = {role: [] for role in (*_CHOICES, *_SINGLE)}
         for rec in records:
             data, kw, kind = layer_data(rec)
             layer = self._viewer.add_layer(Layer.create(data, kw, kind))
+            try:  # the same length unit as the image (not "pixel" beside mm)
+                layer.units = [str(u) for u in image.units][-layer.ndim:]
+            except (ValueError, TypeError):  # another number of axes: left as stored
+                pass
             if rec["role"] in chosen:
                 chosen[rec["role"]].append(layer)
         for role in _CHOICES:

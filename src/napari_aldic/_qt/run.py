@@ -36,6 +36,10 @@ STEP_PAUSE_MS = 15
 DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
+#: the status line while a run computes or shows its results
+RUNNING = tr_noop("Running…")
+#: progress events written to the log (the others move the bar only)
+LOGGED_STAGES = ("frame_done", "frame_loaded", "stopped", "strain")
 
 
 def format_seconds(s: float) -> str:
@@ -80,6 +84,7 @@ class RunPanel(Panel):
         self._cancel = threading.Event()
         self._t0 = 0.0
         self._frac = 0.0
+        self._eta: tuple | None = None  # (seconds left, when the engine said so)
         self._n_deformed = 0
         self._problems: tuple[list, list] = ([], [])
         #: each step of showing the last run's results: (start, end) in
@@ -111,11 +116,18 @@ class RunPanel(Panel):
         self.log.native.setMinimumHeight(80)
         self._clock = QTimer(self.native)
         self._clock.setInterval(500)  # elapsed time moves between frames too
+        # the next display step: a timer owned by the panel dies with it (a bare
+        # singleShot would call into a closed panel and abort napari)
+        self._step_timer = QTimer(self.native)
+        self._step_timer.setSingleShot(True)
+        self._closed = False
+        self._final = ""
 
     def _setup_callbacks(self) -> None:
         self.run_button.changed.connect(self.run_requested.emit)
         self.cancel_button.changed.connect(self.cancel)
         self._clock.timeout.connect(self._show_time)
+        self._step_timer.timeout.connect(lambda: self._drive(self._final))
 
     # ------------------------------------------------------------ state
     @property
@@ -137,7 +149,9 @@ class RunPanel(Panel):
         self._problems = (list(errors), list(warnings))
         lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
         lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warnings]
-        if not errors:
+        if self._running:  # never "Ready." while a run computes or shows its results
+            lines.insert(0, "<span style='color:#8ab4f8'>" + tr(RUNNING) + "</span>")
+        elif not errors:
             lines.insert(0, "<span style='color:#6bd66b'>" + tr("Ready.") + "</span>")
         if self.preparing:
             lines.insert(0, f"<span style='color:#8ab4f8'>{tr(PREPARING)}</span>")
@@ -183,7 +197,7 @@ class RunPanel(Panel):
         worker.errored.connect(self._on_errored)
         worker.finished.connect(self._on_finished)
         self._worker, self._worker_done = worker, False
-        self._t0, self._frac = time.perf_counter(), 0.0
+        self._t0, self._frac, self._eta = time.perf_counter(), 0.0, None
         self._set_running(True)
         self.progress.value = 0
         self._show_time()
@@ -200,7 +214,31 @@ class RunPanel(Panel):
     def stopper(self) -> Callable[[], None]:
         """A function that asks a run to stop after its frame (the widget is
         closed); it works while the panel is torn down."""
-        return self._cancel.set
+        return self.shutdown
+
+    def shutdown(self) -> None:
+        """The dock or the viewer closes: stop the run after its frame, stop the
+        timers and the display, and disconnect the worker, so that nothing calls
+        into the closed panel (it works while the panel is torn down)."""
+        self._closed = True
+        self._cancel.set()
+        self._steps = None
+        worker = self._worker
+        if worker is not None:
+            for signal, slot in ((worker.yielded, self._on_progress),
+                                 (worker.returned, self._on_returned),
+                                 (worker.errored, self._on_errored),
+                                 (worker.finished, self._on_finished)):
+                try:
+                    signal.disconnect(slot)
+                except (TypeError, RuntimeError):  # gone already
+                    pass
+        for timer in (self._clock, self._step_timer):
+            try:
+                timer.stop()
+            except RuntimeError:  # deleted with the panel
+                pass
+        gc.unfreeze()  # see _frozen_gc
 
     def _show_time(self) -> None:
         """Frames done, time elapsed and left (also between frames: the clock)."""
@@ -211,20 +249,20 @@ class RunPanel(Panel):
         done = int(round(frac * self._n_deformed))
         parts = [tr("{done}/{total} frames").format(done=done, total=self._n_deformed),
                  tr("{time} elapsed").format(time=format_seconds(elapsed))]
-        if 0 < frac < 1:
-            parts.append(tr("about {time} left").format(
-                time=format_seconds(elapsed * (1 - frac) / frac)))
+        if 0 < frac < 1 and self._eta is not None:  # the engine's estimate
+            left = self._eta[0] - (time.perf_counter() - self._eta[1])  # counts down
+            parts.append(tr("about {time} left").format(time=format_seconds(left)))
         if self.preparing and frac == 0:
             parts.append(tr(PREPARING))
         self.eta.value = " · ".join(parts)
 
-    def _on_progress(self, item) -> None:
-        frame, frac, msg = item
-        self._frac = float(min(max(frac, 0.0), 1.0))
+    def _on_progress(self, event) -> None:
+        self._frac = float(min(max(event.fraction, 0.0), 1.0))
+        self._eta = None if event.eta_s is None else (event.eta_s, time.perf_counter())
         self.progress.value = int(round(1000 * self._frac))
         self._show_time()
-        if "done" in msg or "strain" in msg:
-            self.write_log(msg)
+        if event.stage in LOGGED_STAGES:
+            self.write_log(str(event))
 
     def _on_returned(self, outcome) -> None:
         from napari.utils.notifications import show_info
@@ -271,8 +309,8 @@ class RunPanel(Panel):
     def _drive(self, final: str) -> None:
         """One step of showing the results; the next one in the next turn of the
         event loop."""
-        from qtpy.QtCore import QTimer
-
+        if self._closed:
+            return
         try:
             if self._steps is not None:
                 t0, c0 = time.perf_counter(), time.thread_time()
@@ -283,8 +321,8 @@ class RunPanel(Panel):
                                                time.thread_time() - c0))
                 # a pause: the event loop (paint, input) runs between two steps, and a
                 # layer just made visible is drawn before the next one is added
-                pause = DRAW_PAUSE_MS if hint == "draw" else STEP_PAUSE_MS
-                QTimer.singleShot(pause, lambda: self._drive(final))
+                self._final = final
+                self._step_timer.start(DRAW_PAUSE_MS if hint == "draw" else STEP_PAUSE_MS)
                 return
         except StopIteration:
             pass
@@ -307,7 +345,7 @@ class RunPanel(Panel):
     def _on_errored(self, exc: BaseException) -> None:
         from napari.utils.notifications import show_error
 
-        msg = with_explanation(str(exc) or exc.__class__.__name__)
+        msg = with_explanation(exc)
         self.write_log(tr("ERROR: {msg}").format(msg=msg))
         self.eta.value = tr("failed (see log)")
         show_error(f"napari-aldic: {msg}")

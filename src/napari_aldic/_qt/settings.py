@@ -11,6 +11,7 @@ napari sessions (:mod:`.prefs`); "Restore defaults" forgets them.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -26,7 +27,9 @@ from . import prefs
 from .controls import Panel, Plan, apply_plan
 from .correlation import CorrelationPanel
 from .display import DisplayPanel
+from .explain import message
 from .inputs import InputsPanel
+from .model import DockModel
 from .probes import image_view, probes_from_layers
 from .project import is_probe_layer
 from .project_actions import ProjectActions
@@ -39,14 +42,6 @@ JSON_FILTER = tr_noop("DIC parameters (*.json);;All files (*)")
 #: the display choices "Restore defaults" sets
 DISPLAY_DEFAULTS = {"show_field": "|u|", "vectors": True, "vector_length": 0.0, "mesh": False,
                     "deformed": False, "rigid": False}
-
-
-def message(exc: BaseException) -> str:
-    """One line describing an error."""
-    msg = str(exc) or exc.__class__.__name__
-    if isinstance(exc, FileNotFoundError) and not str(exc).strip():
-        msg = tr("no such file: {filename}").format(filename=exc.filename)
-    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
 
 class SettingsPanel(Panel):
@@ -63,15 +58,18 @@ class SettingsPanel(Panel):
     settings_loaded = Signal()
     project_opened = Signal()
 
-    def __init__(self, inputs: InputsPanel, correlation: CorrelationPanel,
+    def __init__(self, model: DockModel, inputs: InputsPanel, correlation: CorrelationPanel,
                  strain: StrainPanel, units: UnitsPanel, display: DisplayPanel,
                  log: Callable[[str], None], apply_units: Callable[[], None], viewer=None):
+        self._model = model
+        #: writes the panels' values into the model (set by the dock; before a save)
+        self.sync: Callable[[], None] = lambda: None
         self._inputs, self._correlation = inputs, correlation
         self._strain, self._units, self._display = strain, units, display
         self._log, self._apply_units = log, apply_units
         self._viewer = viewer
         self._folder: Path | None = None  # folder of the last file
-        self.projects = ProjectActions(self, inputs, correlation, display, viewer, log)
+        self.projects = ProjectActions(model, inputs, viewer, log, parent=self)
         c = correlation  # the controls' first values are the defaults
         self._defaults = [(w, w.value) for w in (
             c.method, c.subset, c.step, c.search, c.refine, c.smooth, c.smooth_px, c.init,
@@ -124,8 +122,8 @@ class SettingsPanel(Panel):
         """The complete analysis settings of the controls (``ValueError`` when they
         do not make valid settings: 'Seed points' without points, a pixel size in
         'px' ...)."""
-        return Settings(self.current_params(), self._units.units, self._strain.as_dict(),
-                        self._correlation.tracking, probes=self.current_probes())
+        return Settings(self.current_params(), self._units.units, self._model.strain.to_dict(),
+                        dict(self._model.tracking), probes=self.current_probes())
 
     def current_probes(self) -> dict | None:
         """The probe layers (Points/Shapes marked as probes) as a probe set in the
@@ -143,20 +141,17 @@ class SettingsPanel(Panel):
         return probes.to_dict() if len(probes) else None
 
     def storable(self, frame_range: bool = True) -> dict:
-        """The settings without seed points (they live in a layer): ``{"settings":
-        Settings document, "init": "fft"|"seeds", "display": {...}}``. Units that
-        are not valid (a pixel size in 'px') are left out."""
-        init = self._correlation.init.value
-        params = self._correlation.params((), init="fft")
-        try:
-            units = self._units.units
-        except ValueError:
-            units = None
-        tracking = self._correlation.tracking
-        if not frame_range:  # a stack's own range, not worth remembering
-            tracking = {k: tracking[k] for k in ("reference", "stride")}
-        s = Settings(params, units, self._strain.as_dict(), tracking)
-        return {"settings": s.to_dict(), "init": init, "display": self._display.choices}
+        """The model's settings without seed points (see :meth:`DockModel.storable`)."""
+        self.sync()
+        return self._model.storable(frame_range)
+
+    def set_init(self, init: str) -> None:
+        """Choose the initial guess ("fft" or "seeds")."""
+        self._correlation.init.value = init
+
+    def set_display(self, choices: dict) -> None:
+        """Set the display choices (unknown keys are ignored)."""
+        self._display.set_choices(choices)
 
     def summary(self) -> str:
         """Every setting in words (for the log)."""
@@ -255,6 +250,9 @@ class SettingsPanel(Panel):
             s = Settings.from_dict(doc.get("settings") or {})
         except ValueError:
             return False  # an outdated file: the defaults stay
+        # a calibration belongs to one image: never applied to the next one (files
+        # of 0.1 remembered it); units come from the image's metadata or the user
+        s = dataclasses.replace(s, units=None)
         init = doc.get("init") if doc.get("init") in ("fft", "seeds") else None
         if init == "seeds" and self._inputs.seeds.value is None:
             init = "fft"  # no seeds layer in this session

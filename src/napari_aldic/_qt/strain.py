@@ -5,13 +5,14 @@ from __future__ import annotations
 from magicgui.widgets import ComboBox, SpinBox
 from psygnal import Signal
 
-from .._analysis import StrainSettings
+from ..engine import StrainParams
 from ..i18n import tr
 from .controls import Panel, Plan, put
 
 __all__ = ["StrainPanel"]
 
-
+#: the controls' starting values (the engine's strain defaults)
+DEFAULTS = StrainParams()
 
 class StrainPanel(Panel):
     """Strain window, method and measure.
@@ -25,16 +26,17 @@ class StrainPanel(Panel):
     settings_changed = Signal()
 
     def _setup_ui(self) -> None:
-        self.strain_window = SpinBox(label=tr("Strain window"), value=5, min=3, max=101, step=2,
+        self.strain_window = SpinBox(label=tr("Strain window"), value=DEFAULTS.window, min=3,
+                                     max=101, step=2,
                                      tooltip=tr("Odd number of nodes across the plane fit; the "
                                              "virtual strain gauge is (window - 1) * step + "
                                              "subset pixels."))
-        self.strain_method = ComboBox(label=tr("Strain method"), value="plane_fit",
+        self.strain_method = ComboBox(label=tr("Strain method"), value=DEFAULTS.method,
                                       choices=[(tr("plane fit"), "plane_fit"),
                                                (tr("FE gradients"), "fem")],
                                       tooltip=tr("Local least-squares plane fit over the window, "
                                               "or gradients of the bilinear element field."))
-        self.strain_measure = ComboBox(label=tr("Strain measure"), value="green_lagrange",
+        self.strain_measure = ComboBox(label=tr("Strain measure"), value=DEFAULTS.measure,
                                        choices=[(tr("Green-Lagrange"), "green_lagrange"),
                                                 (tr("infinitesimal"), "infinitesimal"),
                                                 (tr("Euler-Almansi"), "euler_almansi")],
@@ -46,14 +48,14 @@ class StrainPanel(Panel):
         self.strain_window.changed.connect(self.settings_changed.emit)
 
     @property
-    def settings(self) -> StrainSettings:
+    def settings(self) -> StrainParams:
         """The strain settings of the controls."""
-        return StrainSettings(window=int(self.strain_window.value),
+        return StrainParams(window=int(self.strain_window.value),
                               method=self.strain_method.value,
                               measure=self.strain_measure.value)
 
     @settings.setter
-    def settings(self, value: StrainSettings) -> None:
+    def settings(self, value: StrainParams) -> None:
         self.strain_window.value = value.window
         self.strain_method.value = value.method
         self.strain_measure.value = value.measure

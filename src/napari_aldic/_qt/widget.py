@@ -31,6 +31,8 @@ from .inputs import InputsPanel
 from .language import LanguageSelector, apply_ui_language
 from .layout import divider, sections_area
 from .live import LivePanel
+from .model import DockModel
+from .project import is_probe_layer
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
 from .settings import SettingsPanel
@@ -55,8 +57,6 @@ CONTROLS = {
                  "open_project_button", "defaults_button"),
     "run_panel": ("status", "run_button", "cancel_button", "progress", "eta", "log"),
 }
-#: make the result layer objects in the run's worker thread too (not only their data)
-LAYERS_IN_WORKER = True
 #: the sections, top to bottom: (title, panel attribute, expanded at first)
 #: (the titles are the keys of ``widget.sections``; they are shown translated)
 SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
@@ -78,6 +78,8 @@ class DICWidget(Container):
         super().__init__(labels=False)
         self._viewer = napari_viewer
         self._errors: list[str] = []
+        #: the analysis set up in the dock: the panels write it, Run reads its job
+        self.model = DockModel()
         self._setup_ui()
         self._setup_callbacks()
         self.inputs.assign_existing_layers()
@@ -96,7 +98,7 @@ class DICWidget(Container):
         self._results = ResultLayers(self._viewer)
         self.exports = ExportPanel(lambda: self._results.analysis, lambda: self.units.units,
                                    self._current_frame, self.run_panel.write_log)
-        self.settings = SettingsPanel(self.inputs, self.correlation, self.strain_panel,
+        self.settings = SettingsPanel(self.model, self.inputs, self.correlation, self.strain_panel,
                                       self.units, self.display, log=self.run_panel.write_log,
                                       apply_units=self._apply_units, viewer=self._viewer)
         self.live = LivePanel(self._viewer, lambda: (  # issue 26: live mode, its own panel
@@ -120,6 +122,12 @@ class DICWidget(Container):
         layout.setContentsMargins(0, 0, 0, 0)
 
     def _setup_callbacks(self) -> None:
+        for panel in (self.correlation, self.strain_panel, self.units, self.display):
+            panel.changed.connect(self._write_model)  # any control of the panel
+        self._write_model()
+        self.settings.sync = self._write_model
+        # the export note says the model's units, whichever way they changed
+        self.model.changed.connect(lambda part: part == "units" and self.exports.refresh())
         self.inputs.image.changed.connect(self._on_image_changed)
         self.inputs.inputs_changed.connect(self._validate)
         self.inputs.seeds_assigned.connect(self._use_seeds)
@@ -152,8 +160,6 @@ class DICWidget(Container):
     def analysis(self) -> Analysis | None:
         """The analysis shown in the result layers."""
         return self._results.analysis
-
-    _analysis = analysis  # older name, kept for scripts
 
     def current_settings(self) -> dict[str, Any]:
         """The complete analysis settings of the controls, as
@@ -200,6 +206,24 @@ class DICWidget(Container):
         self.settings.restore_defaults()
 
     # ------------------------------------------------------------ wiring
+    def _write_model(self, *_) -> None:
+        """The panels' values into the model (a value a control holds for a moment
+        that makes no valid parameters, e.g. while a file is applied, waits for the
+        next change)."""
+        m, c = self.model, self.correlation
+        try:
+            m.update("params", c.params((), init="fft"))
+        except ValueError:
+            pass
+        m.update("init", c.init.value)
+        m.update("tracking", c.tracking)
+        m.update("strain", self.strain_panel.settings)
+        try:
+            m.update("units", self.units.units)
+        except ValueError:  # a pixel size in 'px': no valid units
+            m.update("units", None)
+        m.update("display", self.display.choices)
+
     def _use_seeds(self) -> None:
         self.correlation.init.value = "seeds"
 
@@ -234,7 +258,11 @@ class DICWidget(Container):
         self.exports.refresh()
         if self.inputs.image_layer is None:
             return
-        self.units.apply_to(self.inputs.input_layers, self._results.layers)
+        inputs = self.inputs.input_layers
+        # probe layers lie on the image too: they rescale with it (trap 3 of issue 24)
+        probes = [lay for lay in self._viewer.layers
+                  if is_probe_layer(lay) and not any(lay is x for x in inputs)]
+        self.units.apply_to([*inputs, *probes], self._results.layers)
         p, unit = self.units.length
         self.run_panel.write_log(tr("units: pixel size {p:g} {unit}, frame interval "
                                     "{frame_interval:g} {time_unit}").format(
@@ -279,17 +307,15 @@ class DICWidget(Container):
 
     # ------------------------------------------------------------ running
     def _job(self) -> Job:
+        """The run's job: the model's, on the chosen image and its ROI."""
+        self._write_model()
         img, data = self.inputs.image_layer, self.inputs.stack_data
-        c = self.correlation
-        start = int(c.start.value)
+        start = int(self.model.tracking["start"])
         shape = tuple(data.shape[-2:])
         roi, notes = self.inputs.roi(shape, start)
-        job = Job(stack=data, roi=roi, params=self._current_params(),
-                  reference=c.reference.value, start=start, stop=int(c.stop.value),
-                  stride=int(c.stride.value), brush=self.inputs.brush_mask(shape, start),
-                  strain=self.strain_panel.settings, source=img.name)
-        job.summary = job.describe(notes, c.extra_params)
-        return job
+        seeds = self.inputs.seed_points() if self.model.init == "seeds" else ()
+        return self.model.job(data, roi, brush=self.inputs.brush_mask(shape, start),
+                              seeds=seeds, source=img.name, notes=notes)
 
     def run(self, *_) -> None:
         """Start the analysis in a worker thread (no-op while one runs)."""
@@ -304,7 +330,7 @@ class DICWidget(Container):
             job = self._job()
         except Exception as exc:
             show_error(tr("napari-aldic: could not prepare the run: {exc}").format(
-                exc=with_explanation(str(exc))))
+                exc=with_explanation(exc)))
             self.run_panel.write_log(tr("ERROR preparing the run: {exc}").format(exc=exc))
             return
         self._remember()
@@ -312,7 +338,7 @@ class DICWidget(Container):
         self._results.image = image
         geometry, display = geometry_of(image), self._display_options()
         # the result layers are made in the worker too: the viewer only adds them
-        self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, LAYERS_IN_WORKER),
+        self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, True),
                              before=warmup.wait)
 
     def cancel(self, *_) -> None:

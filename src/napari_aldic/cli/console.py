@@ -59,7 +59,9 @@ def progress_bar(prefix: str):
     if not sys.stderr.isatty():
         return None
 
-    def report(frac: float, msg: str) -> None:
+    def report(frac, msg: str | None = None) -> None:
+        if msg is None:  # a ProgressEvent of correlate (correlate_tiled gives two values)
+            frac, msg = frac.fraction, str(frac)
         n = int(round(30 * frac))
         end = "\n" if frac >= 1 else ""
         print(f"\r{prefix} [{'#' * n}{'.' * (30 - n)}] {frac:4.0%} {msg:<40.40}", end=end,
@@ -74,7 +76,8 @@ def sequence_progress(n_frames: int):
         return None
     t0 = time.perf_counter()
 
-    def report(k: int, frac: float, msg: str) -> None:
+    def report(event) -> None:
+        frac, msg = event.fraction, str(event)
         el = time.perf_counter() - t0
         left = el * (1 - frac) / frac if frac > 0 else float("nan")
         eta = "--:--" if not np.isfinite(left) else f"{int(left) // 60:02d}:{int(left) % 60:02d}"

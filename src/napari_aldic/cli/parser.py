@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from .. import __version__
+from ..engine import DICParams, StrainParams
 from ..engine.synthetic import CASES
 from ..i18n import tr, tr_noop
 from .console import PROG
@@ -145,10 +146,11 @@ def add_demo(sub) -> None:
     demo.add_argument("--field", choices=CASES, default=CASES[0],
                       help=tr("displacement field (default: strain = 1%% strain + 0.5 deg "
                               "rotation + sub-pixel translation)"))
-    demo.add_argument("--subset", type=int, default=31,
+    demo.add_argument("--subset", type=int, default=DICParams.subset,
                       help=tr("subset full width, px (default 31)"))
-    demo.add_argument("--step", type=int, default=8, help=tr("node spacing, px (default 8)"))
-    demo.add_argument("--method", choices=("local", "aldic"), default="local")
+    demo.add_argument("--step", type=int, default=DICParams.step,
+                      help=tr("node spacing, px (default 8)"))
+    demo.add_argument("--method", choices=("local", "aldic"), default=DICParams.method)
     demo.add_argument("--seed", type=int, default=0, help=tr("speckle pattern seed (default 0)"))
 
 
@@ -297,7 +299,7 @@ def add_noise_floor(sub) -> None:
     nf.add_argument("--roi", type=Path, metavar="MASK",
                     help=tr("ROI mask: image file (nonzero = analysed) or .npy array"))
     add_param_options(nf)
-    nf.add_argument("--window", type=int, default=5,
+    nf.add_argument("--window", type=int, default=StrainParams.window,
                     help=tr("strain window in nodes (default 5)"))
     nf.add_argument("-o", "--output", type=Path, metavar="OUT.json",
                     help=tr("also write the noise floor as JSON"))

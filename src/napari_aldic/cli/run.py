@@ -71,11 +71,11 @@ def _run_folder(src, folder: Path, roi, params, units, args) -> None:
     loaded: list[int] = []
     bar = sequence_progress(n - 1)
 
-    def progress(k: int, frac: float, msg: str) -> None:
-        if "loaded from" in msg:
-            loaded.append(k)
+    def progress(event) -> None:
+        if event.stage == "frame_loaded":
+            loaded.append(event.frame)
         if bar is not None:
-            bar(k, frac, msg)
+            bar(event)
 
     def show(k: int, res) -> None:
         path = folder / f"frame_{k:05d}.npz"

@@ -24,14 +24,11 @@ Layout, by role (imports flow downwards only; see docs/architecture.md):
 
 from __future__ import annotations
 
-import importlib
-import warnings
-
 from . import io, probes, sem, synthetic, viz
 from .core.files import EncoderNotFoundError, ExportError, InputFileError, RunFolderError
-from .core.params import DICParams
-from .core.progress import Cancelled
-from .core.reasons import Reason
+from .core.params import DICParams, StrainParams
+from .core.progress import Cancelled, ProgressEvent
+from .core.reasons import DICError, Reason
 from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
 from .core.units import Units
@@ -41,7 +38,7 @@ from .dic.quadtree import Refinement, resolve_refinement
 from .dic.quality import SubsetAdvice, advise_subset
 from .dic.strain import StrainResult, compute_strain
 from .io.runs import load_run
-from .io.settings_file import load_params, save_params
+from .io.settings_file import read_settings, write_settings
 from .io.stack import open_stack
 from .sem import correct_distortion, correlate_sem
 from .viz.report import export_report
@@ -54,16 +51,16 @@ from .workflow.watch_probes import LiveProbes
 __all__ = [
     # analysis
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
-    "Settings", "Refinement",
-    "resolve_refinement", "Cancelled",
+    "Settings", "Refinement", "StrainParams",
+    "resolve_refinement", "Cancelled", "ProgressEvent",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
     # results
     "DICResult", "SequenceResult", "StrainResult", "Reason", "Units", "load_result",
     "load_run", "open_stack",
     # files
-    "export_result", "export_report", "save_params", "load_params",
-    "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
+    "export_result", "export_report", "read_settings", "write_settings",
+    "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError", "DICError",
     "InputFileError",
     # subpackages
     "io", "viz", "synthetic", "probes",
@@ -72,27 +69,3 @@ __all__ = [
     # live DIC (issue 26)
     "watch", "LiveProbes",
 ]
-
-#: names this module exported before the engine was split into subpackages;
-#: still importable (with a DeprecationWarning naming the new home)
-_MOVED = {
-    "as_gray_float": "core.images", "prefilter": "dic.interpolation",
-    "sample": "dic.interpolation", "SplineImage": "dic.interpolation",
-    "displacement_figure": "viz.figures", "plot_displacement": "viz.figures",
-    "field_figure": "viz.figures", "export_png": "viz.media", "export_gif": "viz.media",
-    "export_mp4": "viz.media", "export_csv": "io.csv", "read_csv": "io.csv",
-    "export_mat": "io.matlab", "load_mat": "io.runs", "export_vtu": "io.vtk",
-    "read_vtu": "io.vtk", "export_davis": "io.davis", "load_settings": "io.settings_file",
-    "collect_frames": "io.runs",
-}
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        public = "viz" if _MOVED[name].startswith("viz") else "io"
-        if _MOVED[name].startswith(("core", "dic")):
-            public = _MOVED[name]
-        warnings.warn(f"napari_aldic.engine.{name} moved: import it from "
-                      f"napari_aldic.engine.{public}", DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(f".{_MOVED[name]}", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

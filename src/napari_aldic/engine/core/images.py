@@ -7,6 +7,8 @@ import warnings
 
 import numpy as np
 
+from .reasons import DICError
+
 __all__ = ["as_gray_float", "validate_pair", "validate_roi"]
 
 
@@ -108,9 +110,9 @@ def validate_roi(roi, shape: tuple[int, int]) -> np.ndarray:
                         "read it first (napari_aldic.engine.io.read_image, nonzero = analysed)")
     m = np.asarray(roi)
     if m.shape != tuple(shape):
-        raise ValueError(
-            f"ROI mask shape {m.shape} differs from image shape {tuple(shape)}"
-        )
+        raise DICError("shape_mismatch",
+                       f"ROI mask shape {m.shape} differs from image shape {tuple(shape)}",
+                       what="roi", shape=m.shape, image_shape=tuple(shape))
     if m.dtype != bool:
         if not (np.issubdtype(m.dtype, np.integer) or np.issubdtype(m.dtype, np.floating)):
             raise ValueError(f"ROI mask has dtype {m.dtype}; expected a boolean mask")

@@ -14,7 +14,9 @@ from typing import Any, Literal, NoReturn
 
 import numpy as np
 
-__all__ = ["DICParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL"]
+from .reasons import DICError
+
+__all__ = ["DICParams", "StrainParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL"]
 
 #: caps on the iteration counts: more never helps, and a huge value would make
 #: a failing node (or ADMM loop) look like a hung program
@@ -117,7 +119,7 @@ class DICParams:
         component containing the node must keep; smaller ones are flagged.
     refine : {None, "light", "medium", "strong"}, default None
         Adaptive quadtree refinement preset (``correlate(refine=...)`` also
-        takes a full :class:`~napari_aldic.engine.quadtree.Refinement`).
+        takes a full :class:`~napari_aldic.engine.dic.quadtree.Refinement`).
     mu : float, default 0.1
         AL-DIC displacement penalty, dimensionless: the local step's penalty
         stiffness is ``mu`` times the subset's mean Gauss-Newton stiffness.
@@ -230,7 +232,8 @@ class DICParams:
 
     def _check_ranges(self) -> None:
         if self.subset < 7 or self.subset % 2 == 0:
-            _bad(f"subset={self.subset} must be an odd full width >= 7 pixels (e.g. 31)")
+            _bad(f"subset={self.subset} must be an odd full width >= 7 pixels (e.g. 31)",
+                 "not_odd", name="subset", value=self.subset)
         if self.step < 1:
             _bad(f"step={self.step} must be >= 1 pixel")
         if self.search < 1:
@@ -316,6 +319,27 @@ class DICParams:
         """Return a copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def combine(cls, params: DICParams | None, kwargs: dict[str, Any] | None = None,
+                **named: Any) -> DICParams:
+        """The parameters of one call of ``correlate``/``track``/``correlate_tiled``.
+
+        One rule: every argument given explicitly overrides ``params``
+        (``DICParams()`` when None), also when it equals the default.
+        ``named`` are the call's ``subset``/``step``/``method`` arguments
+        (``None``: not given); ``kwargs`` its other fields (all given).
+        """
+        changes = {k: v for k, v in named.items() if v is not None}
+        changes.update(kwargs or {})
+        if params is None:
+            return cls(**changes)
+        if isinstance(params, dict):  # the fields of a DICParams, e.g. from a JSON file
+            params = cls.from_dict(params)
+        if not isinstance(params, DICParams):
+            raise TypeError(f"params must be a DICParams (or a dict of its fields), not "
+                            f"{type(params).__name__}")
+        return params.replace(**changes) if changes else params
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON dictionary of the parameters."""
         d = dataclasses.asdict(self)
@@ -339,8 +363,8 @@ class DICParams:
 
 
 # ------------------------------------------------------------------ checks
-def _bad(msg: str) -> NoReturn:
-    raise ValueError(f"Invalid DIC parameter: {msg}")
+def _bad(msg: str, code: str = "invalid_parameter", **fields) -> NoReturn:
+    raise DICError(code, f"Invalid DIC parameter: {msg}", **fields)
 
 
 def _integer(name: str, val, optional: bool = False) -> int | None:
@@ -389,3 +413,25 @@ def _seed_points(seeds) -> tuple[tuple[float, float], ...]:
                  f"(seeds must be {example})")
         out.append(tuple(_number(f"seed {i} {axis}", v) for axis, v in zip("xy", pt)))
     return tuple(out)
+
+
+@dataclass(frozen=True)
+class StrainParams:
+    """How strain is computed from a displacement field: the one place of the
+    strain defaults (``compute_strain``, settings files, the CLI and the dock).
+
+    Attributes
+    ----------
+    window : int, default 5
+        Odd number of nodes across the plane fit (>= 3).
+    method : {"plane_fit", "fem"}, default "plane_fit"
+    measure : {"green_lagrange", "infinitesimal", "euler_almansi"}, default "green_lagrange"
+    """
+
+    window: int = 5
+    method: str = "plane_fit"
+    measure: str = "green_lagrange"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings file's "strain" section."""
+        return dataclasses.asdict(self)

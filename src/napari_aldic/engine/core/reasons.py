@@ -1,11 +1,23 @@
-"""Reason codes explaining why a node is (or is not) trusted."""
+"""Reason codes explaining why a node is (or is not) trusted, their one table of
+text and colour, and :class:`DICError`, the typed error of a run that cannot start.
+
+The texts are English (they are searched for and quoted in issues); the widget
+translates them (``tr_noop`` below only marks them for the message catalogue:
+the engine itself never translates).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
-__all__ = ["Reason"]
+__all__ = ["Reason", "ReasonInfo", "REASONS", "DICError"]
 
+
+def tr_noop(text: str) -> str:
+    """Mark ``text`` for the translation catalogue (returned unchanged)."""
+    return text
 
 class Reason(IntEnum):
     """Why a node is flagged; ``OK`` (0) means converged and trusted."""
@@ -49,21 +61,63 @@ class Reason(IntEnum):
 
     @classmethod
     def describe(cls, code: int) -> str:
-        """Human-readable text of a reason code."""
-        return {
-            0: "converged",
-            1: "subset component too small (mask)",
-            2: "not converged (iteration cap)",
-            3: "deformed subset leaves the image",
-            4: "low correlation (ZNCC below threshold)",
-            5: "no texture in subset",
-            6: "diverged",
-            7: "no initial guess",
-            8: "outlier (median test)",
-            9: "poor match (residual above image noise)",
-            10: "motion beyond the search range",
-            11: "uncertain (noise)",
-            12: "global field departs from the subset match (AL-DIC)",
-            13: "static feature (part of the subset does not move)",
-            14: "ambiguous match (texture repeats within the search range)",
-        }.get(int(code), f"unknown ({code})")
+        """Human-readable (English) text of a reason code."""
+        info = REASONS.get(int(code))
+        return info.text if info is not None else f"unknown ({code})"
+
+    @classmethod
+    def colour(cls, code: int) -> str:
+        """The colour (``#rrggbb``) of a reason code in every figure and layer
+        (black for an unknown code)."""
+        info = REASONS.get(int(code))
+        return info.colour if info is not None else "#000000"
+
+
+@dataclass(frozen=True)
+class ReasonInfo:
+    """What a reason code means (English) and its colour (``#rrggbb``)."""
+
+    text: str
+    colour: str
+
+
+#: the one table of reason codes: text and colour (tab10 and a few darker ones, no
+#: two alike; green only for converged)
+REASONS: dict[int, ReasonInfo] = {
+    Reason.OK: ReasonInfo(tr_noop("converged"), "#2ca02c"),
+    Reason.SMALL_COMPONENT: ReasonInfo(tr_noop("subset component too small (mask)"),
+                                       "#1f77b4"),
+    Reason.NOT_CONVERGED: ReasonInfo(tr_noop("not converged (iteration cap)"), "#ff7f0e"),
+    Reason.OUT_OF_IMAGE: ReasonInfo(tr_noop("deformed subset leaves the image"), "#d62728"),
+    Reason.LOW_CORRELATION: ReasonInfo(tr_noop("low correlation (ZNCC below threshold)"),
+                                       "#9467bd"),
+    Reason.NO_TEXTURE: ReasonInfo(tr_noop("no texture in subset"), "#8c564b"),
+    Reason.DIVERGED: ReasonInfo(tr_noop("diverged"), "#e377c2"),
+    Reason.NO_INITIAL_GUESS: ReasonInfo(tr_noop("no initial guess"), "#bcbd22"),
+    Reason.OUTLIER: ReasonInfo(tr_noop("outlier (median test)"), "#17becf"),
+    Reason.POOR_MATCH: ReasonInfo(tr_noop("poor match (residual above image noise)"),
+                                  "#7f7f7f"),
+    Reason.BEYOND_SEARCH: ReasonInfo(tr_noop("motion beyond the search range"), "#000080"),
+    Reason.UNCERTAIN: ReasonInfo(tr_noop("uncertain (noise)"), "#ffd700"),
+    Reason.GLOBAL_MISMATCH: ReasonInfo(
+        tr_noop("global field departs from the subset match (AL-DIC)"), "#800000"),
+    Reason.STATIC_FEATURE: ReasonInfo(
+        tr_noop("static feature (part of the subset does not move)"), "#556b2f"),
+    Reason.AMBIGUOUS_MATCH: ReasonInfo(
+        tr_noop("ambiguous match (texture repeats within the search range)"), "#ff1493"),
+}
+
+
+class DICError(ValueError):
+    """An analysis that cannot run as asked, with a machine-readable ``code``
+    and the values involved in ``fields`` (the message stays English).
+
+    Codes: ``"invalid_parameter"``, ``"not_odd"`` (a subset or strain window
+    of even width), ``"subset_too_large"``, ``"shape_mismatch"`` (ROI, brush or
+    image sizes differ), ``"seed_outside_roi"``, ``"no_seed_match"``.
+    """
+
+    def __init__(self, code: str, message: str, **fields: Any):
+        super().__init__(message)
+        self.code = code
+        self.fields = fields

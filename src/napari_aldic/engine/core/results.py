@@ -51,7 +51,7 @@ class DICResult:
     zncc : (n,) float64
         Zero-normalised cross-correlation of the matched subset (1 = perfect).
     reason : (n,) int8
-        :class:`~napari_aldic.engine.reasons.Reason` code per node.
+        :class:`~napari_aldic.engine.core.reasons.Reason` code per node.
     iterations : (n,) int32
         IC-GN iterations used.
     grid_ix, grid_iy : (n,) int64

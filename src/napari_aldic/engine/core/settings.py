@@ -1,7 +1,7 @@
 """The analysis settings: parameters, units, strain and tracking in one type.
 
 A settings file (written by ``napari-aldic params``, ``run --params-out``, the
-widget's "Save parameters" or :func:`~napari_aldic.engine.save_params`) is the
+widget's "Save parameters" or :func:`~napari_aldic.engine.write_settings`) is the
 JSON form of :class:`Settings`::
 
     {"format": "napari-aldic-settings", "format_version": 1,
@@ -24,7 +24,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from .params import DICParams
+from .params import DICParams, StrainParams
+from .reasons import DICError
 from .units import Units
 from .version import __version__
 
@@ -41,7 +42,7 @@ PROBES_FORMAT = "napari-aldic-probes"
 STRAIN_METHODS = ("plane_fit", "fem")
 STRAIN_MEASURES = ("green_lagrange", "infinitesimal", "euler_almansi")
 #: strain settings used where a file or a caller gives none
-STRAIN_DEFAULTS = {"window": 5, "method": "plane_fit", "measure": "green_lagrange"}
+STRAIN_DEFAULTS = StrainParams().to_dict()
 REFERENCE_MODES = ("accumulative", "incremental")
 TRACKING_KEYS = ("reference", "start", "stop", "stride")
 
@@ -202,8 +203,9 @@ def _strain_section(value) -> dict | None:
     if "window" in strain:
         strain["window"] = _whole(strain["window"], "strain window", 3)
         if strain["window"] % 2 == 0:
-            raise ValueError(f"strain window {strain['window']} must be an odd number of "
-                             "nodes >= 3 (e.g. 5)")
+            raise DICError("not_odd", f"strain window {strain['window']} must be an odd "
+                           "number of nodes >= 3 (e.g. 5)", name="window",
+                           value=strain["window"])
     if "method" in strain:
         _choice(strain["method"], "strain method", STRAIN_METHODS)
     if "measure" in strain:

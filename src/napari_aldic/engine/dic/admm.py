@@ -107,10 +107,10 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
     second_order : bend each subset by the global field's second derivatives.
     noise_var : (n, 2) predicted local displacement variances; with
         ``subset``, used to shrink noisy curvature estimates (see
-        :func:`~napari_aldic.engine.regularise.shrink_curvature`).
+        :func:`~napari_aldic.engine.dic.regularise.shrink_curvature`).
     solver : a :class:`GlobalSolver` to reuse (same mesh and weights).
     solver_method : linear solver of the global step (see
-        :func:`~napari_aldic.engine.global_solve.solver_method`).
+        :func:`~napari_aldic.engine.dic.global_solve.solver_method`).
     on_iteration : callable(k), optional; called before ADMM iteration k
         (a progress / cancellation point).
     """

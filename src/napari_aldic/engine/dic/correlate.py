@@ -13,7 +13,7 @@ import numpy as np
 from ..core.files import array_digest
 from ..core.images import as_gray_float, validate_pair, validate_roi
 from ..core.params import DICParams
-from ..core.progress import CancelFn, check_cancel
+from ..core.progress import CancelFn, ProgressEvent, check_cancel, event_callback
 from ..core.reasons import Reason
 from ..core.results import DICResult
 from .admm import image_local_step
@@ -33,7 +33,7 @@ from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
 
-ProgressFn = Callable[[float, str], None]
+ProgressFn = Callable[[ProgressEvent], None]
 
 
 @contextmanager
@@ -58,8 +58,9 @@ def _versions() -> dict[str, str]:
             "scipy": scipy.__version__, "numba": numba.__version__}
 
 
-def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
-              method: str = "local", *, params: DICParams | None = None,
+def correlate(reference, deformed, roi=None, subset: int | None = None,
+              step: int | None = None, method: str | None = None, *,
+              params: DICParams | None = None,
               refine=None, guess: DICResult | None = None,
               progress: ProgressFn | None = None, cancel: CancelFn | None = None,
               solver_cache: dict | None = None, **kwargs) -> DICResult:
@@ -72,15 +73,14 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     roi : (H, W) bool array or None
         Region of interest, True where material is analysed; holes and
         cracks False. None analyses the whole image.
-    subset : int
-        Odd full subset width in pixels (31 -> 31 x 31).
-    step : int
-        Node spacing in pixels.
-    method : {"local", "aldic"}
-        Local IC-GN, or augmented Lagrangian DIC.
+    subset, step : int, optional
+        Odd full subset width (31 -> 31 x 31) and node spacing in pixels
+        (defaults: :class:`~napari_aldic.engine.DICParams`', 31 and 8).
+    method : {"local", "aldic"}, optional
+        Local IC-GN (the default), or augmented Lagrangian DIC.
     params : DICParams, optional
         All parameters at once; ``subset``, ``step``, ``method`` and
-        ``kwargs`` then override its fields only when given explicitly.
+        ``kwargs`` given explicitly override its fields, always.
     refine : None, "light", "medium", "strong", Refinement or dict
         Adaptive quadtree refinement of the mesh (see
         :mod:`napari_aldic.engine.dic.quadtree`); overrides ``params.refine``.
@@ -91,8 +91,8 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         trusted node with its gradient) start every node, instead of the
         cross-correlation or seed guess; nodes that then fail are rescued as
         usual. ``track`` passes the previous frame.
-    progress : callable(fraction, message), optional
-        Called as the analysis advances.
+    progress : callable(ProgressEvent), optional
+        Called as the analysis advances; 0.1's ``(fraction, message)`` is deprecated.
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.
@@ -118,7 +118,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     (0.4, -0.2)
     """
     t_start = time.perf_counter()
-    params = _merge_params(params, subset, step, method, kwargs)
+    params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     _check_guess(guess)
     report, timing = _reporter(progress, cancel), {}  # timing: stage -> seconds
     f, g, mask, params = _validated(reference, deformed, roi, params)
@@ -135,7 +135,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     quality = _quality(im, mask, grid, sol, params, timing, meta)
     sol.reason = _uncertain_as_exported(sol, quality, params)
     _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
-    report(1.0, "done")
+    report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
 
@@ -146,12 +146,13 @@ def _check_guess(guess) -> None:
 
 
 def _reporter(progress, cancel):
-    """``report(fraction, message)``: the caller's progress, and a cancellation point."""
-    user_report = progress or (lambda frac, msg: None)
+    """``report(stage, fraction, message)``: the caller's progress (a
+    :class:`ProgressEvent`), and a cancellation point."""
+    user_report = event_callback(progress, "correlate", stacklevel=4)
 
-    def report(frac: float, msg: str) -> None:
+    def report(stage: str, frac: float, msg: str = "") -> None:
         check_cancel(cancel)  # every progress point is a cancellation point
-        user_report(frac, msg)
+        user_report(ProgressEvent(stage, frac, message=msg))
 
     return report
 
@@ -179,12 +180,12 @@ def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report, ref_
     base = make_grid(mask, params.subset, params.step)
     grid, qmesh = _nodes(base, mask, ref_spec, params)
     timing["setup"] = time.perf_counter() - t
-    report(0.05, f"{grid.n} nodes")
+    report("setup", 0.05, f"{grid.n} nodes")
     t = time.perf_counter()
     im = prepare_images(f, g, params.interpolation, params.extra.get("jacobian_sigma"),
                         ref_cache)
     timing["prefilter"] = time.perf_counter() - t
-    report(0.15, "interpolation ready")
+    report("prefilter", 0.15, "interpolation ready")
     return im, base, grid, qmesh
 
 
@@ -273,23 +274,6 @@ def reference_result(image, roi=None, params: DICParams | None = None,
     return _assemble(sol, grid, img.shape, params, meta, mask, quality)
 
 
-def _merge_params(params, subset, step, method, kwargs) -> DICParams:
-    """One validated DICParams from ``params`` and explicit arguments."""
-    if params is None:
-        return DICParams(subset=subset, step=step, method=method, **kwargs)
-    if isinstance(params, dict):  # the fields of a DICParams, e.g. from a JSON file
-        params = DICParams.from_dict(params)
-    if not isinstance(params, DICParams):
-        raise TypeError(f"params must be a DICParams (or a dict of its fields), not "
-                        f"{type(params).__name__}")
-    changes = dict(kwargs)
-    defaults = DICParams()
-    for name, val in (("subset", subset), ("step", step), ("method", method)):
-        if val != getattr(defaults, name):
-            changes[name] = val
-    return params.replace(**changes) if changes else params
-
-
 def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: dict,
              report: ProgressFn, guess, solver_cache: dict | None = None) -> _Solution:
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
@@ -306,7 +290,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
                     validity=validity.summary(zncc, reason == Reason.OK))
     if params.method != "aldic":
         return sol
-    report(0.85, "AL-DIC iterations")
+    report("aldic", 0.85, "AL-DIC iterations")
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
     jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)  # method.md 5.1
@@ -314,7 +298,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
                             params.half, params.max_iter, params.tol, lin=(im.fgx, im.fgy))
     out = aldic_stage(step, mesh, validity, sol.u, sol.v, sol.grad, zncc, reason,
                       sub.slot >= 0, params, timing, solver_cache=solver_cache,
-                      on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
+                      on_iteration=lambda k: report("aldic", 0.85 + 0.1 * k / params.admm_max_iter,
                                                     f"ADMM iteration {k}"))
     iters = np.where(out.reason == Reason.OK, out.iters, iters).astype(np.int32)
     return _Solution(sub, out.u, out.v, out.grad, out.zncc, out.reason, iters, mesh,

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core.params import DICParams
-from ..core.reasons import Reason
+from ..core.reasons import DICError, Reason
 from .icgn import icgn_solve
 from .init_guess import ncc_search_widening
 from .interpolation import (
@@ -44,7 +44,7 @@ from .subsets import SubsetMasks
 
 __all__ = ["Images", "prepare_images", "solve_local"]
 
-ProgressFn = Callable[[float, str], None]
+ProgressFn = Callable[[str, float, str], None]  # report(stage, fraction, message)
 
 #: most nodes searched with rotated subsets (once per analysis, when no
 #: coarse node, or no node at all after the repair waves, matches)
@@ -235,7 +235,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     else:
         t = _coarse_to_fine(st, timing, report)
     timing["icgn"] = time.perf_counter() - t
-    report(0.8, "IC-GN done")
+    report("icgn", 0.8, "IC-GN done")
 
     t = time.perf_counter()
     _repair(st, report)
@@ -258,8 +258,8 @@ def _seed_nodes(st: _State) -> np.ndarray:
     for sx, sy in seeds:
         ix, iy = int(round(sx)), int(round(sy))
         if not (0 <= ix < cols and 0 <= iy < rows) or not roi[iy, ix]:
-            raise ValueError(f"seed ({sx:g}, {sy:g}) is outside the ROI; place seeds on "
-                             "analysed material")
+            raise DICError("seed_outside_roi", f"seed ({sx:g}, {sy:g}) is outside the ROI; "
+                           "place seeds on analysed material", x=sx, y=sy)
         seed_region.append(labels[iy, ix])
     node_region = labels[grid.y, grid.x]
     for r in np.unique(node_region[st.usable]):
@@ -303,8 +303,8 @@ def _propagate_seeds(st: _State) -> None:
     if missing.size:  # perhaps a large rotation
         solved[_rotated_rescue(st, missing, zmin, whole, all_nodes=True)] = True
     if not solved.any():
-        raise ValueError("no seed could be matched in the deformed image; move the seeds to "
-                         "well-textured material")
+        raise DICError("no_seed_match", "no seed could be matched in the deformed image; "
+                       "move the seeds to well-textured material")
     tries = _grow(st, lattice_neighbours(st.grid, st.roi, radius=1), solved, st.usable,
                   zmin, max_tries=1)
     # unreachable from any seed through converged nodes
@@ -329,7 +329,7 @@ def _grow(st: _State, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray,
     active = np.zeros(grid.n, bool)
     while True:
         if report is not None:
-            report(0.8, "growing trusted regions")
+            report("repair", 0.8, "growing trusted regions")
         nb_good = np.zeros(nbrs.shape, bool)
         nb_good[has] = good[nbrs[has]]
         cand = np.nonzero(eligible & ~good & (tries < max_tries) & nb_good.any(axis=1))[0]
@@ -437,7 +437,7 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn,
         p_init[coarse[gone]] = pred[gone]
         p_init[coarse[~gone]] = st.ncc_guess(coarse[~gone], centre=pred[~gone][:, [0, 3]])
     timing["init"] = time.perf_counter() - t
-    report(0.3, f"initial guess at {coarse.size} coarse nodes")
+    report("initial_guess", 0.3, f"initial guess at {coarse.size} coarse nodes")
 
     t = time.perf_counter()
     active = np.zeros(n, bool)

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.reasons import DICError
+
 __all__ = ["NodeGrid", "make_grid", "EDGE"]
 
 #: pixels kept between node subsets and the image border. B-spline values
@@ -77,10 +79,9 @@ def make_grid(roi: np.ndarray, subset: int, step: int) -> NodeGrid:
     h = subset // 2
     rows, cols = roi.shape
     if subset + 2 * EDGE > rows or subset + 2 * EDGE > cols:
-        raise ValueError(
-            f"subset={subset} px is larger than the image ({rows} x {cols} px); "
-            "choose a smaller subset"
-        )
+        raise DICError(
+            "subset_too_large", f"subset={subset} px is larger than the image ({rows} x "
+            f"{cols} px); choose a smaller subset", subset=subset, shape=(rows, cols))
     m = h + EDGE
     xs = np.arange(m, cols - m, step, dtype=np.int64)
     ys = np.arange(m, rows - m, step, dtype=np.int64)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.params import StrainParams
 from .correlate import correlate
 from .strain import compute_strain
 
@@ -36,8 +37,8 @@ def _rigid_residual(x, y, u, v):
     return r[:n], r[n:]
 
 
-def noise_floor(reference, static, roi=None, *, strain_window: int = 5,
-                strain_method: str = "plane_fit", **kwargs) -> dict:
+def noise_floor(reference, static, roi=None, *, strain_window: int = StrainParams.window,
+                strain_method: str = StrainParams.method, **kwargs) -> dict:
     """Displacement and strain noise of a static pair with the given settings.
 
     Parameters

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from ..core.reasons import DICError
 from ..kernels.sums import integral_image
 from .global_solve import Q4Mesh, element_inside_roi
 from .subsets import rect_sums
@@ -157,7 +158,9 @@ def flag_elements(cells: np.ndarray, roi: np.ndarray, ref: Refinement, half: int
     if ref.brush is not None:
         b = np.asarray(ref.brush, bool)
         if b.shape != roi.shape:
-            raise ValueError(f"brush region shape {b.shape} differs from image shape {roi.shape}")
+            raise DICError("shape_mismatch", f"brush region shape {b.shape} differs from image "
+                           f"shape {roi.shape}", what="brush", shape=b.shape,
+                           image_shape=roi.shape)
         flags |= _rect_hits(integral_image(b.view(np.uint8)), x0, y0, x0 + s, y0 + s)
     if len(ref.points):
         pts = np.asarray(ref.points, float).reshape(-1, 2)

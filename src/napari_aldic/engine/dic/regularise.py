@@ -5,7 +5,7 @@ correlated (31 px subsets every 8 px share ~75 % of their pixels), so the
 compatibility constraints of Algorithm 1 alone cannot average noise away. The
 global step therefore may carry a thin-plate term ``κ ‖K û‖²`` (squared second
 differences and element twists of ``û``,
-:func:`~napari_aldic.engine.global_solve.curvature_operator`). It is zero for
+:func:`~napari_aldic.engine.dic.global_solve.curvature_operator`). It is zero for
 any affine field, so uniform strain and rigid motion are never biased; a
 displacement wave of wavenumber ``k`` is attenuated by about
 ``1 / (1 + (k ℓ)^4)``, where ``ℓ`` (pixels) is the *smoothing length*.
@@ -89,7 +89,7 @@ DECONVOLUTION_STEPS = 3
 
 def gradient_noise_gain(order: int) -> float:
     """Variance of the spline derivative of unit white noise at the pixel
-    centres (:func:`~napari_aldic.engine.interpolation.reference_gradients`)."""
+    centres (:func:`~napari_aldic.engine.dic.interpolation.reference_gradients`)."""
     w = np.linspace(0, np.pi, 4097)
     if order == 3:
         d = 6 * np.sin(w) / (4 + 2 * np.cos(w))

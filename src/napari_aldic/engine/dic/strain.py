@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.params import StrainParams
+from ..core.reasons import DICError
 from ..core.results import DICResult
 from ..kernels.lattice import plane_fit
 
@@ -119,7 +121,8 @@ def _check_arguments(result, window, method: str, measure: str) -> None:
         raise ValueError(f"measure={measure!r} must be one of {MEASURES}")
     if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3 \
             or window % 2 == 0:
-        raise ValueError(f"window={window!r} must be an odd number of nodes >= 3 (e.g. 5)")
+        raise DICError("not_odd", f"window={window!r} must be an odd number of nodes >= 3 "
+                       "(e.g. 5)", name="window", value=window)
     rows, cols = result.grid_shape
     widest = 2 * max(rows, cols, 2) - 1  # from a corner node, every node is in the window
     if window > widest:
@@ -133,8 +136,9 @@ def _check_arguments(result, window, method: str, measure: str) -> None:
                          "(strain windows are usually 3 to 15 nodes)")
 
 
-def compute_strain(result: DICResult, window: int = 5, method: str = "plane_fit",
-                   measure: str = "green_lagrange", roi=None) -> StrainResult:
+def compute_strain(result: DICResult, window: int = StrainParams.window,
+                   method: str = StrainParams.method, measure: str = StrainParams.measure,
+                   roi=None) -> StrainResult:
     """Strain at the nodes of ``result``.
 
     Parameters

@@ -8,7 +8,7 @@
   any file or folder the package writes;
 * writers/readers per format: CSV, MATLAB, VTK (.vtu/.pvd), DaVis text;
 * :func:`read_settings` / :func:`write_settings` (a :class:`~napari_aldic.engine.Settings`),
-  :func:`save_params` / :func:`load_params` / :func:`load_settings` -- settings files.
+  :func:`read_settings` / :func:`write_settings` -- settings files.
 """
 
 from ..core.files import available_memory, file_sha256, read_json_file, regular_file
@@ -17,7 +17,7 @@ from .csv import export_csv, read_csv
 from .davis import export_davis
 from .matlab import export_mat
 from .runs import Frame, FrameSet, collect_frames, load_mat, load_run
-from .settings_file import load_params, load_settings, read_settings, save_params, write_settings
+from .settings_file import read_settings, write_settings
 from .stack import (
     IMAGE_SUFFIXES,
     TIFF_SUFFIXES,
@@ -38,7 +38,6 @@ __all__ = [
     "pixel_size_of",
     "Frame", "FrameSet", "collect_frames", "load_run", "load_mat", "frame_columns", "FIELD_INFO",
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
-    "export_davis", "save_params", "load_params", "load_settings", "read_settings",
-    "write_settings", "regular_file", "read_json_file",
+    "export_davis", "read_settings", "write_settings", "regular_file", "read_json_file",
     "file_sha256", "available_memory",
 ]

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..core.reasons import REASONS, Reason
 from ..core.units import Units
 from ..io.columns import FIELD_INFO, unit_of
 
@@ -33,17 +34,13 @@ SIGNED_KINDS = ("length", "velocity", "strain", "angle", "rate")
 #: fields of a signed kind that are never negative
 NON_NEGATIVE_FIELDS = ("magnitude", "von_mises", "max_shear")
 _LIMIT_MODES = ("range", "symmetric", "from_zero")
-#: one colour per reason code, no two alike (tab10 and a few darker ones; green only
-#: for converged)
-REASON_COLOURS = {0: "#2ca02c", 1: "#1f77b4", 2: "#ff7f0e", 3: "#d62728", 4: "#9467bd",
-                  5: "#8c564b", 6: "#e377c2", 7: "#bcbd22", 8: "#17becf", 9: "#7f7f7f",
-                  10: "#000080", 11: "#ffd700", 12: "#800000", 13: "#556b2f",
-                  14: "#ff1493"}
+#: the colour of each reason code (from the one reason table, core.reasons.REASONS)
+REASON_COLOURS = {int(code): info.colour for code, info in REASONS.items()}
 
 
 def reason_colour(code: int) -> str:
     """The colour of reason ``code`` in every figure (black for an unknown code)."""
-    return REASON_COLOURS.get(int(code), "#000000")
+    return Reason.colour(code)
 
 
 # =================================================================== names

@@ -2,14 +2,14 @@
 
 Every function takes a result in any of these forms (``data``):
 
-* one :class:`~napari_aldic.engine.results.DICResult` (an image pair);
-* a :class:`~napari_aldic.engine.sequence.SequenceResult` from ``track``, or a
+* one :class:`~napari_aldic.engine.core.results.DICResult` (an image pair);
+* a :class:`~napari_aldic.engine.core.results.SequenceResult` from ``track``, or a
   list of ``DICResult`` (``None`` entries, frames not computed, are skipped);
 * a path: a result ``.npz``, a ``.mat`` written by :func:`export_mat`, or a
   run folder (``sequence.json`` + ``frame_#####.npz`` written by
   ``track(out_dir=...)``, or the ``frame###.npz`` files of ``napari-aldic run``).
 
-Units (:class:`~napari_aldic.engine.units.Units`: pixel size with its unit,
+Units (:class:`~napari_aldic.engine.core.units.Units`: pixel size with its unit,
 frame interval with its unit) are applied the same way by every export; see
 ``docs/exports.md`` for every file layout, field name and unit.
 

@@ -36,8 +36,7 @@ import numpy as np
 from ..core.files import RunFolderError, array_digest, explain_os_error, explained
 from ..core.images import validate_roi
 from ..core.params import DICParams
-from ..core.progress import Cancelled
-from ..core.reasons import Reason
+from ..core.progress import Cancelled, ProgressEvent, event_callback
 from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
 from ..core.roifile import write_roi_file
 from ..dic.correlate import correlate, reference_result
@@ -45,6 +44,7 @@ from ..dic.roi_warp import carry_roi
 from ..io.stack import frame_numbers, open_stack
 from ..io.zarrstore import STORE_NAME, FieldStore
 from .cluster import check_scheduler, run_parallel
+from .compose import compose
 from .runfolder import (
     IMAGE_DIGEST,
     MANIFEST,
@@ -62,101 +62,6 @@ __all__ = ["track", "TrackError", "RunFolderError", "SequenceRun", "Chain"]
 _ON_DISK = object()  # a finished frame kept only in the run folder
 
 
-def _sample_on_lattice(res: DICResult, name: str, x: np.ndarray, y: np.ndarray):
-    """Bilinear interpolation of a node field at points (NaN where not possible)."""
-    from scipy.interpolate import RegularGridInterpolator
-
-    gridv = res.to_grid(name)
-    interp = RegularGridInterpolator((res.grid_ys.astype(float), res.grid_xs.astype(float)),
-                                     gridv, bounds_error=False, fill_value=np.nan)
-    return interp(np.column_stack([y, x]))
-
-
-def _compose(base: DICResult, inc: DICResult) -> DICResult:
-    """``u_0k(X) = u_0r(X) + du(X + u_0r(X))``, at the nodes of ``base``.
-
-    ``du`` is interpolated bilinearly on the lattice of ``inc``; where that is
-    not possible (next to an untrusted node, or between the lattice's last
-    nodes and the image edge, where material moves after frame 0) the nearest
-    trusted node is extrapolated with its gradient: within 0.75 steps inside
-    the lattice (not across holes), 1.5 steps outside it. Nodes left without
-    an increment are flagged with the reason that holds: OUT_OF_IMAGE when
-    their subset has left the image, else the nearest increment node's.
-    """
-    from scipy.spatial import cKDTree
-
-    xd = base.x + base.u
-    yd = base.y + base.v
-    out = DICResult(**{**base.__dict__})
-    names = ("u", "v", "dudx", "dudy", "dvdx", "dvdy", "zncc")
-    vals = {n: _sample_on_lattice(inc, n, xd, yd) for n in names}
-    miss = base.valid & ~np.all([np.isfinite(v) for v in vals.values()], axis=0)
-    inside = ((xd >= inc.grid_xs[0]) & (xd <= inc.grid_xs[-1])
-              & (yd >= inc.grid_ys[0]) & (yd <= inc.grid_ys[-1]))
-    good = np.nonzero(inc.valid)[0]
-    step = float(inc.params.step)
-    if miss.any() and good.size:
-        # past the lattice edge, but a subset there is inside the image:
-        # one extrapolation of the small increment, not of the total motion
-        reach = np.where(inside[miss], 0.75, 1.5) * step
-        d, j = cKDTree(np.column_stack([inc.x[good], inc.y[good]])).query(
-            np.column_stack([xd[miss], yd[miss]]), distance_upper_bound=1.5 * step)
-        hit = d <= reach
-        src = good[np.where(hit, j, 0)]
-        dx = xd[miss] - inc.x[src]
-        dy = yd[miss] - inc.y[src]
-        fill = {n: getattr(inc, n)[src].astype(float) for n in names}
-        fill["u"] = fill["u"] + inc.dudx[src] * dx + inc.dudy[src] * dy
-        fill["v"] = fill["v"] + inc.dvdx[src] * dx + inc.dvdy[src] * dy
-        idx = np.nonzero(miss)[0][hit]
-        for n in names:
-            vals[n][idx] = fill[n][hit]
-    # F_0k = (I + H_rk(x)) (I + H_0r(X)) - I
-    A = np.stack([[1 + vals["dudx"], vals["dudy"]], [vals["dvdx"], 1 + vals["dvdy"]]])
-    B = np.stack([[1 + base.dudx, base.dudy], [base.dvdx, 1 + base.dvdy]])
-    C = np.einsum("ijn,jkn->ikn", A, B)
-    uk, vk = base.u + vals["u"], base.v + vals["v"]
-    # as in accumulative tracking, a subset that left frame k is not measured
-    gone = _subset_left(inc, base.x, base.y, uk, vk, C - np.eye(2)[:, :, None])
-    ok = base.valid & np.all([np.isfinite(v) for v in vals.values()], axis=0) & ~gone
-    out.u, out.v = np.where(ok, uk, np.nan), np.where(ok, vk, np.nan)
-    out.dudx, out.dudy = C[0, 0] - 1, C[0, 1]
-    out.dvdx, out.dvdy = C[1, 0], C[1, 1] - 1
-    out.zncc = vals["zncc"]
-    out.valid = ok
-    out.reason = np.where(ok, Reason.OK, base.reason).astype(np.int8)
-    dropped = np.nonzero(base.valid & ~ok)[0]
-    if dropped.size:
-        _, jn = cKDTree(np.column_stack([inc.x, inc.y])).query(
-            np.column_stack([xd[dropped], yd[dropped]]))
-        why = inc.reason[jn]
-        # a trusted nearest node that could not be used (too far): its
-        # material is not covered by the increment's lattice
-        why = np.where(why == Reason.OK, Reason.NO_INITIAL_GUESS, why)
-        # without an increment, judge by the subset's place in frame k-1
-        left = gone[dropped] | _subset_left(inc, xd[dropped], yd[dropped], 0.0, 0.0,
-                                             np.zeros((2, 2, 1)))
-        out.reason[dropped] = np.where(left, Reason.OUT_OF_IMAGE, why)
-    out.meta = {**inc.meta}
-    return out
-
-
-def _subset_left(inc: DICResult, x, y, u, v, grad) -> np.ndarray:
-    """Whether a corner of the subset at ``(x, y)``, warped by ``u, v`` and
-    the displacement gradient ``grad`` (2, 2, n), leaves ``inc``'s image
-    (False where the warp is not known)."""
-    rows, cols = inc.image_shape
-    h = inc.params.half
-    out = np.zeros(np.shape(x), bool)
-    with np.errstate(invalid="ignore"):
-        for dx in (-h, h):
-            for dy in (-h, h):
-                xc = x + dx + u + grad[0, 0] * dx + grad[0, 1] * dy
-                yc = y + dy + v + grad[1, 0] * dx + grad[1, 1] * dy
-                out |= (xc < 0) | (xc > cols - 1) | (yc < 0) | (yc > rows - 1)
-    return out
-
-
 class TrackError(ValueError):
     """A frame of :func:`track` could not be read or analysed (an unreadable
     file, a frame of another size, ...). The frames finished before it (with
@@ -171,11 +76,12 @@ class TrackError(ValueError):
         self.frame = frame
 
 
-def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local",
-          reference: str = "accumulative", *, update_every: int | None = None,
-          rois=None, frames=None, out_dir=None, params: DICParams | None = None,
-          scheduler=None, workers: int | None = None, refine=None, meta: dict | None = None,
-          progress: Callable[[int, float, str], None] | None = None,
+def track(stack, roi=None, subset: int | None = None, step: int | None = None,
+          method: str | None = None, reference: str = "accumulative", *,
+          update_every: int | None = None, rois=None, frames=None, out_dir=None,
+          params: DICParams | None = None, scheduler=None, workers: int | None = None,
+          refine=None, meta: dict | None = None,
+          progress: Callable[[ProgressEvent], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
     """Track a sequence of images; every result refers to frame 0.
@@ -185,6 +91,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     stack : (T, H, W) array, dask array, TIFF stack path or image folder
     roi : (H, W) bool, optional
         ROI in frame 0 (holes and cracks False).
+    subset, step, method, params, **kwargs : as for ``correlate`` (explicit ones win)
     reference : {"accumulative", "incremental"}
     update_every : int, optional
         With ``"accumulative"``: use frame N, 2N, ... as the new reference.
@@ -192,13 +99,12 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         Per-frame ROI of the *reference* image used for frame k (e.g. a
         growing crack); the frame-0 ROI defaults to ``roi``.
     frames : sequence of int, optional
-        Frames to analyse (must start with 0 and increase); default all.
+        Frames to analyse (starting with 0, increasing); default all.
     out_dir : path, optional
-        A run folder: each frame is written as it finishes (``frame_#####.npz``
-        and the field store ``fields.zarr``) and a rerun resumes. The folder is
-        locked while written; a folder of another analysis, or whose inputs
-        changed, is refused (:mod:`~napari_aldic.engine.workflow.runfolder`).
-        Only frames later frames are composed with stay in memory.
+        A run folder: each frame is written as it finishes (``frame_#####.npz``,
+        ``fields.zarr``) and a rerun resumes; locked while written, refused when
+        of another analysis or its inputs changed (``workflow.runfolder``). Only
+        frames later frames are composed with stay in memory.
     scheduler : None, "threads", "processes", a ``dask.distributed.Client`` or its address
         ``None``: frames one after the other, each started from the previous
         field. Otherwise frames run concurrently (threads, a local cluster of
@@ -213,7 +119,9 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     meta : dict, optional
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
-    progress : callable(frame, fraction, message), optional
+    progress : callable(ProgressEvent), optional
+        Each frame's start, end (or load) and correlation stages, ``event.frame``
+        its number in ``stack``; 0.1's ``(frame, fraction, message)`` is deprecated.
     on_frame : callable(frame, result), optional
         Called with each frame's final (frame-0 referenced) result as soon as
         it is computed, e.g. to save or display it.
@@ -240,15 +148,13 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
     check_scheduler(scheduler, workers)
     src = open_stack(stack)
-    if params is None:
-        params = DICParams(subset=subset, step=step, method=method, **kwargs)
+    params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     idx = frame_numbers(frames, len(src))
     run = SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
-                       dict(meta or {}), progress or (lambda k, frac, msg: None), on_frame)
+                      dict(meta or {}), event_callback(progress, "track"), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
-    info = run.identity()
-    with run_folder(out_dir, info) as out:
+    with run_folder(out_dir, info := run.identity()) as out:
         run.out, run.run_id = out, run_id(info)
         return run.execute(stack, scheduler, workers, cancel)
 
@@ -269,7 +175,7 @@ class SequenceRun:
     params: DICParams
     refine: object
     extra: dict  # entries added to every frame's meta
-    report: Callable[[int, float, str], None]
+    report: Callable[[ProgressEvent], None]
     on_frame: Callable[[int, DICResult], None] | None
     out: Path | None = None
     run_id: str | None = None
@@ -284,6 +190,24 @@ class SequenceRun:
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
         self._carried: tuple = (None, None)  # (frame, frame 0's ROI carried onto it)
         self.digests: dict = {}  # frame -> SHA-256 of its image, as read
+        self._clock: tuple = (time.perf_counter(), None)  # (start, fraction then)
+
+    def emit(self, stage: str, i: int, frac: float, message: str = "") -> None:
+        """Report ``stage`` of frame ``idx[i]`` with the share ``frac`` of the
+        run done, and the time left estimated from the frames computed."""
+        t0, f0 = self._clock
+        if f0 is None and stage == "frame_start":  # frames loaded from disk not timed
+            self._clock = t0, f0 = time.perf_counter(), frac
+        eta = None
+        if f0 is not None and frac > f0:
+            eta = (time.perf_counter() - t0) * (1 - frac) / (frac - f0)
+        self.report(ProgressEvent(stage, frac, frame=self.idx[i], n_frames=len(self.idx) - 1,
+                                  eta_s=eta, message=message, reference=self.ref_of(i)))
+
+    def within(self, i: int) -> Callable[[ProgressEvent], None]:
+        """``correlate``'s progress inside frame ``idx[i]``, as a share of the run."""
+        n = len(self.idx) - 1
+        return lambda ev: self.emit(ev.stage, i, (i - 1 + ev.fraction) / n, ev.message)
 
     # ------------------------------------------------------------ inputs
     def roi_for(self, k: int) -> np.ndarray:
@@ -436,8 +360,7 @@ class SequenceRun:
                 self._verify(i, pth)
             if i:
                 self.results[i] = _ON_DISK
-                self.report(self.idx[i], i / (len(self.idx) - 1),
-                            f"frame {self.idx[i]}: loaded from {pth.name}")
+                self.emit("frame_loaded", i, i / (len(self.idx) - 1), pth.name)
         todo = [i for i in todo if i]
         for i in todo:
             self._users[self._pos[self.ref_of(i)]] += 1
@@ -491,7 +414,7 @@ class SequenceRun:
         shared = self.roi_for(r)
         if inc.roi is not None and inc.roi is not shared and np.array_equal(inc.roi, shared):
             inc.roi = shared  # a copy from a worker process: keep one array per run
-        res = inc if r == 0 else _compose(self.results[self.idx.index(r)], inc)
+        res = inc if r == 0 else compose(self.results[self.idx.index(r)], inc)
         res.meta.update(self.extra)
         res.meta["frame"] = k
         res.meta["reference_frame"] = r
@@ -504,8 +427,7 @@ class SequenceRun:
             self.save(res, k)
         if self.on_frame is not None:
             self.on_frame(k, res)
-        self.report(k, i / (len(self.idx) - 1),
-                    f"frame {k} done: {res.n_valid}/{len(res)} valid")
+        self.emit("frame_done", i, i / (len(self.idx) - 1), f"{res.n_valid}/{len(res)} valid")
         if self.out is not None:  # keep only what later frames are composed with
             j = self._pos[r]
             self._users[j] -= 1
@@ -546,14 +468,15 @@ class SequenceRun:
         compose, save and announce it (:meth:`finish`); returns its increment.
         Raises :class:`~napari_aldic.engine.Cancelled` or :class:`TrackError`."""
         r, k = self.ref_of(i), self.idx[i]
-        self.report(k, (i - 1) / max(len(self.idx) - 1, 1), f"frame {k} against frame {r}")
+        self.emit("frame_start", i, (i - 1) / max(len(self.idx) - 1, 1))
         try:
             if r != chain.ref_k:
                 chain.ref_k, chain.ref_img, chain.prev, chain.before = r, self.src[r], None, None
             img = self.src[k]
             inc = correlate(chain.ref_img, img, roi=self.roi_on(r), params=self.params,
                             guess=_extrapolated(chain.prev, chain.before), refine=self.refine,
-                            cancel=cancel, solver_cache=chain.solvers)
+                            cancel=cancel, solver_cache=chain.solvers,
+                            progress=self.within(i))
         except Cancelled:
             raise
         except Exception as exc:  # a bad frame: keep what is finished

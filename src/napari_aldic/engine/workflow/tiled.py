@@ -47,7 +47,7 @@ import numpy as np
 
 from ..core.params import DICParams
 from ..core.progress import check_cancel
-from ..core.reasons import Reason
+from ..core.reasons import DICError, Reason
 from ..core.results import DICResult
 from ..dic.correlate import correlate
 from ..dic.icgn import convergence_record
@@ -122,8 +122,9 @@ def _plan(shape, params: DICParams, tile_size: int) -> _Plan:
     xs = np.arange(m, shape[1] - m, params.step, dtype=np.int64)
     ys = np.arange(m, shape[0] - m, params.step, dtype=np.int64)
     if xs.size == 0 or ys.size == 0:
-        raise ValueError(f"subset={params.subset} px is larger than the image "
-                         f"({shape[0]} x {shape[1]} px); choose a smaller subset")
+        raise DICError("subset_too_large", f"subset={params.subset} px is larger than the "
+                       f"image ({shape[0]} x {shape[1]} px); choose a smaller subset",
+                       subset=params.subset, shape=tuple(shape))
     halo = max(NODE_HALO, math.ceil((h + 1) / params.step) + 2)
     per_block = max(1, int(tile_size) // params.step)
     margin = m + int(params.search_max) + PREFILTER_MARGIN
@@ -311,8 +312,9 @@ def _assemble(arrays: dict, plan: _Plan, params: DICParams, meta: dict,
         image_shape=plan.shape, params=params, meta=meta, **f)
 
 
-def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int = 8,
-                    method: str = "local", *, params: DICParams | None = None,
+def correlate_tiled(reference, deformed, roi=None, subset: int | None = None,
+                    step: int | None = None, method: str | None = None, *,
+                    params: DICParams | None = None,
                     tile_size: int = DEFAULT_TILE, workers: int = 1,
                     guess: DICResult | None = None, guess_spacing: int | None = None,
                     out_dir=None, progress=None, cancel=None, **kwargs) -> DICResult:
@@ -347,10 +349,7 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
         Over the whole image's lattice; ``meta["tiled"]`` describes the blocks.
     """
     t0 = time.perf_counter()
-    if params is None:
-        params = DICParams(subset=subset, step=step, method=method, **kwargs)
-    else:
-        params = params.replace(**kwargs) if kwargs else params
+    params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     workers = max(1, int(workers))
     ref, dfm = open_image(reference), open_image(deformed)
     if ref.shape != dfm.shape:
@@ -358,8 +357,9 @@ def correlate_tiled(reference, deformed, roi=None, subset: int = 31, step: int =
                          f"but deformed image {dfm.name} is {dfm.shape[0]} x "
                          f"{dfm.shape[1]} px; they must have the same size")
     if roi is not None and tuple(roi.shape) != ref.shape:
-        raise ValueError(f"ROI mask shape {tuple(roi.shape)} differs from image shape "
-                         f"{ref.shape}")
+        raise DICError("shape_mismatch", f"ROI mask shape {tuple(roi.shape)} differs from "
+                       f"image shape {ref.shape}", what="roi", shape=tuple(roi.shape),
+                       image_shape=ref.shape)
     params = _shared(_resolved(params.fitted_to(ref.shape), ref, ref.shape), ref, dfm, roi)
     aldic = params.method == "aldic"
     lparams = params.replace(method="local") if aldic else params
