@@ -142,10 +142,7 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
     RunFolderError
         ``out_dir`` is in use, holds another analysis, or its inputs changed.
     """
-    if reference not in ("accumulative", "incremental"):
-        raise ValueError(f"reference={reference!r} must be 'accumulative' or 'incremental'")
-    if update_every is not None and (update_every < 1 or reference != "accumulative"):
-        raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
+    _check_modes(reference, update_every)
     check_scheduler(scheduler, workers)
     src = open_stack(stack)
     params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
@@ -157,6 +154,13 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
     with run_folder(out_dir, info := run.identity()) as out:
         run.out, run.run_id = out, run_id(info)
         return run.execute(stack, scheduler, workers, cancel)
+
+
+def _check_modes(reference: str, update_every: int | None) -> None:
+    if reference not in ("accumulative", "incremental"):
+        raise ValueError(f"reference={reference!r} must be 'accumulative' or 'incremental'")
+    if update_every is not None and (update_every < 1 or reference != "accumulative"):
+        raise ValueError("update_every must be >= 1 and needs reference='accumulative'")
 
 
 @dataclass
