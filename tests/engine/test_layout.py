@@ -44,7 +44,8 @@ ENGINE_DEPS = {
     "viz": {"core", "io"},
     "synthetic": {"core", "kernels"},
     "probes": {"core", "io", "dic", "viz"},
-    "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic"},
+    "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic", "probes"},
+    "sem": {"core", "kernels", "dic", "io", "viz"},
 }
 #: the only outside packages the numba kernels may use
 KERNEL_EXTERNAL = {"numpy", "numba", "math", "__future__"}
@@ -53,7 +54,7 @@ GUI_PACKAGES = {"napari", "qtpy", "PyQt5", "PyQt6", "PySide2", "PySide6", "magic
 GUI_TOOLKITS = GUI_PACKAGES - {"napari", "vispy"}
 #: what the CLI and the plugin modules may import from the engine
 PUBLIC_ENGINE = {ENGINE, f"{ENGINE}.io", f"{ENGINE}.viz", f"{ENGINE}.synthetic",
-                 f"{ENGINE}.probes"}
+                 f"{ENGINE}.probes", f"{ENGINE}.sem"}
 
 MAX_FILE_LINES = 600
 MAX_GUI_FILE_LINES = 400

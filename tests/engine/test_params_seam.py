@@ -49,8 +49,10 @@ def test_combine_is_the_one_rule():
     assert DICParams.combine(None, {}, subset=None, step=None) == DICParams()
     assert DICParams.combine(base, {}, subset=None) is base
     assert DICParams.combine(base, {"search_max": None}, subset=31).subset == 31
+    # a dict of the fields (e.g. from a JSON file) is read as DICParams; explicit still wins
+    assert DICParams.combine({"subset": 41}, {}, subset=31) == DICParams(subset=31)
     with pytest.raises(TypeError, match="DICParams"):
-        DICParams.combine({"subset": 31}, {})
+        DICParams.combine([("subset", 31)], {})
 
 
 def test_defaults_are_written_once():

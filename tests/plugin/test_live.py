@@ -17,9 +17,9 @@ DOC_IMAGES = os.environ.get("NAPARI_ALDIC_DOC_IMAGES", "") not in ("", "0")
 @pytest.mark.slow
 def test_live_mode_grows_follows_and_stops(make_napari_viewer, qtbot, tmp_path,
                                            save_screenshot):
+    from napari_aldic._qt import DICWidget
     from napari_aldic._qt.live import LIVE_LAYER
     from napari_aldic._qt.plot_dock import ProbePlotDock
-    from napari_aldic._widget import DICWidget
     from napari_aldic.engine import load_run
     from napari_aldic.engine.synthetic.camera import render_frames, write_frame
 

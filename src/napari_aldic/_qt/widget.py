@@ -1,14 +1,9 @@
 """The dock widget: the panels, composed and wired together.
 
-Collapsible sections in one scroll area, in the order a first analysis takes
-(images and region, mesh and correlation, strain, units; display and export
-of the results; project files and parameters; the log); the run controls
-(status, Run/Cancel, progress) stay below it, always in view. Each panel is a
-small class of its own (this package); this module only connects them: the
-input check, the run, the result layers, remembered parameters and the
-background preparation of the correlation engine.
+Collapsible sections in one scroll area, in the order a first analysis takes;
+the run controls stay below it, always in view. Each panel is a small class of
+its own (this package); this module only connects them.
 """
-
 from __future__ import annotations
 
 from pathlib import Path

@@ -154,7 +154,7 @@ def watch(folder, out_dir, *, pattern: str | None = None, roi=None,
         return WatchReport(None, ended=loop.ended, skipped=files.skipped, late=files.late)
     run = SequenceRun(src, list(range(max(recorded, 1))), reference, None, roi, None,
                       params or DICParams(), refine, dict(meta or {}),
-                      lambda k, frac, msg: None, None)
+                      lambda event: None, None)
     report = WatchReport(None, folder=out)
     live = _Live(run, loop, on_frame, report)
     run.on_frame = live.announce
