@@ -46,6 +46,8 @@ from .viz.report import export_report
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
+from .core.volresults import VolumeResult
+from .volume import correlate_volume
 
 __all__ = [
     # analysis
@@ -62,6 +64,8 @@ __all__ = [
     "ExportError", "EncoderNotFoundError", "TrackError", "RunFolderError",
     # subpackages
     "io", "viz", "synthetic", "probes",
+    # volumes (DVC, issue 28)
+    "correlate_volume", "VolumeResult",
 ]
 
 #: names this module exported before the engine was split into subpackages;

@@ -29,6 +29,7 @@ from .stack import (
     read_image,
 )
 from .tiles import LazyImage, PixelSize, open_lazy, pixel_size_of
+from .volumes import read_volumes
 from .vtk import export_vtu, read_vtu, result_cells
 
 __all__ = [
@@ -39,4 +40,5 @@ __all__ = [
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
     "export_davis", "save_params", "load_params", "load_settings", "read_settings",
     "write_settings",
+    "read_volumes",
 ]

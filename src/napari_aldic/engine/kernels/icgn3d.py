@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from .bspline3d import PAD3, tricubic, tricubic_gradient
-from .flags import FASTMATH, INLINE, PARALLEL
+from .flags import CACHED, FASTMATH, INLINE, PARALLEL
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK, OUT_OF_IMAGE
 from .icgn_node import lu_factor, lu_solve
 
@@ -33,7 +33,7 @@ EDGE3 = 3.0  # voxels kept clear of the deformed volume's faces (see _gather)
 SMALL_SUBSET = 1  # fewer usable voxels than min_frac of the cube (Reason.SMALL_COMPONENT)
 
 
-@nb.njit(**INLINE)
+@nb.njit(**CACHED)
 def _compose(p, dp):
     """``p <- W(p) o W(dp)^-1`` for the affine warp: with ``W(p): d -> A d + t``
     (``A = I + G``), the new warp is ``A Di d + (A ti + t)``, ``Di = (I + G_dp)^-1``,
@@ -82,7 +82,7 @@ def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
     return near
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
+@nb.njit(**CACHED, fastmath=FASTMATH)
 def _gather(f, fc, mask, p, cx, cy, cz, h, d, fv, gr):
     """Usable voxels of a cube: in the mask, and (warped by the initial
     ``p``) at least :data:`EDGE3` voxels inside the deformed volume, where
@@ -130,7 +130,7 @@ def _jac(gr, d, q, J):
         J[4 * a + 3] = gr[q, a] * d[q, 2]
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
+@nb.njit(**CACHED, fastmath=FASTMATH)
 def _hessian(gr, d, m, H):
     J = np.empty(NPAR3)
     for i in range(NPAR3):
@@ -174,11 +174,15 @@ def _rhs(fv, g, gr, d, m, fm, gm, ratio, b):
     return e2
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv, b, dp):
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv, b, dp, pen, q):
     """Gauss-Newton steps from ``p`` (updated in place). Returns ``(status,
     iterations, zncc, sum e^2, near)``; ``near``: the last sampling came
-    closer than :data:`EDGE3` to a face of the volume."""
+    closer than :data:`EDGE3` to a face of the volume.
+
+    ``pen`` (12,) adds the AL-DVC penalty ``sum pen_i (p_i - q_i)^2``: with
+    the composition linearised (``p o dp^-1 ~ p - dp``) the step solves
+    ``(H + diag pen) dp = diag(pen) (p - q) - b``; ``LU`` factors ``H + diag pen``."""
     t0 = (p[0], p[4], p[8])
     status = NOT_CONVERGED
     zn = np.nan
@@ -197,6 +201,8 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
             break
         e2 = _rhs(fv, g, gr, d, m, fm, gm, np.sqrt(df2 / dg2), b)
         zn = 1.0 - 0.5 * e2 / df2
+        for i in range(NPAR3):
+            b[i] -= pen[i] * (p[i] - q[i])
         lu_solve(LU, piv, b, dp)
         for i in range(NPAR3):
             dp[i] = -dp[i]
@@ -215,14 +221,29 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
     return status, it, zn, e2, near == 1
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out):
+@nb.njit(**CACHED)
+def _penalties(H, mu, pen):
+    """AL-DVC's local penalties, as 2-D AL-DIC: the three displacements are
+    pulled with ``mu`` times the subset's mean displacement stiffness
+    ``(H_uu + H_vv + H_ww) / 3`` (``mu`` dimensionless), the nine gradient
+    entries held (penalty 1e6 times their own stiffness: the step solves the
+    displacement with the gradient of the global field, Algorithm 1)."""
+    t = mu * (H[0, 0] + H[4, 4] + H[8, 8]) / 3.0
+    for i in range(NPAR3):
+        pen[i] = t if i % 4 == 0 else 1e6 * H[i, i]
+
+
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q):
     """One node: returns ``(status, iterations, zncc, e2/(m - 12), m)``;
     ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w.
 
     The usable voxels are chosen with the starting warp; if the converged
     warp takes some of them near a face of the volume, they are chosen
-    again with it and the node solved once more."""
+    again with it and the node solved once more. ``mu > 0`` is AL-DVC's
+    local step (:func:`_penalties`): the displacement is pulled towards
+    ``q`` and the gradient held at ``q``'s (the uncertainty is then that of
+    the penalised match)."""
     n3 = (2 * h + 1) ** 3
     d = np.empty((n3, 3), np.float32)
     fv = np.empty(n3, np.float32)
@@ -233,6 +254,7 @@ def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out):
     piv = np.empty(NPAR3, np.int64)
     b = np.empty(NPAR3)
     dp = np.empty(NPAR3)
+    pen = np.zeros(NPAR3)
     its = 0
     for rnd in range(2):
         m = _gather(f, fc, mask, p, c[0], c[1], c[2], h, d, fv, gr)
@@ -242,10 +264,14 @@ def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out):
         if df2 <= 1e-6 * m:
             return NO_TEXTURE, its, np.nan, np.nan, m
         _hessian(gr, d, m, H)
+        if mu > 0.0:
+            _penalties(H, mu, pen)
+        for i in range(NPAR3):
+            H[i, i] += pen[i]
         if not lu_factor(H, LU, piv):
             return NO_TEXTURE, its, np.nan, np.nan, m
         status, it, zn, e2, near = _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m,
-                                            fm, df2, LU, piv, b, dp)
+                                            fm, df2, LU, piv, b, dp, pen, q)
         its += it
         if status != OK or not near:
             break
@@ -259,7 +285,7 @@ def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out):
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
-           status, iters, zncc, ustd, nvox):
+           status, iters, zncc, ustd, nvox, mu, target):
     """Solve every active node (parallel over nodes).
 
     Parameters
@@ -279,6 +305,10 @@ def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     h, max_iter, tol, min_frac : int, int, float, float
         Half-width, iteration cap, tolerance (voxels at the subset edge)
         and the smallest usable fraction of the cube.
+    mu : float
+        AL-DVC penalty (dimensionless, 0 for Local DVC; :func:`_penalties`).
+    target : (n, 12) float64
+        The warps the penalty pulls towards (unused when ``mu == 0``).
     status, iters, zncc, ustd, nvox : outputs per node
         ``status`` (int8, gauss_newton codes, SMALL_SUBSET), iterations,
         final ZNCC, standard uncertainty of (u, v, w) in voxels (n, 3) and
@@ -294,7 +324,7 @@ def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
         pk = p[k].copy()
         hinv = np.zeros(3)
         st, it, zn, s2, m = _solve_node(f, fc, gc, mask, nodes[k], pk, h, max_iter, tol,
-                                        min_frac, lim, hinv)
+                                        min_frac, lim, hinv, mu, target[k])
         p[k] = pk
         status[k] = st
         iters[k] = it

@@ -44,7 +44,8 @@ def ncc_search(ref, dfm, centre, half: int, search: int, shift0=(0, 0, 0)):
         return np.asarray(shift0, int), -1.0, True
     W = np.asarray(dfm[lo_w[0]:hi_w[0], lo_w[1]:hi_w[1], lo_w[2]:hi_w[2]], np.float64)
     size = W.shape
-    corr = fft.irfftn(fft.rfftn(W) * np.conj(fft.rfftn(T, size)), size, workers=-1)
+    fast = [fft.next_fast_len(s, real=True) for s in size]  # 37 is prime: pad to 40
+    corr = fft.irfftn(fft.rfftn(W, fast) * np.conj(fft.rfftn(T, fast)), fast)
     valid = tuple(slice(0, s - n + 1) for s in size)
     corr = corr[valid]
     s1 = _box_sums(W, n)

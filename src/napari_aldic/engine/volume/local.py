@@ -59,12 +59,16 @@ class LocalState:
         return (self.status == Reason.OK) & (self.zncc >= self.params.zncc_min)
 
 
-def run_icgn(st: LocalState, active: np.ndarray) -> None:
-    """Solve the ``active`` nodes from their current ``st.p``."""
+def run_icgn(st: LocalState, active: np.ndarray, mu: float = 0.0, target=None,
+             ustd=None) -> None:
+    """Solve the ``active`` nodes from their current ``st.p`` (with AL-DVC's
+    penalty ``mu`` towards ``target`` when given; ``ustd`` receives the
+    uncertainty instead of ``st.ustd``)."""
     pr = st.params
+    target = st.p if target is None else np.ascontiguousarray(target)
     icgn3d(st.f, st.fc, st.gc, st.mask, st.nodes, st.p, np.ascontiguousarray(active),
            pr.subset // 2, pr.max_iter, pr.tol, pr.min_component, st.status, st.iters,
-           st.zncc, st.ustd, st.nvox)
+           st.zncc, st.ustd if ustd is None else ustd, st.nvox, float(mu), target)
 
 
 def _extrapolate(p_src: np.ndarray, x_src: np.ndarray, x_dst: np.ndarray) -> np.ndarray:
@@ -77,37 +81,58 @@ def _extrapolate(p_src: np.ndarray, x_src: np.ndarray, x_dst: np.ndarray) -> np.
 
 
 def _anchor_mask(grid: VolumeGrid, spacing: int) -> np.ndarray:
-    """Every ``k``-th lattice node along each axis (and the last), ~``spacing`` apart."""
+    """Every ``k``-th lattice node along each axis, ~``spacing`` apart."""
     step = max(int(grid.xs[1] - grid.xs[0]) if grid.xs.size > 1 else 1, 1)
     k = max(int(round(spacing / step)), 1)
     keep = []
     for idx, size in ((grid.ix, grid.xs.size), (grid.iy, grid.ys.size), (grid.iz, grid.zs.size)):
         on = np.zeros(size, bool)
-        on[::k] = True
-        on[-1] = True
+        on[(size - 1 - (size - 1) // k * k) // 2::k] = True  # centred on the lattice
         keep.append(on[idx])
     return keep[0] & keep[1] & keep[2]
 
 
-def _anchors(st: LocalState, shift0) -> np.ndarray:
-    """Search and solve the anchor nodes; returns their indices."""
+def _search(st: LocalState, nodes: np.ndarray, shifts: np.ndarray, near: int) -> None:
+    """FFT ZNCC search of ``nodes`` around ``shifts`` (widened while the peak
+    is on the range's edge or weak), then IC-GN from the integer match."""
     pr = st.params
-    spacing = pr.init_spacing or max(3 * pr.subset // 2, 24)
-    anchors = np.flatnonzero(_anchor_mask(st.grid, spacing))
-    h = pr.subset // 2
-    near = max(min(pr.search, 8), 3)  # around the rigid shift, widened on failure
-    for k in anchors:
+    for k, s0 in zip(nodes, shifts):
         s = near
         while True:
-            shift, zn, border = ncc_search(st.f, st.g, st.nodes[k], h, s, shift0)
+            shift, zn, border = ncc_search(st.f, st.g, st.nodes[k], pr.subset // 2, s, s0)
             if (not border and zn >= pr.zncc_min) or s >= st.search_max:
                 break
             s = min(2 * s, st.search_max)
         st.p[k] = 0.0
         st.p[k, [0, 4, 8]] = shift
     active = np.zeros(st.grid.n, bool)
-    active[anchors] = True
+    active[nodes] = True
     run_icgn(st, active)
+
+
+def _anchors(st: LocalState, shift0) -> np.ndarray:
+    """Search and solve the anchor nodes in two waves; returns their indices.
+
+    The anchors near the volume centre are searched around the rigid shift;
+    the outer ones around the motion their nearest inner anchor's affine
+    map predicts (rotation and strain grow the motion with the distance)."""
+    pr = st.params
+    spacing = pr.init_spacing or max(3 * pr.subset // 2, 24)
+    anchors = np.flatnonzero(_anchor_mask(st.grid, spacing))
+    centre = (np.array(st.f.shape[::-1]) - 1) / 2
+    dist = np.linalg.norm(st.nodes[anchors] - centre, axis=1)
+    inner = dist <= max(np.sort(dist)[min(7, dist.size - 1)], 0.3 * min(st.f.shape))
+    near = max(min(pr.search, 8), 3)
+    first = anchors[inner]
+    _search(st, first, np.tile(np.asarray(shift0), (first.size, 1)), near)
+    good = first[st.good()[first]]
+    outer = anchors[~inner]
+    if good.size and outer.size:
+        _, j = cKDTree(st.nodes[good]).query(st.nodes[outer])
+        pred = _extrapolate(st.p[good[j]], st.nodes[good[j]], st.nodes[outer])
+        _search(st, outer, np.rint(pred[:, [0, 4, 8]]).astype(int), max(near // 2, 3))
+    elif outer.size:
+        _search(st, outer, np.tile(np.asarray(shift0), (outer.size, 1)), near)
     return anchors
 
 

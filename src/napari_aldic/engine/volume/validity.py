@@ -62,7 +62,7 @@ def final_reasons(st, p=None) -> np.ndarray:
     reason[low] = Reason.LOW_CORRELATION
     ok &= ~low
     if pr.max_uncertainty is not None:
-        unc = ok & (np.nanmax(st.ustd, axis=1) > pr.max_uncertainty)
+        unc = ok & (np.nan_to_num(st.ustd, nan=0.0).max(1) > pr.max_uncertainty)
         reason[unc] = Reason.UNCERTAIN
         ok &= ~unc
     q = st.p if p is None else p
