@@ -118,7 +118,7 @@ def main(argv=None):
                              a.subset, a.step)
                     rows.append({"case": name, "method": method, "tool": tool, **r})
                     print(json.dumps(rows[-1]), flush=True)
-    print(f"\n| case | method | tool | RMSE (voxel) | valid | POI/s | CPU ms/POI | peak RSS (MB) |\n"
+    print("\n| case | method | tool | RMSE (voxel) | valid | POI/s | CPU ms/POI | peak RSS (MB) |\n"
           "|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "error" in r:

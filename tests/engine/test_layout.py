@@ -44,6 +44,7 @@ ENGINE_DEPS = {
     "synthetic": {"core", "kernels"},
     "probes": {"core", "io", "dic", "viz"},
     "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic"},
+    "volume": {"core", "kernels"},  # DVC (issue 28): its own 3-D kernels, the engine's types
 }
 #: the only outside packages the numba kernels may use
 KERNEL_EXTERNAL = {"numpy", "numba", "math", "__future__"}

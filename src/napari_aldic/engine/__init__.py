@@ -34,6 +34,7 @@ from .core.reasons import Reason
 from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
 from .core.units import Units
+from .core.volresults import VolumeResult
 from .dic.correlate import correlate
 from .dic.noise_floor import noise_floor
 from .dic.quadtree import Refinement, resolve_refinement
@@ -43,11 +44,10 @@ from .io.runs import load_run
 from .io.settings_file import load_params, save_params
 from .io.stack import open_stack
 from .viz.report import export_report
+from .volume import correlate_volume
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
-from .core.volresults import VolumeResult
-from .volume import correlate_volume
 
 __all__ = [
     # analysis

@@ -18,7 +18,7 @@ import numpy as np
 from .bspline import cubic_weights
 from .flags import FASTMATH, INLINE
 
-__all__ = ["PAD3", "tricubic", "tricubic_gradient"]
+__all__ = ["PAD3", "tricubic"]
 
 PAD3 = 6  # coefficient padding in voxels on every side
 
@@ -47,26 +47,3 @@ def tricubic(c, x, y, z):
             row += wy * (wx0 * p[ix] + wx1 * p[ix + 1] + wx2 * p[ix + 2] + wx3 * p[ix + 3])
         acc += wz * row
     return acc
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def tricubic_gradient(c, x, y, z):
-    """Gradient (d/dx, d/dy, d/dz) of the spline at an integer voxel
-    ``(x, y, z)``: the cubic B-spline at a knot has weights (1/6, 2/3, 1/6)
-    and derivative weights (-1/2, 0, 1/2)."""
-    w = (np.float32(1.0 / 6.0), np.float32(2.0 / 3.0), np.float32(1.0 / 6.0))
-    d = (np.float32(-0.5), np.float32(0.0), np.float32(0.5))
-    ix = x + PAD3 - 1
-    iy = y + PAD3 - 1
-    iz = z + PAD3 - 1
-    gx = np.float32(0.0)
-    gy = np.float32(0.0)
-    gz = np.float32(0.0)
-    for k in range(3):
-        for j in range(3):
-            for i in range(3):
-                v = c[iz + k, iy + j, ix + i]
-                gx += d[i] * w[j] * w[k] * v
-                gy += w[i] * d[j] * w[k] * v
-                gz += w[i] * w[j] * d[k] * v
-    return gx, gy, gz

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .bspline3d import PAD3, tricubic, tricubic_gradient
+from .bspline3d import tricubic
 from .flags import CACHED, FASTMATH, INLINE, PARALLEL
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK, OUT_OF_IMAGE
 from .icgn_node import lu_factor, lu_solve
@@ -83,7 +83,7 @@ def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _gather(f, fc, mask, p, cx, cy, cz, h, d, fv, gr):
+def _gather(f, fg, mask, p, cx, cy, cz, h, d, fv, gr):
     """Usable voxels of a cube: in the mask, and (warped by the initial
     ``p``) at least :data:`EDGE3` voxels inside the deformed volume, where
     the mirror boundary of the spline no longer biases the interpolant
@@ -113,10 +113,9 @@ def _gather(f, fc, mask, p, cx, cy, cz, h, d, fv, gr):
                 d[m, 1] = dy
                 d[m, 2] = dz
                 fv[m] = f[z, y, x]
-                gx, gy, gz = tricubic_gradient(fc, x, y, z)
-                gr[m, 0] = gx
-                gr[m, 1] = gy
-                gr[m, 2] = gz
+                gr[m, 0] = fg[0, z, y, x]
+                gr[m, 1] = fg[1, z, y, x]
+                gr[m, 2] = fg[2, z, y, x]
                 m += 1
     return m
 
@@ -180,8 +179,9 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
     iterations, zncc, sum e^2, near)``; ``near``: the last sampling came
     closer than :data:`EDGE3` to a face of the volume.
 
-    ``pen`` (12,) adds the AL-DVC penalty ``sum pen_i (p_i - q_i)^2``: with
-    the composition linearised (``p o dp^-1 ~ p - dp``) the step solves
+    ``pen`` (12,) adds the AL-DVC penalty ``sum pen_i (p_i - q_i)^2`` on the
+    displacements (the gradient rows of ``b`` zeroed: held fixed): with the
+    composition linearised (``p o dp^-1 ~ p - dp``) the step solves
     ``(H + diag pen) dp = diag(pen) (p - q) - b``; ``LU`` factors ``H + diag pen``."""
     t0 = (p[0], p[4], p[8])
     status = NOT_CONVERGED
@@ -201,8 +201,9 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
             break
         e2 = _rhs(fv, g, gr, d, m, fm, gm, np.sqrt(df2 / dg2), b)
         zn = 1.0 - 0.5 * e2 / df2
-        for i in range(NPAR3):
-            b[i] -= pen[i] * (p[i] - q[i])
+        if pen[0] > 0.0:  # AL-DVC: displacements only, pulled towards q
+            for i in range(NPAR3):
+                b[i] = b[i] - pen[i] * (p[i] - q[i]) if i % 4 == 0 else 0.0
         lu_solve(LU, piv, b, dp)
         for i in range(NPAR3):
             dp[i] = -dp[i]
@@ -221,29 +222,54 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
     return status, it, zn, e2, near == 1
 
 
-@nb.njit(**CACHED)
-def _penalties(H, mu, pen):
-    """AL-DVC's local penalties, as 2-D AL-DIC: the three displacements are
-    pulled with ``mu`` times the subset's mean displacement stiffness
-    ``(H_uu + H_vv + H_ww) / 3`` (``mu`` dimensionless), the nine gradient
-    entries held (penalty 1e6 times their own stiffness: the step solves the
-    displacement with the gradient of the global field, Algorithm 1)."""
-    t = mu * (H[0, 0] + H[4, 4] + H[8, 8]) / 3.0
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def _translation_system(gr, m, mu, H, pen):
+    """AL-DVC's local step, as 2-D AL-DIC: the subset's gradient is held at
+    the global field's (Algorithm 1), so only the three displacements are
+    solved: ``H`` gets the translation block ``sum g_a g_b`` (identity on
+    the gradient rows, whose right-hand side :func:`_iterate` zeroes) and
+    ``pen`` the displacement penalty, ``mu`` times the mean displacement
+    stiffness ``(H_uu + H_vv + H_ww) / 3`` (``mu`` dimensionless)."""
     for i in range(NPAR3):
-        pen[i] = t if i % 4 == 0 else 1e6 * H[i, i]
+        pen[i] = 0.0
+        for j in range(NPAR3):
+            H[i, j] = 0.0
+    s = np.zeros(6)
+    for q in range(m):
+        gx = gr[q, 0]
+        gy = gr[q, 1]
+        gz = gr[q, 2]
+        s[0] += gx * gx
+        s[1] += gx * gy
+        s[2] += gx * gz
+        s[3] += gy * gy
+        s[4] += gy * gz
+        s[5] += gz * gz
+    k = 0
+    for a in range(3):
+        for b in range(a, 3):
+            H[4 * a, 4 * b] = s[k]
+            H[4 * b, 4 * a] = s[k]
+            k += 1
+    t = mu * (s[0] + s[3] + s[5]) / 3.0
+    for i in range(NPAR3):
+        if i % 4 == 0:
+            pen[i] = t
+        else:
+            H[i, i] = 1.0
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q):
+def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q):
     """One node: returns ``(status, iterations, zncc, e2/(m - 12), m)``;
     ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w.
 
     The usable voxels are chosen with the starting warp; if the converged
     warp takes some of them near a face of the volume, they are chosen
     again with it and the node solved once more. ``mu > 0`` is AL-DVC's
-    local step (:func:`_penalties`): the displacement is pulled towards
-    ``q`` and the gradient held at ``q``'s (the uncertainty is then that of
-    the penalised match)."""
+    local step (:func:`_translation_system`): the displacement is pulled
+    towards ``q``, the gradient held at ``p``'s (the uncertainty is then
+    that of the penalised match)."""
     n3 = (2 * h + 1) ** 3
     d = np.empty((n3, 3), np.float32)
     fv = np.empty(n3, np.float32)
@@ -256,16 +282,17 @@ def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu,
     dp = np.empty(NPAR3)
     pen = np.zeros(NPAR3)
     its = 0
-    for rnd in range(2):
-        m = _gather(f, fc, mask, p, c[0], c[1], c[2], h, d, fv, gr)
+    for _ in range(2):
+        m = _gather(f, fg, mask, p, c[0], c[1], c[2], h, d, fv, gr)
         if m < min_frac * n3 or m <= 2 * NPAR3:
             return SMALL_SUBSET, its, np.nan, np.nan, m
         fm, df2 = _stats(fv, m)
         if df2 <= 1e-6 * m:
             return NO_TEXTURE, its, np.nan, np.nan, m
-        _hessian(gr, d, m, H)
         if mu > 0.0:
-            _penalties(H, mu, pen)
+            _translation_system(gr, m, mu, H, pen)
+        else:
+            _hessian(gr, d, m, H)
         for i in range(NPAR3):
             H[i, i] += pen[i]
         if not lu_factor(H, LU, piv):
@@ -284,7 +311,7 @@ def _solve_node(f, fc, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu,
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
+def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
            status, iters, zncc, ustd, nvox, mu, target):
     """Solve every active node (parallel over nodes).
 
@@ -292,8 +319,12 @@ def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     ----------
     f : (nz, ny, nx) float32
         Reference volume (grey levels at the voxels).
-    fc, gc : (nz + 2 PAD3, ny + 2 PAD3, nx + 2 PAD3) float32
-        Padded tricubic coefficients of the reference and deformed volumes.
+    fg : (3, nz, ny, nx) float32
+        Gradient (d/dx, d/dy, d/dz) of the reference's spline at the voxels,
+        computed once for the volume: a voxel lies in ~(subset/step)^3
+        subsets, so per-subset gradients would repeat that work.
+    gc : (nz + 2 PAD3, ny + 2 PAD3, nx + 2 PAD3) float32
+        Padded tricubic coefficients of the deformed volume.
     mask : (nz, ny, nx) uint8
         ROI (1 = material); voxels outside are left out of every subset.
     nodes : (n, 3) int64
@@ -306,7 +337,7 @@ def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
         Half-width, iteration cap, tolerance (voxels at the subset edge)
         and the smallest usable fraction of the cube.
     mu : float
-        AL-DVC penalty (dimensionless, 0 for Local DVC; :func:`_penalties`).
+        AL-DVC penalty (dimensionless, 0 for Local DVC; :func:`_translation_system`).
     target : (n, 12) float64
         The warps the penalty pulls towards (unused when ``mu == 0``).
     status, iters, zncc, ustd, nvox : outputs per node
@@ -323,7 +354,7 @@ def icgn3d(f, fc, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
             continue
         pk = p[k].copy()
         hinv = np.zeros(3)
-        st, it, zn, s2, m = _solve_node(f, fc, gc, mask, nodes[k], pk, h, max_iter, tol,
+        st, it, zn, s2, m = _solve_node(f, fg, gc, mask, nodes[k], pk, h, max_iter, tol,
                                         min_frac, lim, hinv, mu, target[k])
         p[k] = pk
         status[k] = st

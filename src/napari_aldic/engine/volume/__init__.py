@@ -9,5 +9,4 @@ machinery) with its own 3-D kernels (``kernels/icgn3d.py``,
 
 from .correlate import correlate_volume
 
-
 __all__ = ["correlate_volume"]

@@ -26,10 +26,11 @@ import time
 import numpy as np
 from scipy import sparse
 from scipy.sparse import linalg as spla
+from scipy.spatial import cKDTree
 
 from ..core.reasons import Reason
 from .hexmesh import hex_operators
-from .local import LocalState, run_icgn
+from .local import LocalState, extrapolate, run_icgn
 
 __all__ = ["solve_aldvc"]
 
@@ -75,14 +76,12 @@ def _nodal_gradient(ops, uh: np.ndarray) -> np.ndarray:
 def _fill_untrusted(st: LocalState, good: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Warps with untrusted nodes replaced by their nearest trusted one's
     extrapolated affine map."""
-    from .local import _extrapolate  # one implementation of the extrapolation
-    from scipy.spatial import cKDTree
     out = p.copy()
     bad = np.flatnonzero(~good)
     src = np.flatnonzero(good)
     if bad.size and src.size:
         _, j = cKDTree(st.nodes[src]).query(st.nodes[bad])
-        out[bad] = _extrapolate(p[src[j]], st.nodes[src[j]], st.nodes[bad])
+        out[bad] = extrapolate(p[src[j]], st.nodes[src[j]], st.nodes[bad])
     return out
 
 

@@ -20,9 +20,9 @@ from ..core.reasons import Reason
 from ..kernels.icgn3d import NPAR3, icgn3d
 from .grid import VolumeGrid
 from .init_guess import global_shift, ncc_search
-from .spline import coefficients
+from .spline import coefficients, gradients
 
-__all__ = ["LocalState", "solve_local_volume", "run_icgn"]
+__all__ = ["LocalState", "solve_local_volume", "run_icgn", "extrapolate"]
 
 
 @dataclass
@@ -31,7 +31,7 @@ class LocalState:
 
     f: np.ndarray
     g: np.ndarray
-    fc: np.ndarray
+    fg: np.ndarray
     gc: np.ndarray
     mask: np.ndarray
     grid: VolumeGrid
@@ -66,12 +66,12 @@ def run_icgn(st: LocalState, active: np.ndarray, mu: float = 0.0, target=None,
     uncertainty instead of ``st.ustd``)."""
     pr = st.params
     target = st.p if target is None else np.ascontiguousarray(target)
-    icgn3d(st.f, st.fc, st.gc, st.mask, st.nodes, st.p, np.ascontiguousarray(active),
+    icgn3d(st.f, st.fg, st.gc, st.mask, st.nodes, st.p, np.ascontiguousarray(active),
            pr.subset // 2, pr.max_iter, pr.tol, pr.min_component, st.status, st.iters,
            st.zncc, st.ustd if ustd is None else ustd, st.nvox, float(mu), target)
 
 
-def _extrapolate(p_src: np.ndarray, x_src: np.ndarray, x_dst: np.ndarray) -> np.ndarray:
+def extrapolate(p_src: np.ndarray, x_src: np.ndarray, x_dst: np.ndarray) -> np.ndarray:
     """Warps at ``x_dst`` from the affine maps ``p_src`` of nodes at ``x_src``."""
     out = p_src.copy()
     d = (x_dst - x_src).astype(float)
@@ -129,7 +129,7 @@ def _anchors(st: LocalState, shift0) -> np.ndarray:
     outer = anchors[~inner]
     if good.size and outer.size:
         _, j = cKDTree(st.nodes[good]).query(st.nodes[outer])
-        pred = _extrapolate(st.p[good[j]], st.nodes[good[j]], st.nodes[outer])
+        pred = extrapolate(st.p[good[j]], st.nodes[good[j]], st.nodes[outer])
         _search(st, outer, np.rint(pred[:, [0, 4, 8]]).astype(int), max(near // 2, 3))
     elif outer.size:
         _search(st, outer, np.tile(np.asarray(shift0), (outer.size, 1)), near)
@@ -141,7 +141,7 @@ def _propagate(st: LocalState, src: np.ndarray, dst: np.ndarray) -> None:
     if src.size == 0 or dst.size == 0:
         return
     _, j = cKDTree(st.nodes[src]).query(st.nodes[dst])
-    st.p[dst] = _extrapolate(st.p[src[j]], st.nodes[src[j]], st.nodes[dst])
+    st.p[dst] = extrapolate(st.p[src[j]], st.nodes[src[j]], st.nodes[dst])
 
 
 def _retry(st: LocalState, rounds: int = 2) -> None:
@@ -167,7 +167,8 @@ def solve_local_volume(ref, dfm, mask, grid: VolumeGrid, params: DICParams) -> L
     f = np.ascontiguousarray(ref, np.float32)
     g = np.ascontiguousarray(dfm, np.float32)
     search_max = params.search_max or max(max(f.shape) // 4, 4 * params.search)
-    st = LocalState(f, g, coefficients(f), coefficients(g), mask, grid, params, search_max)
+    st = LocalState(f, g, gradients(coefficients(f)), coefficients(g), mask, grid, params,
+                    search_max)
     t1 = time.perf_counter()
     shift0, _ = global_shift(f, g, params.search, search_max)
     anchors = _anchors(st, shift0)
