@@ -14,10 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import correlate_volume, load_result
+from ..engine import compute_strain_volume, correlate_volume, export_volume, load_result
 from ..engine.io import read_volumes
 from ..i18n import tr
 from .console import PROG, CLIError
+
+_EXPORTS = (".mat", ".vtu", ".csv")  # -o of a pair: also written, with the strain
 
 
 def _params(args, params):
@@ -56,11 +58,13 @@ def run_volume(args, params) -> None:
                  prog=PROG, n_deformed=len(vols) - 1, shape=" x ".join(map(str, vols[0].shape)),
                  subset=params.subset, step=params.step, method=params.method))
     out = args.output
-    if len(vols) == 2 and (out is None or out.suffix.lower() == ".npz"):
+    if len(vols) == 2 and (out is None or out.suffix.lower() in (".npz", *_EXPORTS)):
         path = Path("aldic_volume.npz") if out is None else out.expanduser()
         path.parent.mkdir(parents=True, exist_ok=True)
         res = correlate_volume(vols[0], vols[1], roi=roi, params=params)
-        _report(res, res.save(path))
+        _report(res, res.save(path.with_suffix(".npz")))
+        if path.suffix.lower() in _EXPORTS:  # the result file, and the export beside it
+            print(f"  -> {export_volume(res, path, compute_strain_volume(res)).resolve()}")
         return
     folder = Path("aldic_volume") if out is None else out.expanduser().with_suffix("")
     folder.mkdir(parents=True, exist_ok=True)

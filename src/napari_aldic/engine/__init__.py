@@ -44,7 +44,7 @@ from .io.runs import load_run
 from .io.settings_file import load_params, save_params
 from .io.stack import open_stack
 from .viz.report import export_report
-from .volume import correlate_volume
+from .volume import VolumeStrain, compute_strain_volume, correlate_volume, export_volume
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
@@ -65,7 +65,7 @@ __all__ = [
     # subpackages
     "io", "viz", "synthetic", "probes",
     # volumes (DVC, issue 28)
-    "correlate_volume", "VolumeResult",
+    "correlate_volume", "VolumeResult", "compute_strain_volume", "VolumeStrain", "export_volume",
 ]
 
 #: names this module exported before the engine was split into subpackages;

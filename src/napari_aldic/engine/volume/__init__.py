@@ -8,5 +8,8 @@ machinery) with its own 3-D kernels (``kernels/icgn3d.py``,
 """
 
 from .correlate import correlate_volume
+from .export import export_volume
+from .strain import MEASURES3, VolumeStrain, compute_strain_volume
 
-__all__ = ["correlate_volume"]
+__all__ = ["correlate_volume", "compute_strain_volume", "VolumeStrain", "MEASURES3",
+           "export_volume"]

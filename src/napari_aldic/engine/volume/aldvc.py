@@ -29,7 +29,7 @@ from scipy.sparse import linalg as spla
 from scipy.spatial import cKDTree
 
 from ..core.reasons import Reason
-from .hexmesh import hex_operators
+from .hexmesh import hex_operators, nodal_gradient
 from .local import LocalState, extrapolate, run_icgn
 
 __all__ = ["solve_aldvc"]
@@ -66,13 +66,6 @@ class _Global:
         return self.solve(rhs)
 
 
-def _nodal_gradient(ops, uh: np.ndarray) -> np.ndarray:
-    """(n, 3) nodal gradient: Gauss-point gradients averaged onto the nodes."""
-    g = (ops.G @ uh).reshape(3, -1)
-    cnt = np.asarray(ops.N.sum(0)).ravel()
-    return np.stack([(ops.N.T @ g[a]) / np.maximum(cnt, 1e-12) for a in range(3)], 1)
-
-
 def _fill_untrusted(st: LocalState, good: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Warps with untrusted nodes replaced by their nearest trusted one's
     extrapolated affine map."""
@@ -106,7 +99,7 @@ def solve_aldvc(st: LocalState):
     history = []
     scratch = np.full((st.grid.n, 3), np.nan)
     for _ in range(pr.admm_max_iter):
-        Fh = np.stack([_nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
+        Fh = np.stack([nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
         target = np.zeros_like(st.p)
         for a, c in enumerate(comps):
             target[:, c] = uh[:, a] - v[:, a]
@@ -119,7 +112,7 @@ def solve_aldvc(st: LocalState):
         u = p[:, comps]
         uh_new = np.stack([glob.step(u[:, a] - v[:, a], Fh[:, a] - W[:, a])
                            for a in range(3)], 1)
-        Fn = np.stack([_nodal_gradient(ops, uh_new[:, a]) for a in range(3)], 1)
+        Fn = np.stack([nodal_gradient(ops, uh_new[:, a]) for a in range(3)], 1)
         W += Fn - Fh
         v += uh_new - u
         change = float(np.sqrt(((uh_new - uh) ** 2).sum(1).mean()))
@@ -128,7 +121,7 @@ def solve_aldvc(st: LocalState):
         if change < pr.admm_tol:
             break
     out = np.zeros_like(st.p)
-    Fh = np.stack([_nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
+    Fh = np.stack([nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
     for a, c in enumerate(comps):
         out[:, c] = uh[:, a]
         out[:, c + 1:c + 4] = Fh[:, a]

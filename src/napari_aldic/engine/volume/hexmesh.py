@@ -16,7 +16,7 @@ from scipy import sparse
 
 from .grid import VolumeGrid
 
-__all__ = ["hex_elements", "HexOperators", "hex_operators"]
+__all__ = ["hex_elements", "HexOperators", "hex_operators", "nodal_gradient"]
 
 # corner offsets (x, y, z) in VTK_HEXAHEDRON order
 _CORNERS = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
@@ -79,3 +79,11 @@ def hex_operators(grid: VolumeGrid, step: float) -> HexOperators:
                                           np.broadcast_to(cols, (E, 8, 8)).ravel())),
                                         shape=(8 * E, n)))
     return HexOperators(el, sparse.vstack(blocks).tocsr(), N)
+
+
+def nodal_gradient(ops: HexOperators, values: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` gradient of nodal ``values`` (n,): the Gauss-point gradients
+    of the elements averaged onto their nodes (weights: the shape functions)."""
+    g = (ops.G @ values).reshape(3, -1)
+    cnt = np.asarray(ops.N.sum(0)).ravel()
+    return np.stack([(ops.N.T @ g[a]) / np.maximum(cnt, 1e-12) for a in range(3)], 1)
