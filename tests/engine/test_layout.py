@@ -46,6 +46,7 @@ ENGINE_DEPS = {
     "probes": {"core", "io", "dic", "viz"},
     "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic", "probes"},
     "sem": {"core", "kernels", "dic", "io", "viz"},
+    "volume": {"core", "kernels"},  # DVC (issue 28): its own 3-D kernels, the engine's types
 }
 #: the only outside packages the numba kernels may use
 KERNEL_EXTERNAL = {"numpy", "numba", "math", "__future__"}

@@ -193,6 +193,10 @@ def add_run(sub) -> None:
                           "merged) to FILE.json, for --params of a later run"))
     add_unit_options(run)
     add_sem_options(run)
+    run.add_argument("--volume", action="store_true",
+                     help=tr("the inputs are volumes: a 3-D TIFF is one volume (z, y, x), a "
+                             "4-D TIFF or a folder a sequence of volumes (digital volume "
+                             "correlation; without it a 3-D TIFF is a stack of 2-D frames)"))
 
 
 def add_params(sub) -> None:

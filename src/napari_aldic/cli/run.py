@@ -19,12 +19,15 @@ from .masks import read_mask
 from .sem import run_sem, sem_requested
 from .settings import settings_from_args
 from .tiled import metadata_units, run_tiled_pair
+from .volume import run_volume
 
 
 def run_command(args) -> None:
     """``napari-aldic run``: every frame against frame 0."""
     settings = settings_from_args(args, args.params)
     params, units = settings.params, settings.units
+    if getattr(args, "volume", False):
+        return run_volume(args, params)
     if args.params_out is not None:
         used = settings.replace(tracking={"reference": args.reference})
         print(tr("parameters written to {resolve}").format(

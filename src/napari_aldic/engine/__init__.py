@@ -32,6 +32,7 @@ from .core.reasons import DICError, Reason
 from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
 from .core.units import Units
+from .core.volresults import VolumeResult
 from .dic.correlate import correlate
 from .dic.noise_floor import noise_floor
 from .dic.quadtree import Refinement, resolve_refinement
@@ -42,6 +43,7 @@ from .io.settings_file import read_settings, write_settings
 from .io.stack import open_stack
 from .sem import correct_distortion, correlate_sem
 from .viz.report import export_report
+from .volume import VolumeStrain, compute_strain_volume, correlate_volume, export_volume
 from .workflow.export import export_result
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
@@ -68,4 +70,6 @@ __all__ = [
     "sem", "correlate_sem", "correct_distortion",
     # live DIC (issue 26)
     "watch", "LiveProbes",
+    # volumes (DVC, issue 28)
+    "correlate_volume", "VolumeResult", "compute_strain_volume", "VolumeStrain", "export_volume",
 ]

@@ -18,6 +18,7 @@ from .npzfile import read_result_npz
 from .params import DICParams
 from .reasons import Reason
 from .roifile import read_roi_file
+from .volresults import VolumeResult, is_volume_file, load_volume_result
 
 __all__ = ["DICResult", "load_result"]
 
@@ -241,8 +242,9 @@ class DICResult:
         return load_result(path)
 
 
-def load_result(path) -> DICResult:
-    """Read a ``.npz`` result written by :meth:`DICResult.save`.
+def load_result(path) -> DICResult | VolumeResult:
+    """Read a ``.npz`` result written by :meth:`DICResult.save` (or, for a
+    volume, by :meth:`~.volresults.VolumeResult.save`: a ``VolumeResult``).
 
     The file's structure is checked from its array headers before anything
     is decompressed (:func:`~napari_aldic.engine.core.npzfile.read_result_npz`):
@@ -250,6 +252,8 @@ def load_result(path) -> DICResult:
     is not a result, raises ``ValueError`` naming the file and the problem.
     """
     path = Path(path)
+    if is_volume_file(path):
+        return load_volume_result(path)
     header, arrays = read_result_npz(path, _FORMAT, _ARRAYS, _OPTIONAL)
     ref = header.get("roi_file")
     if isinstance(ref, dict):  # the run folder's one copy of the ROI

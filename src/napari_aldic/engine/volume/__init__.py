@@ -1,0 +1,15 @@
+"""Digital volume correlation (DVC): Local 3-D IC-GN and AL-DVC on volumes.
+
+Reuses the engine's structure (parameters :class:`~..core.params.DICParams`
+in voxels, reasons :class:`~..core.reasons.Reason`, the result file
+machinery) with its own 3-D kernels (``kernels/icgn3d.py``,
+``kernels/bspline3d.py``). The public entry is
+:func:`~.correlate.correlate_volume`.
+"""
+
+from .correlate import correlate_volume
+from .export import export_volume
+from .strain import MEASURES3, VolumeStrain, compute_strain_volume
+
+__all__ = ["correlate_volume", "compute_strain_volume", "VolumeStrain", "MEASURES3",
+           "export_volume"]

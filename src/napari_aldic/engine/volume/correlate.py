@@ -1,0 +1,119 @@
+"""``correlate_volume``: the public DVC entry (Local IC-GN or AL-DVC)."""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from ..core.params import DICParams
+from ..core.reasons import Reason
+from ..core.version import __version__
+from ..core.volresults import VolumeResult
+from .grid import make_volume_grid
+from .local import LocalState, solve_local_volume
+from .validity import final_reasons
+
+__all__ = ["correlate_volume"]
+
+
+def _check_inputs(ref, dfm, roi):
+    ref, dfm = np.asarray(ref), np.asarray(dfm)
+    for name, a in (("reference", ref), ("deformed", dfm)):
+        if a.ndim != 3:
+            raise ValueError(f"the {name} volume must be 3-D (z, y, x); it has shape {a.shape}")
+        if a.dtype.kind not in "biuf":
+            raise ValueError(f"the {name} volume holds {a.dtype}, not grey levels")
+    if ref.shape != dfm.shape:
+        raise ValueError(f"the reference {ref.shape} and deformed {dfm.shape} volumes differ "
+                         "in shape (z, y, x)")
+    f = ref.astype(np.float32)
+    g = dfm.astype(np.float32)
+    if not (np.isfinite(f).all() and np.isfinite(g).all()):
+        raise ValueError("a volume holds NaN or infinite grey levels")
+    if roi is None:
+        mask = np.ones(ref.shape, np.uint8)
+    else:
+        roi = np.asarray(roi)
+        if roi.shape != ref.shape:
+            raise ValueError(f"the ROI has shape {roi.shape} but the volumes {ref.shape}")
+        mask = np.ascontiguousarray(roi.astype(bool).astype(np.uint8))
+    return f, g, mask
+
+
+def _result(st: LocalState, reason, params, shape, roi, meta, p=None) -> VolumeResult:
+    g = st.grid
+    p = st.p if p is None else p
+    xyz = g.xyz.astype(np.float64)
+    grads = {k: p[:, i].copy() for k, i in zip(
+        ("dudx", "dudy", "dudz", "dvdx", "dvdy", "dvdz", "dwdx", "dwdy", "dwdz"),
+        (1, 2, 3, 5, 6, 7, 9, 10, 11))}
+    return VolumeResult(
+        x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], u=p[:, 0].copy(), v=p[:, 4].copy(),
+        w=p[:, 8].copy(), **grads, valid=reason == Reason.OK,
+        zncc=st.zncc.copy(), reason=reason.astype(np.int8), iterations=st.iters.copy(),
+        grid_ix=g.ix, grid_iy=g.iy, grid_iz=g.iz, grid_xs=g.xs, grid_ys=g.ys, grid_zs=g.zs,
+        volume_shape=tuple(int(s) for s in shape), params=params, meta=meta,
+        u_std=st.ustd[:, 0].copy(), v_std=st.ustd[:, 1].copy(), w_std=st.ustd[:, 2].copy(),
+        roi=None if roi is None else np.asarray(roi, bool))
+
+
+def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
+                     method: str = "local", *, params: DICParams | None = None,
+                     **options) -> VolumeResult:
+    """Displacement of a deformed volume against a reference (DVC).
+
+    Parameters
+    ----------
+    ref, dfm : (nz, ny, nx) arrays
+        Reference and deformed volumes (any numeric dtype).
+    roi : (nz, ny, nx) bool or None
+        Material to analyse: nodes lie on voxels inside it and every subset
+        keeps only its voxels inside it.
+    subset, step : int
+        Full width of the cubic subset and node spacing, voxels.
+    method : {"local", "aldic"}
+        Local 3-D IC-GN, or AL-DVC (ADMM: local IC-GN and a global
+        trilinear-hexahedral solve, as 2-D AL-DIC).
+    params : DICParams, optional
+        Every parameter at once (then ``subset``/``step``/``method`` and
+        ``options`` are ignored); lengths in voxels.
+    **options
+        Other :class:`~..core.params.DICParams` fields (``max_iter``,
+        ``tol``, ``zncc_min``, ``search``, ``mu``, ``beta``, ``n_threads``...).
+
+    Returns
+    -------
+    VolumeResult
+        ``x, y, z`` node voxels (x = axis 2, y = axis 1, z = axis 0), ``u, v,
+        w`` Lagrangian displacement (voxels), ``valid`` and ``reason``.
+    """
+    t0 = time.perf_counter()
+    if params is None:
+        params = DICParams(subset=subset, step=step, method=method, **options)
+    f, g, mask = _check_inputs(ref, dfm, roi)
+    grid = make_volume_grid(f.shape, params.subset, params.step, roi)
+    threads = numba.get_num_threads()
+    if params.n_threads:
+        numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
+    try:
+        st = solve_local_volume(f, g, mask, grid, params)
+        meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
+                             "numba": numba.__version__},
+                "timing": dict(st.timing), "n_nodes": grid.n, "kind": "volume"}
+        p = None
+        if params.method == "aldic":
+            from .aldvc import solve_aldvc  # the ADMM needs scipy.sparse only here
+            p, admm = solve_aldvc(st)
+            meta["admm_history"] = admm["history"]
+            meta["timing"].update(admm["timing"])
+        reason = final_reasons(st, p)
+    finally:
+        numba.set_num_threads(threads)
+    meta["timing"]["total"] = time.perf_counter() - t0
+    meta["n_valid"] = int(np.count_nonzero(reason == Reason.OK))
+    res = _result(st, reason, params, f.shape, roi, meta, p)
+    if p is not None:
+        res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
+    return res
