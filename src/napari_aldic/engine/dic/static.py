@@ -10,7 +10,10 @@ section 6.5):
 * **static features** (:data:`~napari_aldic.engine.Reason.STATIC_FEATURE`):
   part of the subset is explained better by zero motion than by the found
   warp. Per pixel the zero-normalised residual at zero motion minus that at
-  the warp is compared (:func:`~napari_aldic.engine.kernels.static.static_evidence`):
+  the warp is compared
+  (:func:`~napari_aldic.engine.kernels.static.zero_motion_evidence`, computed
+  by affine IC-GN at each converged node from the samples of its last step,
+  so the test costs no second pass over the subsets):
   ``S``, the sum over the pixels that prefer zero motion, is set against
   ``D``, everything that tells the two explanations apart, and against what
   image noise alone gives (``z``, in standard deviations). A node is flagged
@@ -41,10 +44,10 @@ import numpy as np
 from scipy import fft as sp_fft
 
 from ..core.reasons import Reason
-from ..kernels.static import lag_peaks, static_evidence
+from ..kernels.static import lag_peaks
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
-           "static_statistics", "ambiguity", "candidate_lags"]
+           "ambiguity", "candidate_lags"]
 
 #: evidence for zero motion beyond this many noise standard deviations ...
 STATIC_Z = 20.0
@@ -61,28 +64,6 @@ AMBIGUITY = 0.8
 _CANDIDATE_MIN = 0.4
 _CANDIDATES = 4  # per tile
 _BLOCK = 2  # half-width of the lag block searched around a candidate
-#: pixel pitch of the zero-motion test within a subset (1: every pixel).
-#: 2 (a quarter of the cost) lets 7 occluder nodes through: a one-pixel
-#: static edge falls between the lattice's columns
-STRIDE = 1
-
-
-def static_statistics(im, grid, sub, p, active, image_var: float, half: int) -> np.ndarray:
-    """``(S / D, z)`` per node (n, 2) of :func:`~..kernels.static.static_evidence`
-    on the ``STRIDE`` lattice, ``z`` scaled to the whole subset (NaN where
-    not ``active``)."""
-    out = np.empty((grid.n, 2))
-    static_evidence(np.ascontiguousarray(im.f, np.float32),
-                    np.ascontiguousarray(im.g, np.float32), im.g_spline.coef,
-                    int(im.g_spline.order), grid.x.astype(np.int64), grid.y.astype(np.int64),
-                    np.ascontiguousarray(p, np.float64), np.ascontiguousarray(active),
-                    sub.slot.astype(np.int32), sub.masks, int(half), STRIDE, float(image_var),
-                    out)
-    # z of a per-pixel effect grows with the square root of the pixels tested
-    out[:, 1] *= STRIDE
-    return out
-
-
 def _tile_spans(size: int, tile: int) -> np.ndarray:
     """Starts of tiles of ``tile`` pixels covering ``size`` (the last one
     flush with the end)."""
@@ -227,7 +208,7 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     return out[:, 0]
 
 
-def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) -> np.ndarray:
+def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, params) -> np.ndarray:
     """``reason`` with trusted (or merely uncertain) nodes whose match static
     features explain flagged ``STATIC_FEATURE``, and those whose texture
     repeats within the search range ``AMBIGUOUS_MATCH``.
@@ -239,7 +220,8 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) 
     grid, sub : the nodes and their subset masks.
     p : (n, 6) affine warps of the Local result.
     zncc, reason : (n,) of the Local result.
-    validity : :class:`~.reliability.Validity` (its image noise).
+    evidence : (n, 2) zero-motion evidence ``(S / D, z)`` of the Local
+        result (:func:`~.local.solve_local`; NaN where not tested).
     params : DICParams
     """
     reason = np.asarray(reason).copy()
@@ -252,17 +234,12 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) 
     # feature (203 of 665 nodes at 1 GL), and a static feature's pull would
     # move the node by less than STATIC_MIN_MOTION
     moved = cand & (np.hypot(p[:, 0], p[:, 3]) >= STATIC_MIN_MOTION)
-    if params.shape_function == "affine" and moved.any():
-        st = static_statistics(im, grid, sub, p, moved, validity.image_var, params.half)
-        with np.errstate(invalid="ignore"):
-            static = moved & (st[:, 1] > STATIC_Z) & (st[:, 0] > STATIC_FRACTION)
-    elif params.shape_function == "affine":
-        static = np.zeros_like(cand)
-    else:
-        # the test warps each subset with the affine part of its match only:
-        # with second-order subsets the missing curvature reads as evidence
-        # for zero motion (a 36 px wave: 132 of 665 nodes); not tested there
-        static = np.zeros_like(cand)
+    # second-order subsets are not tested (IC-GN computes no evidence for
+    # them): warping each subset with the affine part of its match only, the
+    # missing curvature reads as evidence for zero motion (a 36 px wave: 132
+    # of 665 nodes)
+    with np.errstate(invalid="ignore"):
+        static = moved & (evidence[:, 1] > STATIC_Z) & (evidence[:, 0] > STATIC_FRACTION)
     peak = ambiguity(im, roi, grid, sub, cand & ~static, params)
     with np.errstate(invalid="ignore"):
         ambiguous = cand & ~static & (peak >= AMBIGUITY * np.minimum(zncc, 1.0))
