@@ -275,7 +275,8 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
                                                    validity, guess=guess)
     t = time.perf_counter()  # matches explained by features that do not move (issue 22)
-    reason = flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, params)
+    reason = flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, validity,
+                                  params)
     timing["static"] = time.perf_counter() - t
     mesh = qmesh.mesh if qmesh is not None else None
     sol = _Solution(sub, p[:, 0].copy(), p[:, 3].copy(), p[:, [1, 2, 4, 5]].copy(), zncc,

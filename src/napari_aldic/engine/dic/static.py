@@ -42,9 +42,13 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import fft as sp_fft
+from scipy import ndimage as ndi
 
 from ..core.reasons import Reason
 from ..kernels.static import lag_peaks
+from ..kernels.sums import integral_image
+from .icgn import icgn_solve
+from .subsets import rect_sums
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
            "ambiguity", "candidate_lags"]
@@ -64,6 +68,24 @@ AMBIGUITY = 0.8
 _CANDIDATE_MIN = 0.4
 _CANDIDATES = 4  # per tile
 _BLOCK = 2  # half-width of the lag block searched around a candidate
+#: a pixel is flat when the grey-level standard deviation of its 5 x 5
+#: neighbourhood, in both images, is at most FLAT_NOISE times the image noise
+#: plus FLAT_GL (a bar, an occluder, a saturated or black field of view)
+FLAT_NOISE = 2.0
+FLAT_GL = 0.5
+#: pixels this close (px) to a flat region are left out of the edge test's
+#: refit: the region's edge, which the spline gradients spread over a few
+#: pixels, is what may not move (2 px kept the false strain: the first
+#: speckle rows beside a bar still pinned the refit)
+FLAT_MARGIN = 3
+#: nodes whose subset is at least this share flat get the edge test ...
+EDGE_SHARE = 0.05
+#: ... and are flagged when the refit without the flat region moves the node
+#: by more than EDGE_SIGMAS predicted standard deviations and EDGE_MIN px,
+#: or when less than EDGE_KEEP of the subset is left to refit
+EDGE_SIGMAS = 6.0
+EDGE_MIN = 0.05
+EDGE_KEEP = 0.3
 def _tile_spans(size: int, tile: int) -> np.ndarray:
     """Starts of tiles of ``tile`` pixels covering ``size`` (the last one
     flush with the end)."""
@@ -208,7 +230,77 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     return out[:, 0]
 
 
-def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, params) -> np.ndarray:
+def _flat_pixels(f, g, roi, image_var: float) -> np.ndarray:
+    """Pixels of the ROI flat in both images (:data:`FLAT_NOISE`)."""
+    thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
+    flat = np.asarray(roi, bool).copy()
+    for a in (f, g):
+        a = np.asarray(a, np.float64)
+        m = ndi.uniform_filter(a, 5)
+        flat &= ndi.uniform_filter(a * a, 5) - m * m <= thr2
+    return flat
+
+
+def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> np.ndarray:
+    """``cand`` nodes whose match leans on the edge of a flat region that
+    does not move with the rest of the subset.
+
+    A subset that straddles a static bar or occluder can bend its affine warp
+    so that the bar's edge stays put and the speckle beside it moves part of
+    the way (a false strain dv/dy of -0.05 next to a 16 px bar): the
+    zero-motion test sees no pixel that prefers zero motion, but the node is
+    off by 0.5 px. Each subset with at least :data:`EDGE_SHARE` flat pixels
+    is refitted (affine IC-GN from its match) without them and a margin of
+    :data:`FLAT_MARGIN` px: a flat region that moves with the material (a
+    saturated spot) leaves the match where it was, a static one does not.
+
+    Parameters
+    ----------
+    im : :class:`~.local.Images`
+    roi : (H, W) bool
+    grid, sub : the nodes and their subset masks.
+    p : (n, 6) affine warps of the Local result.
+    cand : (n,) bool nodes to test.
+    image_var : noise variance of one image (grey levels²).
+    std : (n,) predicted standard uncertainty (px) of the nodes' displacement.
+    params : DICParams
+
+    Returns
+    -------
+    (n,) bool
+    """
+    out = np.zeros(grid.n, bool)
+    h, size = params.half, params.subset
+    flat = _flat_pixels(im.f, im.g, roi, image_var)
+    if not flat.any():
+        return out
+    ii = integral_image(flat.astype(np.float64))
+    x, y = grid.x.astype(np.int64), grid.y.astype(np.int64)
+    share = rect_sums(ii, x - h, y - h, x + h, y + h) / (size * size)
+    nodes = np.nonzero(cand & (share >= EDGE_SHARE))[0]
+    if nodes.size == 0:
+        return out
+    # the 5 x 5 flatness window erodes the region by 2 px: grow it back too
+    near = ndi.binary_dilation(flat, iterations=FLAT_MARGIN + 2)
+    masks = np.empty((nodes.size, size, size), np.uint8)
+    for i, k in enumerate(nodes):
+        own = sub.masks[sub.slot[k]] if sub.slot[k] >= 0 else 1
+        masks[i] = own & ~near[y[k] - h:y[k] + h + 1, x[k] - h:x[k] + h + 1]
+    own_px = np.where(sub.slot[nodes] >= 0, sub.fraction[nodes], 1.0) * size * size
+    few = masks.sum(axis=(1, 2)) < EDGE_KEEP * own_px
+    jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
+    rp, _, _, rr = icgn_solve(im.f, jgx, jgy, im.g_spline, x[nodes], y[nodes], p[nodes],
+                              ~few, np.arange(nodes.size, dtype=np.int32), masks, h,
+                              params.max_iter, params.tol, lin=(im.fgx, im.fgy))
+    moved = np.hypot(rp[:, 0] - p[nodes, 0], rp[:, 3] - p[nodes, 3])
+    with np.errstate(invalid="ignore"):
+        agree = (rr == Reason.OK) & ~(moved > np.maximum(EDGE_MIN, EDGE_SIGMAS * std[nodes]))
+    out[nodes] = few | ~agree
+    return out
+
+
+def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, validity,
+                         params) -> np.ndarray:
     """``reason`` with trusted (or merely uncertain) nodes whose match static
     features explain flagged ``STATIC_FEATURE``, and those whose texture
     repeats within the search range ``AMBIGUOUS_MATCH``.
@@ -222,6 +314,8 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, params) 
     zncc, reason : (n,) of the Local result.
     evidence : (n, 2) zero-motion evidence ``(S / D, z)`` of the Local
         result (:func:`~.local.solve_local`; NaN where not tested).
+    validity : :class:`~.reliability.Validity` (image noise, predicted
+        uncertainty).
     params : DICParams
     """
     reason = np.asarray(reason).copy()
@@ -240,6 +334,12 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, params) 
     # of 665 nodes)
     with np.errstate(invalid="ignore"):
         static = moved & (evidence[:, 1] > STATIC_Z) & (evidence[:, 0] > STATIC_FRACTION)
+    std = np.max(validity.std(zncc), axis=1)
+    # whatever the motion: a node matched as static beside a flat region whose
+    # speckle moves is caught too (quadratic subsets on a vertical bar: four
+    # nodes on its edge at u = 0.1 px, the truth 1.3 px)
+    static |= static_edges(im, roi, grid, sub, p, cand & ~static, validity.image_var, std,
+                           params)
     peak = ambiguity(im, roi, grid, sub, cand & ~static, params)
     with np.errstate(invalid="ignore"):
         ambiguous = cand & ~static & (peak >= AMBIGUITY * np.minimum(zncc, 1.0))
