@@ -41,8 +41,7 @@ match.
 from __future__ import annotations
 
 import numpy as np
-from scipy import fft as sp_fft
-from scipy import ndimage as ndi
+from scipy import fft as sp_fft, ndimage as ndi
 
 from ..core.reasons import Reason
 from ..kernels.static import lag_peaks
