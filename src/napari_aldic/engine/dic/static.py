@@ -67,10 +67,13 @@ AMBIGUITY = 0.8
 _CANDIDATE_MIN = 0.4
 _CANDIDATES = 4  # per tile
 _BLOCK = 2  # half-width of the lag block searched around a candidate
-#: a pixel is flat when the grey-level standard deviation of its 5 x 5
-#: neighbourhood, in both images, is at most FLAT_NOISE times the image noise
-#: plus FLAT_GL (a bar, an occluder, a saturated or black field of view)
-FLAT_NOISE = 2.0
+#: a pixel is flat when the grey-level standard deviation of its
+#: FLAT_WINDOW² neighbourhood, in both images, is at most FLAT_NOISE times
+#: the image noise plus FLAT_GL (a bar, an occluder, a saturated or black
+#: field of view; 5 x 5 windows and twice the noise found "flat" pixels in
+#: 2 px speckle at 10 GL, a third of whose nodes the test then rejected)
+FLAT_WINDOW = 9
+FLAT_NOISE = 1.5
 FLAT_GL = 0.5
 #: pixels this close (px) to a flat region are left out of the edge test's
 #: refit: the region's edge, which the spline gradients spread over a few
@@ -80,8 +83,10 @@ FLAT_MARGIN = 3
 #: nodes whose subset is at least this share flat get the edge test ...
 EDGE_SHARE = 0.05
 #: ... and are flagged when the refit without the flat region moves the node
-#: by more than EDGE_SIGMAS predicted standard deviations and EDGE_MIN px,
-#: or when less than EDGE_KEEP of the subset is left to refit
+#: by more than EDGE_SIGMAS predicted standard deviations (of the pixels
+#: refitted) and EDGE_MIN px, or when less than EDGE_KEEP of the subset is
+#: left to refit (its match rests on the flat region's edge: quadratic
+#: subsets centred in a horizontal bar, 22 nodes, converge off the truth)
 EDGE_SIGMAS = 6.0
 EDGE_MIN = 0.05
 EDGE_KEEP = 0.3
@@ -235,8 +240,8 @@ def _flat_pixels(f, g, roi, image_var: float) -> np.ndarray:
     flat = np.asarray(roi, bool).copy()
     for a in (f, g):
         a = np.asarray(a, np.float64)
-        m = ndi.uniform_filter(a, 5)
-        flat &= ndi.uniform_filter(a * a, 5) - m * m <= thr2
+        m = ndi.uniform_filter(a, FLAT_WINDOW)
+        flat &= ndi.uniform_filter(a * a, FLAT_WINDOW) - m * m <= thr2
     return flat
 
 
@@ -279,21 +284,24 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
     nodes = np.nonzero(cand & (share >= EDGE_SHARE))[0]
     if nodes.size == 0:
         return out
-    # the 5 x 5 flatness window erodes the region by 2 px: grow it back too
-    near = ndi.binary_dilation(flat, iterations=FLAT_MARGIN + 2)
+    # the flatness window erodes the region by its half-width: grow it back too
+    near = ndi.binary_dilation(flat, iterations=FLAT_MARGIN + FLAT_WINDOW // 2)
     masks = np.empty((nodes.size, size, size), np.uint8)
     for i, k in enumerate(nodes):
         own = sub.masks[sub.slot[k]] if sub.slot[k] >= 0 else 1
         masks[i] = own & ~near[y[k] - h:y[k] + h + 1, x[k] - h:x[k] + h + 1]
     own_px = np.where(sub.slot[nodes] >= 0, sub.fraction[nodes], 1.0) * size * size
-    few = masks.sum(axis=(1, 2)) < EDGE_KEEP * own_px
+    kept = masks.sum(axis=(1, 2))
+    few = kept < EDGE_KEEP * own_px
     jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
     rp, _, _, rr = icgn_solve(im.f, jgx, jgy, im.g_spline, x[nodes], y[nodes], p[nodes],
                               ~few, np.arange(nodes.size, dtype=np.int32), masks, h,
                               params.max_iter, params.tol, lin=(im.fgx, im.fgy))
     moved = np.hypot(rp[:, 0] - p[nodes, 0], rp[:, 3] - p[nodes, 3])
+    # the refit's noise grows as fewer pixels are left
+    limit = np.maximum(EDGE_MIN, EDGE_SIGMAS * std[nodes] * np.sqrt(own_px / np.maximum(kept, 1)))
     with np.errstate(invalid="ignore"):
-        agree = (rr == Reason.OK) & ~(moved > np.maximum(EDGE_MIN, EDGE_SIGMAS * std[nodes]))
+        agree = (rr == Reason.OK) & ~(moved > limit)
     out[nodes] = few | ~agree
     return out
 
