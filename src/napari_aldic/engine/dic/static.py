@@ -4,8 +4,8 @@ A subset match can converge, correlate at ZNCC 0.99 and predict a tiny
 uncertainty, and still be wrong when part of what it matched does not move
 with the material: an occluder, a dark bar, dust on the sensor, the black
 edge of the field of view, or a texture that repeats within the search range.
-Two tests flag such nodes after Local DIC (method in ``docs/method.md``,
-section 6.5):
+Three tests flag such nodes after Local DIC (method in ``docs/method.md``,
+section 6.5; the edge test is described at :func:`static_edges`):
 
 * **static features** (:data:`~napari_aldic.engine.Reason.STATIC_FEATURE`):
   part of the subset is explained better by zero motion than by the found
@@ -20,6 +20,9 @@ section 6.5):
   when ``z > STATIC_Z`` and ``S / D > STATIC_FRACTION``. A subset that truly
   does not move (zero motion everywhere) has nothing to tell apart and is
   never flagged; one wholly on moving speckle leaves only noise in ``S``.
+* **static edges** (also ``STATIC_FEATURE``): a subset with a flat region
+  (a bar, an occluder) is refitted without it; a match that moves when the
+  flat region's edge no longer holds it leaned on a static edge.
 * **ambiguous matches** (:data:`~napari_aldic.engine.Reason.AMBIGUOUS_MATCH`):
   the reference subset's normalised autocorrelation has an isolated second
   peak within the search range nearly as high as the match itself

@@ -122,33 +122,17 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
         xx, xy, yy = dx * dx, dx * dy, dy * dy
         ea, ed = ex[q], ey[q]
         w = ja * ea
-        a0 += w
-        a1 += w * dx
-        a2 += w * dy
-        a3 += w * xx
-        a4 += w * xy
-        a5 += w * yy
+        a0, a1, a2 = a0 + w, a1 + w * dx, a2 + w * dy
+        a3, a4, a5 = a3 + w * xx, a4 + w * xy, a5 + w * yy
         w = ja * ed
-        c0 += w
-        c1 += w * dx
-        c2 += w * dy
-        c3 += w * xx
-        c4 += w * xy
-        c5 += w * yy
+        c0, c1, c2 = c0 + w, c1 + w * dx, c2 + w * dy
+        c3, c4, c5 = c3 + w * xx, c4 + w * xy, c5 + w * yy
         w = jd * ea
-        d0 += w
-        d1 += w * dx
-        d2 += w * dy
-        d3 += w * xx
-        d4 += w * xy
-        d5 += w * yy
+        d0, d1, d2 = d0 + w, d1 + w * dx, d2 + w * dy
+        d3, d4, d5 = d3 + w * xx, d4 + w * xy, d5 + w * yy
         w = jd * ed
-        e0 += w
-        e1 += w * dx
-        e2 += w * dy
-        e3 += w * xx
-        e4 += w * xy
-        e5 += w * yy
+        e0, e1, e2 = e0 + w, e1 + w * dx, e2 + w * dy
+        e3, e4, e5 = e3 + w * xx, e4 + w * xy, e5 + w * yy
     _moment_block(H, 0, 0, a0, a1, a2, a3, a4, a5)
     _moment_block(H, 0, 3, c0, c1, c2, c3, c4, c5)
     _moment_block(H, 3, 0, d0, d1, d2, d3, d4, d5)
@@ -302,16 +286,10 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         Receives the reference subset's statistics as
         :func:`~.subset.subset_stats` computes them (free here: the sums are
         needed anyway).
-    g : (H, W) float32
-        The deformed image (its values at zero motion).
-    static : (float, float)
-        Noise variance of one image and the least motion (px) at which a
-        converged node is tested for static features.
-    static_out : (n, 2) or (0, 2) float64
-        Receives :func:`~.static.zero_motion_evidence` ``(S / D, z)`` of the
-        converged nodes that moved at least ``static[1]`` (NaN at the other
-        active nodes), from the subset samples of the last step; no rows:
-        not tested.
+    g, static, static_out : (H, W) float32, (float, float), (n or 0, 2) float64
+        Deformed image; noise variance of one image and least motion (px);
+        receives :func:`~.static.zero_motion_evidence` of the converged nodes
+        moved that far, from the last step's samples (else NaN; no rows: off).
     """
     n = nx.size
     test_static = static_out.shape[0] == n
