@@ -88,6 +88,40 @@ def test_clean_speckle_keeps_every_node(field):
         assert res.valid.mean() == 1.0
 
 
+def _hbar(level=0.0):
+    """A horizontal 16 px bar at grey ``level``, fixed in both images: the
+    motion across its edge (v = -0.6 px) is what the edge pins."""
+    r, d = _speckle()
+    r[120:136] = level
+    d[120:136] = level
+    moving = np.ones((256, 256), bool)
+    moving[120:136] = False
+    return r, d, FIELD, moving
+
+
+@pytest.mark.parametrize("method", ["local", "aldic"])
+@pytest.mark.parametrize("level", [0.0, 5.0])
+def test_horizontal_bar_is_never_valid(level, method):
+    """Before the edge test 10 (bar at 0 GL) and 11 (at 5 GL) Local nodes on
+    the bar's lower edge were valid and 0.5-0.58 px off: their affine warp
+    bent (dv/dy = -0.05) so the bar's edge stayed put while the speckle
+    beside it moved part of the way, and no pixel preferred zero motion."""
+    r, d, field, moving = _hbar(level)
+    res = correlate(r, d, subset=SUBSET, step=STEP, method=method)
+    _check(res, field, moving)
+    assert int(Reason.STATIC_FEATURE) in set(np.unique(res.reason[~res.valid]).tolist())
+
+
+@pytest.mark.parametrize("trap", [_bar, _hbar], ids=["bar", "horizontal bar"])
+def test_static_bars_with_quadratic_subsets(trap):
+    """Second-order subsets get no zero-motion test; the edge test covers them
+    (before: 4 valid nodes on the vertical bar's edge at u = 0.1 px, the truth
+    1.3 px)."""
+    r, d, field, moving = trap()
+    res = correlate(r, d, subset=SUBSET, step=STEP, shape_function="quadratic")
+    _check(res, field, moving)
+
+
 def test_reason_texts():
     assert "static" in Reason.describe(Reason.STATIC_FEATURE)
     assert "ambiguous" in Reason.describe(Reason.AMBIGUOUS_MATCH)

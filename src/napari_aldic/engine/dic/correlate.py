@@ -279,10 +279,11 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
     sub = split_subsets(roi, grid, params.subset, params.min_component)
     validity = _validity(im, roi, grid, sub, params, timing)
-    p, zncc, iters, reason = solve_local(im, roi, grid, sub, params, timing, report,
-                                         validity, guess=guess)
+    p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
+                                                   validity, guess=guess)
     t = time.perf_counter()  # matches explained by features that do not move (issue 22)
-    reason = flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params)
+    reason = flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, validity,
+                                  params)
     timing["static"] = time.perf_counter() - t
     mesh = qmesh.mesh if qmesh is not None else None
     sol = _Solution(sub, p[:, 0].copy(), p[:, 3].copy(), p[:, [1, 2, 4, 5]].copy(), zncc,

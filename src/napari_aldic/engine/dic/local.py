@@ -40,6 +40,7 @@ from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
 from .reliability import Validity
 from .rotation import rotated_search, spread_nodes
+from .static import STATIC_MIN_MOTION
 from .subsets import SubsetMasks
 
 __all__ = ["Images", "prepare_images", "solve_local"]
@@ -109,9 +110,10 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
 
 class _State:
     """Per-node state of a local analysis and the IC-GN runs that update it:
-    affine parameters ``p``, ``zncc``, ``iters``, ``reason``; ``beyond``
-    marks nodes whose own search reached ``search_max`` without a
-    convincing peak."""
+    affine parameters ``p``, ``zncc``, ``iters``, ``reason``, and the
+    zero-motion evidence ``static`` (n, 2) that affine IC-GN computes at its
+    converged nodes (:mod:`.static`); ``beyond`` marks nodes whose own search
+    reached ``search_max`` without a convincing peak."""
 
     def __init__(self, im: Images, roi, grid: NodeGrid, sub: SubsetMasks,
                  params: DICParams, validity: Validity):
@@ -123,6 +125,7 @@ class _State:
         self.zncc = np.full(n, np.nan)
         self.iters = np.zeros(n, np.int32)
         self.reason = sub.reason.astype(np.int8).copy()
+        self.static = np.full((n, 2), np.nan)
         self.beyond = np.zeros(n, bool)
         self.searched = np.zeros(n, bool)  # own NCC search done
         self.rotation_tried = False
@@ -141,16 +144,18 @@ class _State:
 
     def run(self, active: np.ndarray, p_init: np.ndarray):
         """IC-GN at ``active`` from ``p_init``; copies of the state arrays
-        with those nodes updated."""
+        ``(p, zncc, iters, reason, static)`` with those nodes updated."""
         out = (self.p.copy(), self.zncc.copy(), self.iters.copy(), self.reason.copy())
+        static = self.static.copy()
         im, g, prm = self.im, self.grid, self.params
         jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
         res = icgn_solve(im.f, jgx, jgy, im.g_spline, g.x, g.y, p_init, active,
                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
                          out=out, stats=self._stats_scratch, shape=prm.shape_function,
-                         lin=(im.fgx, im.fgy))
+                         lin=(im.fgx, im.fgy),
+                         static=(im.g, self.validity.image_var, STATIC_MIN_MOTION, static))
         self._fill_stats(active)
-        return res
+        return (*res, static)
 
     def _fill_stats(self, active: np.ndarray) -> None:
         """The validity tests' subset statistics of the ``active`` nodes, once
@@ -161,9 +166,10 @@ class _State:
         table[todo] = self._stats_scratch[todo]
 
     def store(self, res, nodes: np.ndarray) -> None:
-        rp, rz, ri, rr = res
+        rp, rz, ri, rr, rs = res
         self.p[nodes], self.zncc[nodes] = rp[nodes], rz[nodes]
         self.iters[nodes], self.reason[nodes] = ri[nodes], rr[nodes]
+        self.static[nodes] = rs[nodes]
 
     def floor(self) -> np.ndarray:
         """Lowest acceptable ZNCC per node, from the current state."""
@@ -215,7 +221,8 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
        (FFT mode), and grow again.
     3. What still fails is flagged by the validity tests (:func:`_flag`).
 
-    Returns ``(p, zncc, iters, reason)``.
+    Returns ``(p, zncc, iters, reason, static)`` (``static``: the
+    zero-motion evidence of :mod:`.static` at the converged affine nodes).
     """
     st = _State(im, roi, grid, sub, params, validity)
     t = time.perf_counter()
@@ -242,7 +249,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     _flag(st)
     timing["rescue"] = time.perf_counter() - t
     timing.update({k: float(c) for k, c in st.counts.items()})
-    return st.p, st.zncc, st.iters, st.reason
+    return st.p, st.zncc, st.iters, st.reason, st.static
 
 
 def _seed_nodes(st: _State) -> np.ndarray:
@@ -342,9 +349,10 @@ def _grow(st: _State, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray,
                                    grid.y[cand] - grid.y[src])
         active[:] = False
         active[cand] = True
-        rp, rz, ri, rr = st.run(active, p_try)
+        res = st.run(active, p_try)
+        rz, rr = res[1], res[3]
         ok = (rr[cand] == Reason.OK) & (rz[cand] >= zmin[cand])
-        st.store((rp, rz, ri, rr), cand[ok | ~np.isfinite(zncc[cand])])
+        st.store(res, cand[ok | ~np.isfinite(zncc[cand])])
         tries[cand] += 1
         if not ok.any():
             return tries
@@ -389,9 +397,10 @@ def _rotated_rescue(st: _State, candidates: np.ndarray, zmin: np.ndarray,
         p_try[nodes] = p0
         active = np.zeros(st.grid.n, bool)
         active[nodes] = True
-        rp, rz, ri, rr = st.run(active, p_try)
+        res = st.run(active, p_try)
+        rz, rr = res[1], res[3]
         ok = (rr[nodes] == Reason.OK) & (rz[nodes] >= zmin[nodes])
-        st.store((rp, rz, ri, rr), nodes[ok])
+        st.store(res, nodes[ok])
         if ok.any():
             return nodes[ok]
     return nodes[:0]
@@ -550,10 +559,11 @@ def _repair(st: _State, report: ProgressFn) -> None:
         p_try[bad] = st.ncc_guess(bad)
         active = np.zeros(grid.n, bool)
         active[bad] = True
-        rp, rz, ri, rr = st.run(active, p_try)
+        res = st.run(active, p_try)
+        rz, rr = res[1], res[3]
         ok = (rr[bad] == Reason.OK) & (rz[bad] >= zmin[bad])
         was = (st.reason[bad] == Reason.OK) & (st.zncc[bad] >= rz[bad])
-        st.store((rp, rz, ri, rr), bad[ok & ~was])
+        st.store(res, bad[ok & ~was])
         repair_waves()
 
 

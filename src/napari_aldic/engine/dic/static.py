@@ -4,19 +4,25 @@ A subset match can converge, correlate at ZNCC 0.99 and predict a tiny
 uncertainty, and still be wrong when part of what it matched does not move
 with the material: an occluder, a dark bar, dust on the sensor, the black
 edge of the field of view, or a texture that repeats within the search range.
-Two tests flag such nodes after Local DIC (method in ``docs/method.md``,
-section 6.5):
+Three tests flag such nodes after Local DIC (method in ``docs/method.md``,
+section 6.5; the edge test is described at :func:`static_edges`):
 
 * **static features** (:data:`~napari_aldic.engine.Reason.STATIC_FEATURE`):
   part of the subset is explained better by zero motion than by the found
   warp. Per pixel the zero-normalised residual at zero motion minus that at
-  the warp is compared (:func:`~napari_aldic.engine.kernels.static.static_evidence`):
+  the warp is compared
+  (:func:`~napari_aldic.engine.kernels.static.zero_motion_evidence`, computed
+  by affine IC-GN at each converged node from the samples of its last step,
+  so the test costs no second pass over the subsets):
   ``S``, the sum over the pixels that prefer zero motion, is set against
   ``D``, everything that tells the two explanations apart, and against what
   image noise alone gives (``z``, in standard deviations). A node is flagged
   when ``z > STATIC_Z`` and ``S / D > STATIC_FRACTION``. A subset that truly
   does not move (zero motion everywhere) has nothing to tell apart and is
   never flagged; one wholly on moving speckle leaves only noise in ``S``.
+* **static edges** (also ``STATIC_FEATURE``): a subset with a flat region
+  (a bar, an occluder) is refitted without it; a match that moves when the
+  flat region's edge no longer holds it leaned on a static edge.
 * **ambiguous matches** (:data:`~napari_aldic.engine.Reason.AMBIGUOUS_MATCH`):
   the reference subset's normalised autocorrelation has an isolated second
   peak within the search range nearly as high as the match itself
@@ -38,14 +44,17 @@ match.
 from __future__ import annotations
 
 import numpy as np
-from scipy import fft as sp_fft
+from scipy import fft as sp_fft, ndimage as ndi
 
 from ..core.files import array_digest
 from ..core.reasons import Reason
-from ..kernels.static import lag_peaks, static_evidence
+from ..kernels.static import lag_peaks
+from ..kernels.sums import integral_image
+from .icgn import icgn_solve
+from .subsets import rect_sums
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
-           "static_statistics", "ambiguity", "candidate_lags"]
+           "ambiguity", "candidate_lags"]
 
 #: evidence for zero motion beyond this many noise standard deviations ...
 STATIC_Z = 20.0
@@ -62,28 +71,29 @@ AMBIGUITY = 0.8
 _CANDIDATE_MIN = 0.4
 _CANDIDATES = 4  # per tile
 _BLOCK = 2  # half-width of the lag block searched around a candidate
-#: pixel pitch of the zero-motion test within a subset (1: every pixel).
-#: 2 (a quarter of the cost) lets 7 occluder nodes through: a one-pixel
-#: static edge falls between the lattice's columns
-STRIDE = 1
-
-
-def static_statistics(im, grid, sub, p, active, image_var: float, half: int) -> np.ndarray:
-    """``(S / D, z)`` per node (n, 2) of :func:`~..kernels.static.static_evidence`
-    on the ``STRIDE`` lattice, ``z`` scaled to the whole subset (NaN where
-    not ``active``)."""
-    out = np.empty((grid.n, 2))
-    static_evidence(np.ascontiguousarray(im.f, np.float32),
-                    np.ascontiguousarray(im.g, np.float32), im.g_spline.coef,
-                    int(im.g_spline.order), grid.x.astype(np.int64), grid.y.astype(np.int64),
-                    np.ascontiguousarray(p, np.float64), np.ascontiguousarray(active),
-                    sub.slot.astype(np.int32), sub.masks, int(half), STRIDE, float(image_var),
-                    out)
-    # z of a per-pixel effect grows with the square root of the pixels tested
-    out[:, 1] *= STRIDE
-    return out
-
-
+#: a pixel is flat when the grey-level standard deviation of its
+#: FLAT_WINDOW² neighbourhood, in both images, is at most FLAT_NOISE times
+#: the image noise plus FLAT_GL (a bar, an occluder, a saturated or black
+#: field of view; 5 x 5 windows and twice the noise found "flat" pixels in
+#: 2 px speckle at 10 GL, a third of whose nodes the test then rejected)
+FLAT_WINDOW = 9
+FLAT_NOISE = 1.5
+FLAT_GL = 0.5
+#: pixels this close (px) to a flat region are left out of the edge test's
+#: refit: the region's edge, which the spline gradients spread over a few
+#: pixels, is what may not move (2 px kept the false strain: the first
+#: speckle rows beside a bar still pinned the refit)
+FLAT_MARGIN = 3
+#: nodes whose subset is at least this share flat get the edge test ...
+EDGE_SHARE = 0.05
+#: ... and are flagged when the refit without the flat region moves the node
+#: by more than EDGE_SIGMAS predicted standard deviations (of the pixels
+#: refitted) and EDGE_MIN px, or when less than EDGE_KEEP of the subset is
+#: left to refit (its match rests on the flat region's edge: quadratic
+#: subsets centred in a horizontal bar, 22 nodes, converge off the truth)
+EDGE_SIGMAS = 6.0
+EDGE_MIN = 0.05
+EDGE_KEEP = 0.3
 def _tile_spans(size: int, tile: int) -> np.ndarray:
     """Starts of tiles of ``tile`` pixels covering ``size`` (the last one
     flush with the end)."""
@@ -229,7 +239,82 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     return out[:, 0]
 
 
-def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) -> np.ndarray:
+def _flat_pixels(f, g, roi, image_var: float) -> np.ndarray:
+    """Pixels of the ROI flat in both images (:data:`FLAT_NOISE`)."""
+    thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
+    flat = np.asarray(roi, bool).copy()
+    for a in (f, g):
+        if not flat.any():  # speckle: the reference alone shows nothing flat
+            break
+        a = np.asarray(a, np.float64)
+        m = ndi.uniform_filter(a, FLAT_WINDOW)
+        flat &= ndi.uniform_filter(a * a, FLAT_WINDOW) - m * m <= thr2
+    return flat
+
+
+def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> np.ndarray:
+    """``cand`` nodes whose match leans on the edge of a flat region that
+    does not move with the rest of the subset.
+
+    A subset that straddles a static bar or occluder can bend its affine warp
+    so that the bar's edge stays put and the speckle beside it moves part of
+    the way (a false strain dv/dy of -0.05 next to a 16 px bar): the
+    zero-motion test sees no pixel that prefers zero motion, but the node is
+    off by 0.5 px. Each subset with at least :data:`EDGE_SHARE` flat pixels
+    is refitted (affine IC-GN from its match) without them and a margin of
+    :data:`FLAT_MARGIN` px: a flat region that moves with the material (a
+    saturated spot) leaves the match where it was, a static one does not.
+
+    Parameters
+    ----------
+    im : :class:`~.local.Images`
+    roi : (H, W) bool
+    grid, sub : the nodes and their subset masks.
+    p : (n, 6) affine warps of the Local result.
+    cand : (n,) bool nodes to test.
+    image_var : noise variance of one image (grey levels²).
+    std : (n,) predicted standard uncertainty (px) of the nodes' displacement.
+    params : DICParams
+
+    Returns
+    -------
+    (n,) bool
+    """
+    out = np.zeros(grid.n, bool)
+    h, size = params.half, params.subset
+    flat = _flat_pixels(im.f, im.g, roi, image_var)
+    if not flat.any():
+        return out
+    ii = integral_image(flat.astype(np.float64))
+    x, y = grid.x.astype(np.int64), grid.y.astype(np.int64)
+    share = rect_sums(ii, x - h, y - h, x + h, y + h) / (size * size)
+    nodes = np.nonzero(cand & (share >= EDGE_SHARE))[0]
+    if nodes.size == 0:
+        return out
+    # the flatness window erodes the region by its half-width: grow it back too
+    near = ndi.binary_dilation(flat, iterations=FLAT_MARGIN + FLAT_WINDOW // 2)
+    masks = np.empty((nodes.size, size, size), np.uint8)
+    for i, k in enumerate(nodes):
+        own = sub.masks[sub.slot[k]] if sub.slot[k] >= 0 else 1
+        masks[i] = own & ~near[y[k] - h:y[k] + h + 1, x[k] - h:x[k] + h + 1]
+    own_px = np.where(sub.slot[nodes] >= 0, sub.fraction[nodes], 1.0) * size * size
+    kept = masks.sum(axis=(1, 2))
+    few = kept < EDGE_KEEP * own_px
+    jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
+    rp, _, _, rr = icgn_solve(im.f, jgx, jgy, im.g_spline, x[nodes], y[nodes], p[nodes],
+                              ~few, np.arange(nodes.size, dtype=np.int32), masks, h,
+                              params.max_iter, params.tol, lin=(im.fgx, im.fgy))
+    moved = np.hypot(rp[:, 0] - p[nodes, 0], rp[:, 3] - p[nodes, 3])
+    # the refit's noise grows as fewer pixels are left
+    limit = np.maximum(EDGE_MIN, EDGE_SIGMAS * std[nodes] * np.sqrt(own_px / np.maximum(kept, 1)))
+    with np.errstate(invalid="ignore"):
+        agree = (rr == Reason.OK) & ~(moved > limit)
+    out[nodes] = few | ~agree
+    return out
+
+
+def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, validity,
+                         params) -> np.ndarray:
     """``reason`` with trusted (or merely uncertain) nodes whose match static
     features explain flagged ``STATIC_FEATURE``, and those whose texture
     repeats within the search range ``AMBIGUOUS_MATCH``.
@@ -241,7 +326,10 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) 
     grid, sub : the nodes and their subset masks.
     p : (n, 6) affine warps of the Local result.
     zncc, reason : (n,) of the Local result.
-    validity : :class:`~.reliability.Validity` (its image noise).
+    evidence : (n, 2) zero-motion evidence ``(S / D, z)`` of the Local
+        result (:func:`~.local.solve_local`; NaN where not tested).
+    validity : :class:`~.reliability.Validity` (image noise, predicted
+        uncertainty).
     params : DICParams
     """
     reason = np.asarray(reason).copy()
@@ -254,17 +342,18 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, validity, params) 
     # feature (203 of 665 nodes at 1 GL), and a static feature's pull would
     # move the node by less than STATIC_MIN_MOTION
     moved = cand & (np.hypot(p[:, 0], p[:, 3]) >= STATIC_MIN_MOTION)
-    if params.shape_function == "affine" and moved.any():
-        st = static_statistics(im, grid, sub, p, moved, validity.image_var, params.half)
-        with np.errstate(invalid="ignore"):
-            static = moved & (st[:, 1] > STATIC_Z) & (st[:, 0] > STATIC_FRACTION)
-    elif params.shape_function == "affine":
-        static = np.zeros_like(cand)
-    else:
-        # the test warps each subset with the affine part of its match only:
-        # with second-order subsets the missing curvature reads as evidence
-        # for zero motion (a 36 px wave: 132 of 665 nodes); not tested there
-        static = np.zeros_like(cand)
+    # second-order subsets are not tested (IC-GN computes no evidence for
+    # them): warping each subset with the affine part of its match only, the
+    # missing curvature reads as evidence for zero motion (a 36 px wave: 132
+    # of 665 nodes)
+    with np.errstate(invalid="ignore"):
+        static = moved & (evidence[:, 1] > STATIC_Z) & (evidence[:, 0] > STATIC_FRACTION)
+    std = np.max(validity.std(zncc), axis=1)
+    # whatever the motion: a node matched as static beside a flat region whose
+    # speckle moves is caught too (quadratic subsets on a vertical bar: four
+    # nodes on its edge at u = 0.1 px, the truth 1.3 px)
+    static |= static_edges(im, roi, grid, sub, p, cand & ~static, validity.image_var, std,
+                           params)
     peak = ambiguity(im, roi, grid, sub, cand & ~static, params)
     with np.errstate(invalid="ignore"):
         ambiguous = cand & ~static & (peak >= AMBIGUITY * np.minimum(zncc, 1.0))

@@ -37,6 +37,7 @@ from .gauss_newton import (
     store_node,
 )
 from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
+from .static import zero_motion_evidence
 from .subset import gather_gradients, gather_subset, subset_buffers
 
 __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
@@ -45,6 +46,18 @@ __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_
 
 
 # ------------------------------------------------------------- affine IC-GN
+@nb.njit(**INLINE)
+def _moment_block(H, r0, c0, m0, mx, my, mxx, mxy, myy):
+    """Write the 3 x 3 block ``sum c w w^T`` (``w = (1, dx, dy)``) of ``H`` at
+    ``(r0, c0)`` from the six moments of ``c``."""
+    H[r0, c0] = m0
+    H[r0, c0 + 1] = H[r0 + 1, c0] = mx
+    H[r0, c0 + 2] = H[r0 + 2, c0] = my
+    H[r0 + 1, c0 + 1] = mxx
+    H[r0 + 1, c0 + 2] = H[r0 + 2, c0 + 1] = mxy
+    H[r0 + 2, c0 + 2] = myy
+
+
 @nb.njit(**INLINE, fastmath=FASTMATH)
 def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     """Gauss-Newton matrix and sums of the reference subset (affine warp).
@@ -80,8 +93,13 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     sj0 = sj1 = sj2 = sj3 = sj4 = sj5 = 0.0
     b00 = b01 = b02 = b03 = b04 = b05 = 0.0
     # H is four 3 x 3 blocks sum (jx|jy)(ex|ey) w w^T with w = (1, dx, dy): six
-    # moments of w per gradient product, 24 sums per pixel instead of 36
-    mom = np.zeros((4, 6))
+    # moments of w per gradient product, 24 sums per pixel instead of 36, in
+    # scalars (an array of moments indexed per pixel kept them in memory and
+    # cost as much as a Gauss-Newton step)
+    a0 = a1 = a2 = a3 = a4 = a5 = 0.0  # jx ex
+    c0 = c1 = c2 = c3 = c4 = c5 = 0.0  # jx ey
+    d0 = d1 = d2 = d3 = d4 = d5 = 0.0  # jy ex
+    e0 = e1 = e2 = e3 = e4 = e5 = 0.0  # jy ey
     for q in range(m):
         dx = dxs[q]
         dy = dys[q]
@@ -103,23 +121,22 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
         b05 += jdy * fv
         xx, xy, yy = dx * dx, dx * dy, dy * dy
         ea, ed = ex[q], ey[q]
-        for g, c in enumerate((ja * ea, ja * ed, jd * ea, jd * ed)):
-            mom[g, 0] += c
-            mom[g, 1] += c * dx
-            mom[g, 2] += c * dy
-            mom[g, 3] += c * xx
-            mom[g, 4] += c * xy
-            mom[g, 5] += c * yy
-    for g in range(4):
-        r0 = 3 * (g // 2)
-        c0 = 3 * (g % 2)
-        # entry (i, j) of a block: sum c w_i w_j
-        H[r0, c0] = mom[g, 0]
-        H[r0, c0 + 1] = H[r0 + 1, c0] = mom[g, 1]
-        H[r0, c0 + 2] = H[r0 + 2, c0] = mom[g, 2]
-        H[r0 + 1, c0 + 1] = mom[g, 3]
-        H[r0 + 1, c0 + 2] = H[r0 + 2, c0 + 1] = mom[g, 4]
-        H[r0 + 2, c0 + 2] = mom[g, 5]
+        w = ja * ea
+        a0, a1, a2 = a0 + w, a1 + w * dx, a2 + w * dy
+        a3, a4, a5 = a3 + w * xx, a4 + w * xy, a5 + w * yy
+        w = ja * ed
+        c0, c1, c2 = c0 + w, c1 + w * dx, c2 + w * dy
+        c3, c4, c5 = c3 + w * xx, c4 + w * xy, c5 + w * yy
+        w = jd * ea
+        d0, d1, d2 = d0 + w, d1 + w * dx, d2 + w * dy
+        d3, d4, d5 = d3 + w * xx, d4 + w * xy, d5 + w * yy
+        w = jd * ed
+        e0, e1, e2 = e0 + w, e1 + w * dx, e2 + w * dy
+        e3, e4, e5 = e3 + w * xx, e4 + w * xy, e5 + w * yy
+    _moment_block(H, 0, 0, a0, a1, a2, a3, a4, a5)
+    _moment_block(H, 0, 3, c0, c1, c2, c3, c4, c5)
+    _moment_block(H, 3, 0, d0, d1, d2, d3, d4, d5)
+    _moment_block(H, 3, 3, e0, e1, e2, e3, e4, e5)
     return sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05
 
 
@@ -233,7 +250,8 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
+                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out,
+                g, static, static_out):
     """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
 
     Per node: gather the subset, build the reference matrix and its LU
@@ -268,8 +286,13 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         Receives the reference subset's statistics as
         :func:`~.subset.subset_stats` computes them (free here: the sums are
         needed anyway).
+    g, static, static_out : (H, W) float32, (float, float), (n or 0, 2) float64
+        Deformed image; noise variance of one image and least motion (px);
+        receives :func:`~.static.zero_motion_evidence` of the converged nodes
+        moved that far, from the last step's samples (else NaN; no rows: off).
     """
     n = nx.size
+    test_static = static_out.shape[0] == n
     c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
     for c in nb.prange(nchunks):
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
@@ -297,6 +320,12 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
                                             gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
                                             bf, (LU, piv), b, dp, h, span, start, tol, zn)
             store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
+            if test_static:
+                # the last step sampled the subset within tol of the final warp
+                static_out[k, 0] = static_out[k, 1] = np.nan
+                if status == OK and p[0] * p[0] + p[3] * p[3] >= static[1] * static[1]:
+                    static_out[k, 0], static_out[k, 1] = zero_motion_evidence(
+                        g, x0, y0, dxs, dys, fs, gv, m, static[0], xw)
 
 
 # ------------------------------------------------------------- translation IC-GN

@@ -2,10 +2,11 @@
 
 Two kernels behind :mod:`napari_aldic.engine.dic.static`:
 
-* :func:`static_evidence` -- compares, pixel by pixel, the subset's ZNSSD
+* :func:`zero_motion_evidence` -- compares, pixel by pixel, the subset's ZNSSD
   residual at the found warp with its residual at zero motion: how much of the
   difference between the two explanations speaks for zero motion, and how
-  far beyond image noise that is;
+  far beyond image noise that is (inlined into the affine IC-GN kernel, which
+  has just sampled the subset at its warp);
 * :func:`lag_peaks` -- the reference subset's normalised correlation with
   the reference itself around a few candidate lags: a second peak nearly as
   high as the one at zero lag makes the match ambiguous (periodic texture).
@@ -21,10 +22,9 @@ import math
 import numba as nb
 import numpy as np
 
-from .bspline import PAD, sample_cubic, sample_quintic
 from .flags import FASTMATH, INLINE, PARALLEL
 
-__all__ = ["static_evidence", "lag_peaks"]
+__all__ = ["zero_motion_evidence", "lag_peaks"]
 
 _INV_SQRT_2PI = 0.3989422804014327
 
@@ -53,10 +53,9 @@ def _positive_part_moments(a, b):
     return a * phi - b * tail, (a * a + b * b) * tail - a * b * phi
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def static_evidence(f, g, gcoef, order, nx, ny, p, active, slot, masks, h, stride, var_img,
-                    out):
-    """How strongly part of each subset prefers zero motion to its found warp.
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0):
+    """How strongly part of a subset prefers zero motion to its found warp.
 
     With the subsets zero-normalised (ZNSSD), ``e = f̂ - ĝ_p`` the residual at
     the found warp and ``Δ = ĝ_0 - ĝ_p`` how the deformed subset changes from
@@ -67,72 +66,41 @@ def static_evidence(f, g, gcoef, order, nx, ny, p, active, slot, masks, h, strid
     Gaussian, standard deviation ``s`` from the image noise) each term of
     ``S`` has a known mean and variance (positive part of a Gaussian), so
     ``z = (S - E S) / sd S`` measures how far beyond noise the evidence is.
+    IC-GN calls it on a converged node with the samples of its last step.
 
     Parameters
     ----------
-    f, g : (H, W) float32
-        Reference and deformed images.
-    gcoef : (H + 2 PAD, W + 2 PAD) float32
-        Padded B-spline coefficients of ``g``.
-    order : int
-        3 or 5.
-    nx, ny : (n,) int64
-        Node pixels.
-    p : (n, 6) float64
-        Affine warps ``(u, du/dx, du/dy, v, dv/dx, dv/dy)``.
-    active : (n,) bool
-        Nodes to test.
-    slot, masks
-        Mask slot per node (-1: full square) and the component masks.
-    h : int
-        Subset half-width.
-    stride : int
-        Pixel pitch of the test within the subset (1: every pixel; 2: every
-        other row and column, a quarter of the cost; ``z`` grows with the
-        square root of the pixels used).
+    g : (H, W) float32
+        Deformed image (its values at zero motion).
+    x0, y0 : int
+        Node pixel.
+    dxs, dys, fs : 1-D float64
+        The gathered subset's offsets and reference values.
+    gp : 1-D float32 or float64
+        The deformed image sampled at the warped subset pixels.
+    m : int
+        Subset pixels.
     var_img : float
         Noise variance of one image (grey levels²).
-    out : (n, 2) float64
-        Receives ``(S / D, z)``; NaN for inactive nodes, flat subsets and
-        warps that leave the image; ``(0, 0)`` when the warp is zero motion.
+    g0 : 1-D float64
+        Work buffer (receives ``g`` at the unwarped pixels).
+
+    Returns
+    -------
+    (float, float)
+        ``(S / D, z)``; NaN for flat subsets, ``(0, 0)`` when the warp is zero
+        motion.
     """
-    rows, cols = f.shape
-    npx = ((2 * h) // stride + 1) ** 2
-    lo = -(PAD - 3.0)
-    for k in nb.prange(nx.size):
-        out[k, 0] = np.nan
-        out[k, 1] = np.nan
-        if not active[k]:
-            continue
-        fs = np.empty(npx)
-        g0 = np.empty(npx)
-        gp = np.empty(npx)
-        x0, y0, sl = nx[k], ny[k], slot[k]
-        m = 0
-        inside = True
-        for a in range(-h, h + 1, stride):
-            for bb in range(-h, h + 1, stride):
-                if sl >= 0 and masks[sl, a + h, bb + h] == 0:
-                    continue
-                xw = x0 + bb + p[k, 0] + p[k, 1] * bb + p[k, 2] * a
-                yw = y0 + a + p[k, 3] + p[k, 4] * bb + p[k, 5] * a
-                if xw < lo or yw < lo or xw > cols - 1 - lo or yw > rows - 1 - lo:
-                    inside = False
-                    break
-                fs[m] = f[y0 + a, x0 + bb]
-                g0[m] = g[y0 + a, x0 + bb]
-                gp[m] = sample_cubic(gcoef, xw, yw) if order == 3 else sample_quintic(gcoef, xw, yw)
-                m += 1
-            if not inside:
-                break
-        if not inside or m < 3:
-            continue
-        out[k, 0], out[k, 1] = _evidence(fs, g0, gp, m, var_img)
+    for q in range(m):
+        g0[q] = g[y0 + np.int64(dys[q]), x0 + np.int64(dxs[q])]
+    if m < 3:
+        return np.nan, np.nan
+    return _evidence(fs, g0, gp, m, var_img)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
 def _evidence(fs, g0, gp, m, var_img):
-    """``(S / D, z)`` of one gathered subset (see :func:`static_evidence`)."""
+    """``(S / D, z)`` of one gathered subset (see :func:`zero_motion_evidence`)."""
     mf = mg0 = mgp = 0.0
     for q in range(m):
         mf += fs[q]
