@@ -29,7 +29,7 @@ import warnings
 from . import io, probes, synthetic, viz
 from .core.files import EncoderNotFoundError, ExportError, RunFolderError
 from .core.params import DICParams
-from .core.progress import Cancelled
+from .core.progress import Cancelled, ProgressEvent
 from .core.reasons import Reason
 from .core.results import DICResult, SequenceResult, load_result
 from .core.settings import Settings
@@ -51,7 +51,7 @@ __all__ = [
     # analysis
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
     "Settings", "Refinement",
-    "resolve_refinement", "Cancelled",
+    "resolve_refinement", "Cancelled", "ProgressEvent",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
     # results

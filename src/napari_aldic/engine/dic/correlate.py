@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.images import as_gray_float, validate_pair, validate_roi
 from ..core.params import DICParams
-from ..core.progress import CancelFn, check_cancel
+from ..core.progress import CancelFn, ProgressEvent, check_cancel, event_callback
 from ..core.reasons import Reason
 from ..core.results import DICResult
 from .admm import image_local_step
@@ -32,7 +32,7 @@ from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
 
-ProgressFn = Callable[[float, str], None]
+ProgressFn = Callable[[ProgressEvent], None]
 
 
 @contextmanager
@@ -90,8 +90,10 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
         trusted node with its gradient) start every node, instead of the
         cross-correlation or seed guess; nodes that then fail are rescued as
         usual. ``track`` passes the previous frame.
-    progress : callable(fraction, message), optional
-        Called as the analysis advances.
+    progress : callable(ProgressEvent), optional
+        Called as the analysis advances with a
+        :class:`~napari_aldic.engine.ProgressEvent` (``str(event)`` is its
+        text); a 0.1 callback ``(fraction, message)`` still works (deprecated).
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.
@@ -135,17 +137,18 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
     quality = _quality(im, mask, grid, sol, params, timing, meta)
     sol.reason = _uncertain_as_exported(sol, quality, params)
     _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
-    report(1.0, "done")
+    report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
 
 def _reporter(progress, cancel):
-    """``report(fraction, message)``: the caller's progress, and a cancellation point."""
-    user_report = progress or (lambda frac, msg: None)
+    """``report(stage, fraction, message)``: the caller's progress (a
+    :class:`ProgressEvent`), and a cancellation point."""
+    user_report = event_callback(progress, "correlate", stacklevel=4)
 
-    def report(frac: float, msg: str) -> None:
+    def report(stage: str, frac: float, msg: str = "") -> None:
         check_cancel(cancel)  # every progress point is a cancellation point
-        user_report(frac, msg)
+        user_report(ProgressEvent(stage, frac, message=msg))
 
     return report
 
@@ -162,11 +165,11 @@ def _prepare(f, g, mask, ref_spec, params: DICParams, timing: dict, report):
     base = make_grid(mask, params.subset, params.step)
     grid, qmesh = _nodes(base, mask, ref_spec, params)
     timing["setup"] = time.perf_counter() - t
-    report(0.05, f"{grid.n} nodes")
+    report("setup", 0.05, f"{grid.n} nodes")
     t = time.perf_counter()
     im = prepare_images(f, g, params.interpolation, params.extra.get("jacobian_sigma"))
     timing["prefilter"] = time.perf_counter() - t
-    report(0.15, "interpolation ready")
+    report("prefilter", 0.15, "interpolation ready")
     return im, base, grid, qmesh
 
 
@@ -283,7 +286,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
                     validity=validity.summary(zncc, reason == Reason.OK))
     if params.method != "aldic":
         return sol
-    report(0.85, "AL-DIC iterations")
+    report("aldic", 0.85, "AL-DIC iterations")
     if mesh is None:
         mesh = uniform_mesh(grid, roi)
     jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)  # method.md 5.1
@@ -291,7 +294,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
                             params.half, params.max_iter, params.tol, lin=(im.fgx, im.fgy))
     out = aldic_stage(step, mesh, validity, sol.u, sol.v, sol.grad, zncc, reason,
                       sub.slot >= 0, params, timing, solver_cache=solver_cache,
-                      on_iteration=lambda k: report(0.85 + 0.1 * k / params.admm_max_iter,
+                      on_iteration=lambda k: report("aldic", 0.85 + 0.1 * k / params.admm_max_iter,
                                                     f"ADMM iteration {k}"))
     iters = np.where(out.reason == Reason.OK, out.iters, iters).astype(np.int32)
     return _Solution(sub, out.u, out.v, out.grad, out.zncc, out.reason, iters, mesh,

@@ -44,7 +44,7 @@ from .subsets import SubsetMasks
 
 __all__ = ["Images", "prepare_images", "solve_local"]
 
-ProgressFn = Callable[[float, str], None]
+ProgressFn = Callable[[str, float, str], None]  # report(stage, fraction, message)
 
 #: most nodes searched with rotated subsets (once per analysis, when no
 #: coarse node, or no node at all after the repair waves, matches)
@@ -213,7 +213,7 @@ def solve_local(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICPa
     else:
         t = _coarse_to_fine(st, timing, report)
     timing["icgn"] = time.perf_counter() - t
-    report(0.8, "IC-GN done")
+    report("icgn", 0.8, "IC-GN done")
 
     t = time.perf_counter()
     _repair(st, report)
@@ -307,7 +307,7 @@ def _grow(st: _State, nbrs: np.ndarray, good: np.ndarray, eligible: np.ndarray,
     active = np.zeros(grid.n, bool)
     while True:
         if report is not None:
-            report(0.8, "growing trusted regions")
+            report("repair", 0.8, "growing trusted regions")
         nb_good = np.zeros(nbrs.shape, bool)
         nb_good[has] = good[nbrs[has]]
         cand = np.nonzero(eligible & ~good & (tries < max_tries) & nb_good.any(axis=1))[0]
@@ -415,7 +415,7 @@ def _coarse_to_fine(st: _State, timing: dict, report: ProgressFn,
         p_init[coarse[gone]] = pred[gone]
         p_init[coarse[~gone]] = st.ncc_guess(coarse[~gone], centre=pred[~gone][:, [0, 3]])
     timing["init"] = time.perf_counter() - t
-    report(0.3, f"initial guess at {coarse.size} coarse nodes")
+    report("initial_guess", 0.3, f"initial guess at {coarse.size} coarse nodes")
 
     t = time.perf_counter()
     active = np.zeros(n, bool)

@@ -35,7 +35,7 @@ import numpy as np
 from ..core.files import RunFolderError, array_digest, write_roi_file
 from ..core.images import validate_roi
 from ..core.params import DICParams
-from ..core.progress import Cancelled
+from ..core.progress import Cancelled, ProgressEvent, event_callback
 from ..core.reasons import Reason
 from ..core.results import DICResult, LazyFrames, SequenceResult, load_result
 from ..dic.correlate import correlate, reference_result
@@ -163,7 +163,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
           reference: str = "accumulative", *, update_every: int | None = None,
           rois=None, frames=None, out_dir=None, params: DICParams | None = None,
           scheduler=None, workers: int | None = None, refine=None, meta: dict | None = None,
-          progress: Callable[[int, float, str], None] | None = None,
+          progress: Callable[[ProgressEvent], None] | None = None,
           on_frame: Callable[[int, DICResult], None] | None = None,
           cancel: Callable[[], bool] | None = None, **kwargs) -> SequenceResult:
     """Track a sequence of images; every result refers to frame 0.
@@ -201,7 +201,13 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     meta : dict, optional
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
-    progress : callable(frame, fraction, message), optional
+    progress : callable(ProgressEvent), optional
+        Called with a :class:`~napari_aldic.engine.ProgressEvent` when a frame
+        starts, is loaded from ``out_dir`` or is done, and at the stages of
+        each frame's ``correlate`` (serial runs); ``event.frame`` is the
+        frame number in ``stack``, ``event.fraction`` the share of the run
+        done, ``event.eta_s`` the time left. A 0.1 callback ``(frame,
+        fraction, message)`` still works (deprecated; frame events only).
     on_frame : callable(frame, result), optional
         Called with each frame's final (frame-0 referenced) result as soon as
         it is computed, e.g. to save or display it.
@@ -231,7 +237,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
     idx = frame_numbers(frames, len(src))
     run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
-                       dict(meta or {}), progress or (lambda k, frac, msg: None), on_frame)
+                       dict(meta or {}), event_callback(progress, "track"), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
     info = run.identity()
@@ -254,7 +260,7 @@ class _SequenceRun:
     params: DICParams
     refine: object
     extra: dict  # entries added to every frame's meta
-    report: Callable[[int, float, str], None]
+    report: Callable[[ProgressEvent], None]
     on_frame: Callable[[int, DICResult], None] | None
     out: Path | None = None
     run_id: str | None = None
@@ -268,6 +274,24 @@ class _SequenceRun:
         self._whole = None  # the one ROI array of a run without per-frame ROIs
         self._roi_refs: dict = {}  # id(mask) -> (mask, digest, ROI file reference)
         self._carried: tuple = (None, None)  # (frame, frame 0's ROI carried onto it)
+        self._clock: tuple = (time.perf_counter(), None)  # (start, fraction then)
+
+    def emit(self, stage: str, i: int, frac: float, message: str = "") -> None:
+        """Report ``stage`` of frame ``idx[i]`` with the share ``frac`` of the
+        run done, and the time left estimated from the frames computed."""
+        t0, f0 = self._clock
+        if f0 is None and stage == "frame_start":  # frames loaded from disk not timed
+            self._clock = t0, f0 = time.perf_counter(), frac
+        eta = None
+        if f0 is not None and frac > f0:
+            eta = (time.perf_counter() - t0) * (1 - frac) / (frac - f0)
+        self.report(ProgressEvent(stage, frac, frame=self.idx[i], n_frames=len(self.idx) - 1,
+                                  eta_s=eta, message=message, reference=self.ref_of(i)))
+
+    def within(self, i: int) -> Callable[[ProgressEvent], None]:
+        """``correlate``'s progress inside frame ``idx[i]``, as a share of the run."""
+        n = len(self.idx) - 1
+        return lambda ev: self.emit(ev.stage, i, (i - 1 + ev.fraction) / n, ev.message)
 
     # ------------------------------------------------------------ inputs
     def roi_for(self, k: int) -> np.ndarray:
@@ -412,8 +436,7 @@ class _SequenceRun:
                 self._verify(i, pth)
             if i and pth.exists():
                 self.results[i] = _ON_DISK
-                self.report(self.idx[i], i / (len(self.idx) - 1),
-                            f"frame {self.idx[i]}: loaded from {pth.name}")
+                self.emit("frame_loaded", i, i / (len(self.idx) - 1), pth.name)
         todo = [i for i in todo if i]
         for i in todo:
             self._users[self._pos[self.ref_of(i)]] += 1
@@ -456,8 +479,7 @@ class _SequenceRun:
             self.save(res, k)
         if self.on_frame is not None:
             self.on_frame(k, res)
-        self.report(k, i / (len(self.idx) - 1),
-                    f"frame {k} done: {res.n_valid}/{len(res)} valid")
+        self.emit("frame_done", i, i / (len(self.idx) - 1), f"{res.n_valid}/{len(res)} valid")
         if self.out is not None:  # keep only what later frames are composed with
             j = self._pos[r]
             self._users[j] -= 1
@@ -477,14 +499,14 @@ class _SequenceRun:
             r, k = self.ref_of(i), self.idx[i]
             if i - 1 not in todo and i > 1:
                 prev_inc = before = None  # previous frame came from disk: no increment
-            self.report(k, (i - 1) / (len(self.idx) - 1), f"frame {k} against frame {r}")
+            self.emit("frame_start", i, (i - 1) / (len(self.idx) - 1))
             try:  # cancel also stops promptly inside a frame
                 if r != ref_k:
                     ref_k, ref_img, prev_inc, before = r, self.src[r], None, None
                 inc = correlate(ref_img, self.src[k], roi=self.roi_on(r), params=self.params,
                                 guess=_extrapolated(prev_inc, before), refine=self.refine,
-                                cancel=cancel,
-                                solver_cache=solvers)
+                                cancel=cancel, solver_cache=solvers,
+                                progress=self.within(i))
             except Cancelled:
                 return True
             except Exception as exc:  # a bad frame: keep what is finished
