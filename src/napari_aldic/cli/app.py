@@ -11,6 +11,7 @@ from .console import (
     DEBUG_ENV,
     PROG,
     CLIError,
+    logging_for,
     print_error,
     show_traceback,
     show_warning,
@@ -45,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = show_warning
         try:
-            return COMMANDS[args.command](args) or 0
+            with logging_for(args):
+                return COMMANDS[args.command](args) or 0
         except BrokenPipeError:  # stdout piped into a program that stopped reading
             silence_stdout()
             return 1

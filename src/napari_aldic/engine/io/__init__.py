@@ -4,6 +4,7 @@
   image-stack reader (arrays, multi-page TIFF, image folders, lists of image files)
   used by ``track``, the CLI and the napari reader; :func:`open_image` /
   :func:`open_lazy` -- one image read window by window (tiled TIFF, zarr, OME-Zarr);
+  the pixel size and frame interval their metadata records (``FrameSource.units``);
 * :func:`load_run`, :func:`collect_frames`, :func:`load_mat` -- results back from
   any file or folder the package writes;
 * writers/readers per format: CSV, MATLAB, VTK (.vtu/.pvd), DaVis text;
@@ -11,10 +12,12 @@
   :func:`save_params` / :func:`load_params` / :func:`load_settings` -- settings files.
 """
 
+from .axes import ChannelChoiceError
 from .columns import FIELD_INFO, frame_columns
 from .csv import export_csv, read_csv
 from .davis import export_davis
 from .matlab import export_mat
+from .metadata import FrameInterval
 from .runs import Frame, FrameSet, collect_frames, load_mat, load_run
 from .settings_file import load_params, load_settings, read_settings, save_params, write_settings
 from .stack import (
@@ -39,4 +42,5 @@ __all__ = [
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
     "export_davis", "save_params", "load_params", "load_settings", "read_settings",
     "write_settings",
+    "ChannelChoiceError", "FrameInterval",
 ]

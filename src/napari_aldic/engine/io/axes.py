@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FramePlan", "plan_frames"]
+__all__ = ["FramePlan", "plan_frames", "ChannelChoiceError"]
 
 log = logging.getLogger("napari_aldic.io")
 
@@ -27,6 +27,14 @@ _FRAME = "TIQ"
 _CHANNEL = "CS"
 _NAMES = {"T": "time", "C": "channel", "Z": "depth", "S": "sample", "I": "page",
           "Q": "page", "Y": "rows", "X": "columns"}
+
+
+class ChannelChoiceError(ValueError):
+    """A hyperstack's channel axis needs ``channel=N``; ``n_channels`` says how many."""
+
+    def __init__(self, message: str, n_channels: int):
+        super().__init__(message)
+        self.n_channels = n_channels
 
 
 @dataclass(frozen=True)
@@ -80,8 +88,9 @@ def plan_frames(shape, axes: str, n_image: int, name: str,
         raise ValueError(f"{desc}: more than one channel axis; save one channel per stack")
     if chans and channel is None:
         i = chans[0]
-        raise ValueError(f"{desc}: a hyperstack with {lead[i]} channels ({lead_axes[i]}); "
-                         f"choose one with --channel N (channel=N), N from 0 to {lead[i] - 1}")
+        raise ChannelChoiceError(f"{desc}: a hyperstack with {lead[i]} channels "
+                                 f"({lead_axes[i]}); choose one with --channel N (channel=N), "
+                                 f"N from 0 to {lead[i] - 1}", lead[i])
     if channel is not None and not chans:
         raise ValueError(f"channel {channel} was chosen, but {desc} and no channel axis")
     if chans and not 0 <= channel < lead[chans[0]]:

@@ -318,26 +318,23 @@ class FrameSource:
                 n_pages = len(series.pages)
                 page_shape = tuple(series.pages[0].shape) if n_pages else None
                 n_image = 3 if axes.endswith("S") and shape[-1] in (3, 4) else 2
-                plan = plan_frames(shape, axes, n_image, str(path), self.channel)
-                cut = _truncation(tf, series, path.stat().st_size, plan.n_frames)
+                planes = int(np.prod(shape[:-n_image]))
+                cut = _truncation(tf, series, path.stat().st_size, planes)
                 if damage and not cut:
                     cut = (f"damaged: {damage[0]}; only pages 0 to {len(tf.pages) - 1} can be "
                            "read")
                 self.pixel_size, self.frame_interval = (md.tiff_pixel_size(tf),
                                                         md.tiff_frame_interval(tf))
-        except ValueError as exc:
-            if "axes" in str(exc) or "channel" in str(exc):
-                raise  # the frame plan's own message names the file
-            raise ValueError(f"cannot read TIFF stack {path}: {exc}") from None
         except Exception as exc:
             raise ValueError(f"cannot read TIFF stack {path}: {exc}") from None
         if cut:
             raise ValueError(f"TIFF stack {path} is {cut} (an interrupted copy or "
                              "acquisition?)")
-        self._use_plan(plan, shape, n_image, str(path))
+        self._use_plan(plan_frames(shape, axes, n_image, str(path), self.channel), shape,
+                       n_image, str(path))
         self._tiff = path
         self.series_shape = shape
-        self._pages = n_pages == int(np.prod(plan.lead)) and page_shape == self.frame_shape
+        self._pages = n_pages == planes and page_shape == self.frame_shape
 
     def _use_plan(self, plan, shape, n_image: int, name: str) -> None:
         if plan.n_frames < 2:

@@ -201,6 +201,8 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     meta : dict, optional
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
+        Without ``"units"``, those recorded in a stack file's metadata are
+        used (``FrameSource.units``, their origin in ``meta["units_source"]``).
     progress : callable(ProgressEvent), optional
         Called with a :class:`~napari_aldic.engine.ProgressEvent` when a frame
         starts, is loaded from ``out_dir`` or is done, and at the stages of
@@ -236,8 +238,12 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
     idx = frame_numbers(frames, len(src))
+    meta = dict(meta or {})
+    if "units" not in meta and getattr(src, "units", None) is not None:
+        # the pixel size / frame interval the instrument recorded, and where
+        meta.update(units=src.units.to_dict(), units_source=src.units_source)
     run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
-                       dict(meta or {}), event_callback(progress, "track"), on_frame)
+                       meta, event_callback(progress, "track"), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
     info = run.identity()
