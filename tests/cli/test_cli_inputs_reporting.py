@@ -9,7 +9,7 @@ import pytest
 import tifffile
 import zarr
 
-from napari_aldic.engine import load_run, load_result, synthetic
+from napari_aldic.engine import load_result, load_run, synthetic
 
 SHAPE = (64, 64)
 FAST = ["--subset", "21", "--step", "16"]
