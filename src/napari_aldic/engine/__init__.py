@@ -27,6 +27,7 @@ import importlib
 import warnings
 
 from . import io, probes, synthetic, viz
+from .core.compiling import compile_seconds, is_compiling
 from .core.files import EncoderNotFoundError, ExportError, RunFolderError
 from .core.params import DICParams
 from .core.progress import Cancelled, ProgressEvent
@@ -52,6 +53,7 @@ __all__ = [
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
     "Settings", "Refinement",
     "resolve_refinement", "Cancelled", "ProgressEvent",
+    "compile_seconds", "is_compiling",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
     # results

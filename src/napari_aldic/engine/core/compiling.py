@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 import time
 
-__all__ = ["compile_seconds"]
+__all__ = ["compile_seconds", "is_compiling"]
 
 _lock = threading.Lock()
 _state = {"depth": 0, "start": 0.0, "total": 0.0, "installed": False}
@@ -51,3 +51,12 @@ def compile_seconds() -> float:
             _install()
         extra = time.perf_counter() - _state["start"] if _state["depth"] else 0.0
         return _state["total"] + extra
+
+
+def is_compiling() -> bool:
+    """True while Numba compiles a kernel in this process (e.g. for a GUI's
+    "compiling kernels" note during a first run; poll it from another thread)."""
+    with _lock:
+        if not _state["installed"]:
+            _install()
+        return _state["depth"] > 0
