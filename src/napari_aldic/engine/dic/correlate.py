@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -32,6 +33,8 @@ from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
+
+log = logging.getLogger("napari_aldic.engine")
 
 ProgressFn = Callable[[ProgressEvent], None]
 
@@ -137,10 +140,7 @@ def correlate(reference, deformed, roi=None, subset: int = 31, step: int = 8,
                                                 params, timing, report, solver_cache, meta)
     quality = _quality(im, mask, grid, sol, params, timing, meta)
     sol.reason = _uncertain_as_exported(sol, quality, params)
-    _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
-    # Numba's first-run compilation, reported apart from the analysis (core/compiling.py)
-    timing["compile"] = compile_seconds() - c_start
-    timing["analysis"] = max(timing["total"] - timing["compile"], 0.0)
+    _record(meta, sol, ref_spec, grid, params, timing, (t_start, c_start), im.j_sigma)
     report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
@@ -196,7 +196,7 @@ def _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec, params, timing,
 
 
 def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
-            t_start: float, j_sigma: float) -> None:
+            t_start: tuple[float, float], j_sigma: float) -> None:
     """What the result's ``meta`` tells about the run (refinement, ADMM, timing,
     IC-GN's convergence, with a warning when many nodes ended at the cap)."""
     if ref_spec is not None:
@@ -205,13 +205,18 @@ def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
                        ("validity", sol.validity)):
         if value is not None:
             meta[key] = value
-    timing["total"] = time.perf_counter() - t_start
+    timing["total"] = time.perf_counter() - t_start[0]
+    # Numba's first-run compilation, reported apart from the analysis (core/compiling.py)
+    timing["compile"] = compile_seconds() - t_start[1]
+    timing["analysis"] = max(timing["total"] - timing["compile"], 0.0)
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
     meta["n_valid"] = int(np.count_nonzero(sol.reason == Reason.OK))
     meta["convergence"] = convergence_record(sol.reason, sol.iters, sol.sub.reason == Reason.OK,
                                              params.max_iter)
     meta["convergence"]["jacobian_sigma_px"] = float(j_sigma)
+    log.debug("correlate: %d nodes, %d trusted, %.3f s analysis, %.3f s compiling kernels",
+              grid.n, meta["n_valid"], timing["analysis"], timing["compile"])
     warn_iteration_cap(meta["convergence"], stacklevel=4)
 
 
