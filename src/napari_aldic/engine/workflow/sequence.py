@@ -238,18 +238,23 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **kwargs)
     idx = frame_numbers(frames, len(src))
-    meta = dict(meta or {})
-    if "units" not in meta and getattr(src, "units", None) is not None:
-        # the pixel size / frame interval the instrument recorded, and where
-        meta.update(units=src.units.to_dict(), units_source=src.units_source)
     run = _SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
-                       meta, event_callback(progress, "track"), on_frame)
+                       _with_file_units(src, meta), event_callback(progress, "track"), on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
     info = run.identity()
     with run_folder(out_dir, info) as out:
         run.out, run.run_id = out, run_id(info)
         return run.execute(stack, scheduler, workers, cancel)
+
+
+def _with_file_units(src, meta: dict | None) -> dict:
+    """``meta`` with the pixel size / frame interval the stack's file records
+    (and where they came from) when it gives no ``"units"`` itself."""
+    meta = dict(meta or {})
+    if "units" not in meta and getattr(src, "units", None) is not None:
+        meta.update(units=src.units.to_dict(), units_source=src.units_source)
+    return meta
 
 
 @dataclass
