@@ -143,4 +143,7 @@ def read_csv(path) -> dict[str, Any]:
     else:
         settings = Units()
     header.update({k: v for k, v in meta.items() if k not in ("units", "settings")})
+    for key, old in (("untrusted_nodes", "untrusted nodes"), ("reason_codes", "reason codes")):
+        if key in meta:  # the names of the 0.1 header lines
+            header[old] = meta[key] if isinstance(meta[key], str) else "; ".join(meta[key])
     return {"columns": cols, "units": units, "settings": settings, "header": header}
