@@ -76,3 +76,16 @@ def test_zarr_stack_and_zarr_pair_run(run_cli, tmp_path, stack):
     assert rc == 0, err
     res = load_result(tmp_path / "p.npz")
     assert abs(np.median(res.u[res.valid]) - 0.4) < 0.02
+
+
+def test_ome_pair_units_and_source_in_the_result(run_cli, tmp_path, stack):
+    for k in (0, 1):
+        tifffile.imwrite(tmp_path / f"{k}.ome.tif", stack[k], metadata={
+            "axes": "YX", "PhysicalSizeX": 0.65, "PhysicalSizeXUnit": "µm"})
+    rc, out, err = run_cli(["run", tmp_path / "0.ome.tif", tmp_path / "1.ome.tif", "-o",
+                            tmp_path / "p.npz", *FAST])
+    assert rc == 0, err
+    res = load_result(tmp_path / "p.npz")
+    assert res.meta["units"]["pixel_size"] == 0.65 and res.meta["units"]["unit"] == "um"
+    assert res.meta["units_source"] == {"pixel_size": "OME-XML metadata of 0.ome.tif"}
+    assert "pixel size 0.65 um (OME-XML metadata of 0.ome.tif)" in out

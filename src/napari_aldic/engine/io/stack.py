@@ -376,18 +376,22 @@ class FrameSource:
             raise ValueError(f"zarr array {path} has shape {shape}; a stack needs (frames, "
                              "rows, cols)")
 
+    def _units(self):
+        # a list of files is named by its first file (whose metadata is read)
+        first = self.name or (str(self._files[0]) if self._files else "")
+        return md.units_of(self.pixel_size, self.frame_interval,
+                           Path(first).name if first else "")
+
     @property
     def units(self):
         """:class:`~napari_aldic.engine.Units` from the file's metadata, or None."""
-        return md.units_of(self.pixel_size, self.frame_interval,
-                        Path(self.name).name if self.name else "")[0]
+        return self._units()[0]
 
     @property
     def units_source(self) -> dict:
         """Where :attr:`units` came from, e.g. ``{"pixel_size": "ImageJ metadata of
         s.tif", "frame_interval": ...}`` (empty without metadata)."""
-        return md.units_of(self.pixel_size, self.frame_interval,
-                        Path(self.name).name if self.name else "")[1]
+        return self._units()[1]
 
     # ------------------------------------------------------------ reading
     def __len__(self) -> int:
