@@ -201,8 +201,7 @@ def track(stack, roi=None, subset: int = 31, step: int = 8, method: str = "local
     meta : dict, optional
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
-        Without ``"units"``, those recorded in a stack file's metadata are
-        used (``FrameSource.units``, their origin in ``meta["units_source"]``).
+        Without ``"units"``: the stack file's own (``FrameSource.units``).
     progress : callable(ProgressEvent), optional
         Called with a :class:`~napari_aldic.engine.ProgressEvent` when a frame
         starts, is loaded from ``out_dir`` or is done, and at the stages of
