@@ -138,6 +138,13 @@ def test_readme_links_and_images_exist():
     for url in images:
         assert url.startswith(raw), url  # absolute: the napari hub shows the README
         assert (REPO / url[len(raw):]).is_file(), url
+    site = "https://napari-aldic.github.io/napari-aldic/"
+    source = "https://github.com/napari-aldic/napari-aldic/blob/main/"
     for target in re.findall(r"(?<!!)\[[^\]]*\]\(([^)#]+)(?:#[^)]*)?\)", text):
-        if not target.startswith("http"):
-            assert (REPO / target).exists(), target
+        # absolute: relative links break on PyPI and the napari hub (issue 25)
+        assert target.startswith("http"), target
+        if target.startswith(site):  # a page of the documentation site
+            page = target[len(site):].strip("/") or "index"
+            assert (REPO / "docs" / f"{page}.md").is_file(), target
+        elif target.startswith(source):
+            assert (REPO / target[len(source):]).exists(), target

@@ -1,10 +1,15 @@
 """npe2 reader: image stacks as one lazy layer, and napari-aldic result files.
 
 * a multi-page TIFF (``.tif``/``.tiff``) holding a ``(frames, rows, cols)``
-  series, a folder of BMP/PNG/TIF/JPG images (natural sort: ``img_2`` before
-  ``img_10``), or several such image files chosen together, open as ONE
-  dask-backed Image layer with a time axis; frames are read only when shown
-  or analysed, and 8/16-bit data keep their type (RGB frames become grey);
+  series, a zarr or OME-Zarr stack folder (``.zarr``), a folder of
+  BMP/PNG/TIF/JPG images (natural sort: ``img_2`` before ``img_10``), or
+  several such image files chosen together, open as ONE dask-backed Image
+  layer with a time axis; frames are read only when shown or analysed, and
+  8/16-bit data keep their type (RGB frames become grey). The pixel size and
+  frame interval the file records (OME, ImageJ, SEM tags, OME-Zarr) set the
+  layer's ``scale`` and ``units``. A hyperstack with a channel axis opens as
+  one layer per channel (choose the one to analyse in the widget); other
+  extra axes (Z beside T, ...) are refused with a message naming them;
 * a result file written by :meth:`napari_aldic.engine.DICResult.save` (``.npz``)
   opens as the result layers (no time axis); a folder of per-frame result
   files (``frame_00001.npz`` ..., as written by ``track(out_dir=...)`` or by the
@@ -21,7 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from .engine import open_stack
-from .engine.io import IMAGE_SUFFIXES, TIFF_SUFFIXES, grey_frame, image_files, natural_key
+from .engine.io import (
+    IMAGE_SUFFIXES,
+    TIFF_SUFFIXES,
+    ChannelChoiceError,
+    FrameSource,
+    grey_frame,
+    image_files,
+    natural_key,
+)
 from .i18n import tr
 
 __all__ = ["get_reader", "read_stack", "read_results", "is_result_file"]
@@ -77,13 +90,20 @@ def _result_frames(folder: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
-def _tiff_stack(path: Path) -> bool:
-    """True for a TIFF holding a (frames, rows, cols) series of at least two
-    grey frames; single images and RGB stacks are left to napari's own reader."""
+def _zarr_folder(path: Path) -> bool:
+    return path.is_dir() and any((path / n).is_file()
+                                 for n in ("zarr.json", ".zarray", ".zattrs", ".zgroup"))
+
+
+def _file_stack(path: Path) -> bool:
+    """True for a TIFF or zarr/OME-Zarr folder holding a stack of at least
+    two grey frames (a hyperstack with a channel axis included); single
+    images and RGB stacks are left to napari's own reader."""
     try:
         with open_stack(path) as src:
-            return src.series_shape is not None and len(src.series_shape) == 3 \
-                and len(src.frame_shape) == 2
+            return len(src.frame_shape) == 2
+    except ChannelChoiceError:
+        return True  # one layer per channel
     except (OSError, ValueError):
         return False
 
@@ -100,6 +120,8 @@ def get_reader(path):
             return read_results
         return None
     path = Path(path)
+    if _zarr_folder(path):
+        return read_stack if _file_stack(path) else None
     if path.is_dir():
         if _result_frames(path):
             return read_results
@@ -111,7 +133,7 @@ def get_reader(path):
         if is_result_file(path):
             return read_results
         return _explain_builtin_npz if _builtin_npz(path) else None
-    if suffix in TIFF_SUFFIXES and path.is_file() and _tiff_stack(path):
+    if suffix in TIFF_SUFFIXES and path.is_file() and _file_stack(path):
         return read_stack
     return None
 
@@ -137,7 +159,19 @@ def _lazy_stack(read_frame, n: int, first: np.ndarray, label: str):
     return da.stack(frames), first
 
 
-def _stack_layer(data, first: np.ndarray, name: str, meta: dict):
+def _stack_geometry(src) -> dict:
+    """Layer ``scale`` and ``units`` from the pixel size and frame interval
+    the stack's file records (pixels and frames without them)."""
+    units = src.units
+    if units is None:
+        return {}
+    p, dt = units.pixel_size, units.frame_interval
+    length = _axis_unit("pixel" if units.unit == "px" else units.unit)
+    return {"scale": (dt or 1.0, p, p),
+            "units": (_axis_unit(units.time_unit) if dt else "pixel", length, length)}
+
+
+def _stack_layer(data, first: np.ndarray, name: str, meta: dict, src=None):
     lo, hi = float(np.min(first)), float(np.max(first))
     if np.issubdtype(first.dtype, np.integer):
         info = np.iinfo(first.dtype)
@@ -146,7 +180,23 @@ def _stack_layer(data, first: np.ndarray, name: str, meta: dict):
         lo, hi = lo, lo + 1.0
     kwargs = {"name": name, "metadata": meta, "contrast_limits": (lo, hi),
               "axis_labels": ("t", "y", "x")}
+    if src is not None:
+        kwargs.update(_stack_geometry(src))
+        if src.units is not None:
+            meta.update(units=src.units.to_dict(), units_source=src.units_source)
     return [(data, kwargs, "image")]
+
+
+def _channel_layers(path: Path, n_channels: int):
+    """One lazy layer per channel of a hyperstack, named ``STACK [channel c]``."""
+    layers = []
+    for c in range(n_channels):
+        src = FrameSource(path, channel=c)
+        data, first = _lazy_stack(src.__getitem__, len(src), src[0], str(path))
+        name = f"{path.stem if path.is_file() else path.name} [channel {c}]"
+        layers += _stack_layer(data, first, name, {"source": str(path), "channel": c,
+                                                    "axes": src.axes}, src)
+    return layers
 
 
 def read_stack(path):
@@ -159,13 +209,16 @@ def read_stack(path):
         meta = {"source": [str(f) for f in files], "frames": [f.name for f in files]}
     else:
         path = Path(path[0] if isinstance(path, (list, tuple)) else path)
-        src = open_stack(path)  # natural sort, one page or file per request
+        try:
+            src = open_stack(path)  # natural sort, one page or file per request
+        except ChannelChoiceError as exc:
+            return _channel_layers(path, exc.n_channels)
         label, name = str(path), path.stem if path.is_file() else path.name
         meta = {"source": str(path)}
-        if path.is_dir():
+        if path.is_dir() and not _zarr_folder(path):
             meta["frames"] = [p.name for p in image_files(path)]
     data, first = _lazy_stack(src.__getitem__, len(src), src[0], label)
-    return _stack_layer(data, first, name, meta)
+    return _stack_layer(data, first, name, meta, src)
 
 
 # ----------------------------------------------------------------- results

@@ -82,6 +82,14 @@ def test_export_mp4_without_encoder_still_writes_gif(run_cli, folder, tmp_path, 
         assert im.n_frames == len(export_stack)
 
 
+def test_export_mp4_without_encoder_says_it_once(run_cli, folder, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)
+    rc, _, err = run_cli(["export", folder, "--to", "mp4", "--field", "u", "v", "-o",
+                          tmp_path / "anim", "--no-strain"])
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err  # not once per field (issue 25)
+    assert "imageio-ffmpeg" in err
+
+
 def test_params_command_run_params_out_and_units_in_results(run_cli, tmp_path, export_stack):
     settings = tmp_path / "settings.json"
     rc, out, err = run_cli(["params", settings, "--subset", 21, "--step", 12,

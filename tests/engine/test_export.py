@@ -104,14 +104,21 @@ def test_csv_round_trip_with_units_rates_and_strain(tmp_path, export_sequence, e
     seq = export_sequence
     path = export_csv(seq, tmp_path / "seq.csv", units=UM)
     text = path.read_text(encoding="utf-8")
-    assert text.startswith("# napari-aldic")
-    header_row = next(line for line in text.splitlines() if not line.startswith("#"))
+    assert "#" not in text  # a plain table: metadata in the JSON sidecar (issue 25)
+    header_row = text.splitlines()[0]
     assert "u [µm]" in header_row and "vx [µm/s]" in header_row
     assert "exx_rate [1/s]" in header_row and "time [s]" in header_row
+    assert "exx [1]" in header_row and "sssig [GL^2]" in header_row and "mig [GL/px]" in \
+        header_row
+    side = json.loads(path.with_suffix(".json").read_text(encoding="utf-8"))
+    assert side["csv"] == "seq.csv" and side["settings"] == UM.to_dict()
+    pd = pytest.importorskip("pandas")
+    df = pd.read_csv(path)  # plain pandas reads it: one row per node per frame
+    assert len(df) == len(export_stack) * len(seq[0]) and "u [µm]" in df.columns
     out = read_csv(path)
     cols, units = out["columns"], out["units"]
     assert units["x"] == "µm" and units["x_px"] == "px" and units["rotation"] == "rad"
-    assert units["exx"] == "" and units["vy"] == "µm/s"
+    assert units["exx"] == "1" and units["vy"] == "µm/s" and units["frame"] == ""
     assert out["settings"] == UM
     n = len(seq[0])
     assert cols["frame"].size == len(export_stack) * n  # one row per node per frame

@@ -274,9 +274,9 @@ def test_kymograph_follows_the_field(strain_run, tmp_path):
     assert np.all(kymo.status == OK)
     assert kymo.distance[-1] == pytest.approx(60 + 50)
     path = export_kymograph_csv(kymo, tmp_path / "kymo.csv")
-    data = np.loadtxt(path, delimiter=",", comments="#", skiprows=4)
+    data = np.loadtxt(path, delimiter=",", skiprows=1)  # a plain table (issue 25)
     np.testing.assert_allclose(data[:, 3:], kymo.values.T, rtol=1e-8, atol=1e-12)
-    head = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")][0]
+    head = path.read_text().splitlines()[0]
     assert head.startswith("distance [px],x_px [px],y_px [px],frame_0 [px]")
     if DOC_IMAGES is not None:
         from napari_aldic.engine.probes import export_kymograph_plot

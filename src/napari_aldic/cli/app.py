@@ -14,6 +14,7 @@ from .console import (
     PROG,
     CLIError,
     debugging,
+    logging_for,
     print_error,
     show_traceback,
     show_warning,
@@ -60,7 +61,8 @@ def main(argv: list[str] | None = None, restore_sigint=None) -> int:
         try:
             if restore_sigint is not None:  # from now on Ctrl-C raises KeyboardInterrupt
                 signal.signal(signal.SIGINT, restore_sigint)
-            return COMMANDS[args.command](args) or 0
+            with logging_for(args):
+                return COMMANDS[args.command](args) or 0
         except BrokenPipeError:  # stdout piped into a program that stopped reading
             silence_stdout()
             return 1

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import io
+import json
+import logging
 import os
 import sys
 import time
 import traceback
+from contextlib import contextmanager, redirect_stdout
 
 import numpy as np
 
@@ -54,57 +58,169 @@ def silence_stdout() -> None:
         pass
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to the ``sys.stderr`` of the moment (tests and callers redirect it)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:
+        pass
+
+
+class _Format(logging.Formatter):
+    """Warnings as the CLI prints them; info/debug as greppable lines
+    ``2026-12-02 01:02:03 napari_aldic INFO frame=1/3 seconds=...``."""
+
+    def format(self, record) -> str:
+        if record.levelno >= logging.WARNING:
+            return tr("{prog}: warning: {message}").format(prog=PROG,
+                                                          message=record.getMessage())
+        return (f"{self.formatTime(record, '%Y-%m-%d %H:%M:%S')} {record.name} "
+                f"{record.levelname} {record.getMessage()}")
+
+
+@contextmanager
+def logging_for(args):
+    """The ``napari_aldic`` logger's output for one command: warnings by
+    default, info lines (one per frame) with ``-v``, debug with ``-vv``;
+    ``--quiet`` keeps warnings and errors and drops what goes to stdout."""
+    log = logging.getLogger("napari_aldic")
+    verbose, quiet = getattr(args, "verbose", 0) or 0, getattr(args, "quiet", False)
+    handler = _StderrHandler()
+    handler.setFormatter(_Format())
+    level = logging.DEBUG if verbose >= 2 else logging.INFO if verbose else logging.WARNING
+    old = log.level
+    log.addHandler(handler)
+    log.setLevel(level)
+    try:
+        if quiet:
+            with redirect_stdout(io.StringIO()):
+                yield log
+        else:
+            yield log
+    finally:
+        close_bar()  # a bar left by an error is erased before the error line
+        log.removeHandler(handler)
+        log.setLevel(old)
+
+
+#: the progress display being drawn (cleared before other lines are printed)
+_ACTIVE: list = []
+
+
+class _Bar:
+    """A tqdm bar in frames (``total``), moved by the engine's
+    :class:`~napari_aldic.engine.ProgressEvent` fractions, so that its time
+    left moves within a frame too."""
+
+    def __init__(self, total: int, desc: str):
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, leave=False,
+                         dynamic_ncols=True, bar_format="{desc} {percentage:3.0f}%|{bar}| "
+                         "{n:.1f}/{total} frames [{elapsed}<{remaining}] {postfix}")
+        self._total = total
+
+    def __call__(self, event) -> None:
+        self._bar.n = min(float(event.fraction), 1.0) * self._total
+        self._bar.set_postfix_str(str(event)[:40], refresh=False)
+        self._bar.refresh()
+
+    def clear(self) -> None:
+        self._bar.clear()
+
+    def close(self) -> None:
+        self._bar.close()
+
+
+class _JsonLines:
+    """Machine-readable progress for batch jobs: one JSON object per event on
+    stderr (``{"progress": 0.25, "stage": ..., "frame": ..., "eta_s": ...}``)."""
+
+    def __init__(self, total: int):
+        self._t0, self._total = time.perf_counter(), total
+
+    def __call__(self, event) -> None:
+        line = {"progress": round(float(event.fraction), 4), "stage": event.stage,
+                "frame": event.frame, "n_frames": event.n_frames or self._total,
+                "elapsed_s": round(time.perf_counter() - self._t0, 3),
+                "eta_s": None if event.eta_s is None else round(float(event.eta_s), 1)}
+        print(json.dumps(line), file=sys.stderr, flush=True)
+
+    def clear(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def progress_display(mode: str = "auto", n_frames: int = 1, desc: str = ""):
+    """A progress callback of engine events, or None: ``"bar"`` (tqdm on
+    stderr), ``"json"`` (JSON lines), ``"none"``; ``"auto"`` is a bar when
+    stderr is a terminal, else JSON lines for stacks and nothing for pairs."""
+    if mode == "auto":
+        mode = "bar" if sys.stderr.isatty() else ("json" if n_frames > 1 else "none")
+    if mode == "none":
+        return None
+    shown = _Bar(n_frames, desc) if mode == "bar" else _JsonLines(n_frames)
+    _ACTIVE[:] = [shown]
+    return shown
+
+
 def progress_bar(prefix: str):
-    """A progress callback drawing a bar on an interactive stderr, else None."""
-    if not sys.stderr.isatty():
-        return None
-
-    def report(frac, msg: str | None = None) -> None:
-        if msg is None:  # a ProgressEvent of correlate (correlate_tiled gives two values)
-            frac, msg = frac.fraction, str(frac)
-        n = int(round(30 * frac))
-        end = "\n" if frac >= 1 else ""
-        print(f"\r{prefix} [{'#' * n}{'.' * (30 - n)}] {frac:4.0%} {msg:<40.40}", end=end,
-              file=sys.stderr, flush=True)
-
-    return report
-
-
-def sequence_progress(n_frames: int):
-    """Progress bar over frames with the estimated time left (interactive stderr)."""
-    if not sys.stderr.isatty():
-        return None
-    t0 = time.perf_counter()
-
-    def report(event) -> None:
-        frac, msg = event.fraction, str(event)
-        el = time.perf_counter() - t0
-        left = el * (1 - frac) / frac if frac > 0 else float("nan")
-        eta = "--:--" if not np.isfinite(left) else f"{int(left) // 60:02d}:{int(left) % 60:02d}"
-        done = int(round(frac * n_frames))
-        bar = int(round(30 * frac))
-        line = tr("{done}/{n_frames} frames, {el:5.1f} s, {eta} left").format(
-            done=done, n_frames=n_frames, el=el, eta=eta)
-        print(f"\r  [{'#' * bar}{'.' * (30 - bar)}] {line}  {msg:<28.28}", end="",
-              file=sys.stderr, flush=True)
-
-    return report
+    """The progress callback of one pair: a bar on an interactive stderr, else None."""
+    return progress_display("auto", 1, prefix)
 
 
 def clear_bar() -> None:
     """Erase a progress bar before printing a line."""
-    if sys.stderr.isatty():
-        print("\r" + " " * 100 + "\r", end="", file=sys.stderr, flush=True)
+    for shown in _ACTIVE:
+        shown.clear()
+
+
+def close_bar() -> None:
+    """Remove the progress display for good (the run is over)."""
+    for shown in _ACTIVE:
+        shown.close()
+    _ACTIVE.clear()
+
+
+def analysis_seconds(res) -> tuple[float, float]:
+    """(analysis, compile) seconds of one result: Numba's first-run
+    compilation is not analysis time."""
+    t = res.meta.get("timing", {})
+    total = float(t.get("total", float("nan")))
+    compiling = float(t.get("compile", 0.0))
+    return float(t.get("analysis", total - compiling)), compiling
 
 
 def counts_line(res) -> str:
-    """Nodes, valid nodes, time and speed of one result."""
-    total = float(res.meta.get("timing", {}).get("total", float("nan")))
+    """Nodes, valid nodes, time and speed of one result (compile time apart)."""
+    total, compiling = analysis_seconds(res)
     pct = 100.0 * res.n_valid / max(len(res), 1)
-    return (tr("{n_res} nodes, {n_valid} valid ({pct:.1f} %), {total:.3f} s "
+    line = (tr("{n_res} nodes, {n_valid} valid ({pct:.1f} %), {total:.3f} s "
                "({rate:,.0f} POI/s)").format(
                    n_res=len(res), n_valid=res.n_valid, pct=pct, total=total,
                    rate=len(res) / max(total, 1e-9)))
+    if compiling >= 0.05:
+        line += tr(" + {seconds:.1f} s compiling kernels (first run only)").format(
+            seconds=compiling)
+    return line
+
+
+def log_frame(log, res, label: str, path) -> None:
+    """One greppable info line of a finished frame: frame, seconds, compile
+    seconds, trusted fraction, nodes, warnings, file (not translated)."""
+    total, compiling = analysis_seconds(res)
+    flagged = {k: c for k, c in res.reason_counts().items() if k != "converged"}
+    log.info("frame=%s seconds=%.3f compile_s=%.3f trusted=%.4f nodes=%d valid=%d "
+             "flagged=%s file=%s", label, total, compiling, res.n_valid / max(len(res), 1),
+             len(res), res.n_valid,
+             ",".join(f"{k.replace(' ', '_')}:{c}" for k, c in flagged.items()) or "none",
+             path)
 
 
 def frame_summary(res) -> list[str]:

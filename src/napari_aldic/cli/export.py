@@ -41,7 +41,10 @@ def export_command(args) -> int:
         for target, opts in _jobs(fmt, base, single, args):
             if fmt != "davis":
                 opts.update(units=units, strain=strain)
-            failed += not _write(frames, target, fmt, opts)
+            error = _write(frames, target, fmt, opts)
+            failed += error is not None
+            if isinstance(error, EncoderNotFoundError):
+                break  # no encoder for any field of this format: said once
     return 2 if failed else 0
 
 
@@ -127,18 +130,18 @@ def _jobs(fmt: str, base: Path, single: bool, args) -> list[tuple[Path, dict]]:
     return [(base if single else base.with_name(base.name + SUFFIX[fmt]), opts)]
 
 
-def _write(frames, target: Path, fmt: str, opts: dict) -> bool:
+def _write(frames, target: Path, fmt: str, opts: dict):
     """Export one file (or one file series); print what was written or the
-    error. Returns False on an error."""
+    error. Returns the error (None when written)."""
     try:
         out = export_result(frames, target, to=fmt, **opts)
     except (EncoderNotFoundError, ValueError, OSError) as exc:
         print(tr("{prog}: error: {fmt}: {join}").format(
                      prog=PROG, fmt=fmt, join=' '.join(str(exc).split())), file=sys.stderr)
-        return False
+        return exc
     paths = out if isinstance(out, list) else [out]
     shown = paths if len(paths) <= 3 else [paths[0], tr("... ({n_paths} files)").format(
                                                             n_paths=len(paths)), paths[-1]]
     for p in shown:
         print(f"  {fmt}: {p.resolve() if isinstance(p, Path) else p}")
-    return True
+    return None

@@ -130,9 +130,20 @@ def build_parser() -> argparse.ArgumentParser:
 def _command(sub, name: str) -> argparse.ArgumentParser:
     """The parser of command ``name`` (texts from ``TEXTS``)."""
     help_line, description = TEXTS[name]
-    return _translate_headings(sub.add_parser(name, help=tr(help_line),
-                                              description=tr(description),
-                                              formatter_class=_Formatter))
+    cmd = _translate_headings(sub.add_parser(name, help=tr(help_line),
+                                             description=tr(description),
+                                             formatter_class=_Formatter))
+    add_log_options(cmd)
+    return cmd
+
+
+def add_log_options(p: argparse.ArgumentParser) -> None:
+    """``--quiet`` / ``--verbose`` of every command (cli/console.py ``setup_logging``)."""
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help=tr("print only warnings and errors (no summaries, no progress)"))
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help=tr("log one greppable line per frame to stderr (frame, seconds, "
+                           "compile seconds, trusted fraction); -vv adds debug lines"))
 
 
 def add_demo(sub) -> None:
@@ -188,6 +199,12 @@ def add_run(sub) -> None:
                              "default: tiles pairs over 40 million pixels, blocks of 2048"))
     run.add_argument("--tile-workers", type=int, metavar="N", dest="tile_workers",
                      help=tr("with tiling: N blocks correlated at once (default 1)"))
+    run.add_argument("--channel", type=int, metavar="N",
+                     help=tr("a hyperstack (TIFF or OME-Zarr with a channel axis): analyse "
+                             "channel N (from 0)"))
+    run.add_argument("--progress", choices=("auto", "bar", "json", "none"), default="auto",
+                     help=tr("stacks: a progress bar on a terminal, JSON lines on stderr "
+                             "otherwise (auto), or as chosen"))
     run.add_argument("--params-out", type=Path, metavar="FILE.json", dest="params_out",
                      help=tr("also write the complete parameters used (file and options "
                           "merged) to FILE.json, for --params of a later run"))

@@ -7,6 +7,7 @@ resumes; ``--scheduler threads|processes|ADDRESS`` runs its frames in parallel
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
@@ -14,16 +15,33 @@ from ..engine import correlate, track
 from ..engine.io import FrameSource, write_settings
 from ..engine.viz import plot_displacement
 from ..i18n import tr
-from .console import PROG, CLIError, clear_bar, frame_summary, progress_bar, sequence_progress
+from .console import (
+    PROG,
+    CLIError,
+    clear_bar,
+    close_bar,
+    frame_summary,
+    log_frame,
+    progress_display,
+)
 from .masks import read_mask
 from .sem import run_sem, sem_requested
 from .settings import settings_from_args
-from .tiled import metadata_units, run_tiled_pair
+from .tiled import metadata_units, run_tiled_pair, units_line
 from .volume import run_volume
+
+log = logging.getLogger("napari_aldic.cli")
 
 
 def run_command(args) -> None:
     """``napari-aldic run``: every frame against frame 0."""
+    try:
+        _run(args)
+    finally:
+        close_bar()
+
+
+def _run(args) -> None:
     settings = settings_from_args(args, args.params)
     params, units = settings.params, settings.units
     if getattr(args, "volume", False):
@@ -32,17 +50,24 @@ def run_command(args) -> None:
         used = settings.replace(tracking={"reference": args.reference})
         print(tr("parameters written to {resolve}").format(
                      resolve=write_settings(args.params_out, used).resolve()))
-    if units is None:  # the pixel size recorded in the images, if any
-        units = metadata_units(args.inputs)
     if sem_requested(args):  # issue 27: SEM corrections, docs/sem.md
+        if units is None:  # the pixel size recorded in the images, if any
+            units = metadata_units(args.inputs)
         return run_sem(args, params, units,
                        lambda: run_tiled_pair(args, params, units, args.output))
     if run_folder_of(args.output, pair=True) is None and \
             run_tiled_pair(args, params, units, args.output):
         return  # a large pair, read tile by tile and correlated block by block
     roi = read_mask(args.roi) if args.roi is not None else None
-    with FrameSource(args.inputs) as src:
+    with FrameSource(args.inputs, channel=getattr(args, "channel", None)) as src:
         n = len(src)
+        source = {} if units is not None else src.units_source
+        if units is None and src.units is not None:  # recorded by the instrument
+            units = src.units
+            print("  " + units_line(units, source))
+        if src.channel is not None:
+            print("  " + tr("channel {channel} of {axes} {name}").format(
+                channel=src.channel, axes=src.axes, name=src.name))
         folder = run_folder_of(args.output, pair=n == 2 and args.reference == "accumulative")
         print(tr("{prog} run: reference {frame_name}, {n_deformed} deformed frame(s); "
                  "subset {subset} px, step {step} px, method {method}, "
@@ -53,26 +78,29 @@ def run_command(args) -> None:
         if folder is None:
             out = Path("aldic_result.npz") if args.output is None else args.output.expanduser()
             res = correlate(src[0], src[1], roi=roi, params=params,
-                            progress=progress_bar("  " + tr("frame 1/1")))
+                            progress=progress_display(args.progress, 1,
+                                                      "  " + tr("frame 1/1")))
             res.meta["inputs"] = {"reference": src.frame_name(0),
                                   "deformed": src.frame_name(1), "frame": 1,
                                   "roi": None if args.roi is None else str(args.roi)}
             if units is not None:  # carried with the result into every export
                 res.meta["units"] = units.to_dict()
+            if source:
+                res.meta["units_source"] = source
             _report(res, _save(res, out), tr("frame 1/1 ({frame_name})").format(
                                                  frame_name=src.frame_name(1)),
                     src if args.plot else None)
             return
-        _run_folder(src, folder, roi, params, units, args)
+        _run_folder(src, folder, roi, params, units, source, args)
 
 
-def _run_folder(src, folder: Path, roi, params, units, args) -> None:
+def _run_folder(src, folder: Path, roi, params, units, source: dict, args) -> None:
     """Track the stack into the run folder ``folder`` (resuming it)."""
     n = len(src)
     print("  " + tr("run folder {resolve} (rerun the same command to resume)").format(
                         resolve=folder.resolve()))
     loaded: list[int] = []
-    bar = sequence_progress(n - 1)
+    bar = progress_display(args.progress, n - 1, " ")
 
     def progress(event) -> None:
         if event.stage == "frame_loaded":
@@ -87,11 +115,13 @@ def _run_folder(src, folder: Path, roi, params, units, args) -> None:
                 src if args.plot else None)
 
     t0 = time.perf_counter()
+    meta = {"units": units.to_dict()} if units is not None else {}
+    if source:  # where the pixel size / frame interval came from
+        meta["units_source"] = source
     track(src, roi=roi, params=params, reference=args.reference, out_dir=folder,
-          meta={"units": units.to_dict()} if units is not None else None,
-          progress=progress, on_frame=show, scheduler=_scheduler(args),
+          meta=meta or None, progress=progress, on_frame=show, scheduler=_scheduler(args),
           workers=getattr(args, "workers", None))
-    clear_bar()
+    close_bar()
     done = n - 1 - len(loaded)
     print(tr("{done} frames in {seconds:.2f} s").format(done=done, seconds=time.perf_counter() - t0)
           + (tr("; {n_loaded} finished frame(s) resumed from {folder}").format(
@@ -140,6 +170,8 @@ def _report(res, path: Path, title: str, plot_src=None) -> None:
     for line in frame_summary(res):
         print(f"  {line}")
     print(f"  -> {path.resolve()}")
+    k = res.meta.get("inputs", {}).get("frame", res.meta.get("frame", 1))
+    log_frame(log, res, str(k), path.resolve())
     if plot_src is not None:
         k = res.meta["inputs"]["frame"]
         png = plot_displacement(res, path.with_suffix(".png"), image=plot_src[0],

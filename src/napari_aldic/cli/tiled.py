@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..engine import Units, correlate_tiled, needs_tiling
+from ..engine import ProgressEvent, Units, correlate_tiled, needs_tiling
 from ..engine.io import open_image, pixel_size_of
 from ..i18n import tr
 from .console import CLIError, clear_bar, frame_summary, progress_bar
@@ -28,6 +28,18 @@ def metadata_units(inputs) -> Units | None:
                     "--pixel-size/--unit override it)").format(
                         value=ps.value, unit=ps.unit, source=ps.source, name=first.name))
     return Units(pixel_size=ps.value, unit=ps.unit)
+
+
+def units_line(units: Units, source: dict) -> str:
+    """What the run takes from the images' metadata, and from where."""
+    parts = []
+    if "pixel_size" in source:
+        parts.append(tr("pixel size {value:g} {unit} ({source})").format(
+            value=units.pixel_size, unit=units.unit, source=source["pixel_size"]))
+    if "frame_interval" in source:
+        parts.append(tr("frame interval {value:g} {unit} ({source})").format(
+            value=units.frame_interval, unit=units.time_unit, source=source["frame_interval"]))
+    return "; ".join(parts) + " " + tr("(--pixel-size/--unit/--frame-interval override it)")
 
 
 def _open_pair(inputs):
@@ -66,6 +78,8 @@ def run_tiled_pair(args, params, units, output: Path | None) -> bool:
     # the mask of a mosaic is as large as its images: sliced block by block too
     roi = None if args.roi is None else open_mask(args.roi)
     workers = getattr(args, "tile_workers", None) or 1
+    if units is None:  # the pixel size recorded in the images, if any
+        units = metadata_units(args.inputs)
     out = Path("aldic_result.npz") if output is None else output.expanduser()
     print(tr("{ref} ({rows} x {cols} px) and {dfm}: correlated in blocks of {tile} px, "
              "{workers} at a time, reading the images tile by tile").format(
@@ -73,9 +87,11 @@ def run_tiled_pair(args, params, units, output: Path | None) -> bool:
                  dfm=Path(dfm.name).name, tile=tile or 2048, workers=workers))
     t0 = time.perf_counter()
     kw = {"tile_size": tile} if tile is not None else {}
+    bar = progress_bar("  " + tr("frame 1/1"))
     try:
         res = correlate_tiled(ref, dfm, roi=roi, params=params, workers=workers,
-                              progress=progress_bar("  " + tr("frame 1/1")), **kw)
+                              progress=None if bar is None else
+                              lambda f, m: bar(ProgressEvent("tiles", f, message=m)), **kw)
     finally:
         ref.close()
         dfm.close()

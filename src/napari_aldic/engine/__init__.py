@@ -25,6 +25,7 @@ Layout, by role (imports flow downwards only; see docs/architecture.md):
 from __future__ import annotations
 
 from . import io, probes, sem, synthetic, viz
+from .core.compiling import compile_seconds, is_compiling
 from .core.files import EncoderNotFoundError, ExportError, InputFileError, RunFolderError
 from .core.params import DICParams, StrainParams
 from .core.progress import Cancelled, ProgressEvent
@@ -55,6 +56,7 @@ __all__ = [
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
     "Settings", "Refinement", "StrainParams",
     "resolve_refinement", "Cancelled", "ProgressEvent",
+    "compile_seconds", "is_compiling",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
     # results

@@ -187,8 +187,11 @@ class DICResult:
                          + f"{conv['at_cap']} nodes at the cap of {conv['max_iter']}")
         t = self.meta.get("timing", {})
         if "total" in t:
-            rate = len(self) / max(t["total"], 1e-9)
-            lines.append(f"time {t['total']:.3f} s ({rate:,.0f} POI/s)")
+            secs = t.get("analysis", t["total"])  # Numba's first-run compile apart
+            rate = len(self) / max(secs, 1e-9)
+            lines.append(f"time {secs:.3f} s ({rate:,.0f} POI/s)"
+                         + (f" + {t['compile']:.1f} s compiling kernels (first run)"
+                            if t.get("compile", 0.0) >= 0.05 else ""))
         flagged = {k: c for k, c in self.reason_counts().items() if k != "converged"}
         if flagged:
             lines.append("flagged: " + ", ".join(f"{k}: {c}" for k, c in flagged.items()))

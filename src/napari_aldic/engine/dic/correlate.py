@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -10,6 +11,7 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
+from ..core.compiling import compile_seconds
 from ..core.files import array_digest
 from ..core.images import as_gray_float, validate_pair, validate_roi
 from ..core.params import DICParams
@@ -32,6 +34,8 @@ from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
 
 __all__ = ["correlate", "reference_result"]
+
+log = logging.getLogger("napari_aldic.engine")
 
 ProgressFn = Callable[[ProgressEvent], None]
 
@@ -92,7 +96,9 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
         cross-correlation or seed guess; nodes that then fail are rescued as
         usual. ``track`` passes the previous frame.
     progress : callable(ProgressEvent), optional
-        Called as the analysis advances; 0.1's ``(fraction, message)`` is deprecated.
+        Called as the analysis advances with a
+        :class:`~napari_aldic.engine.ProgressEvent` (``str(event)`` is its
+        text); a 0.1 callback ``(fraction, message)`` still works (deprecated).
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.
@@ -117,7 +123,7 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
     >>> round(float(res.u[res.valid].mean()), 2), round(float(res.v[res.valid].mean()), 2)
     (0.4, -0.2)
     """
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), compile_seconds()
     params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     _check_guess(guess)
     report, timing = _reporter(progress, cancel), {}  # timing: stage -> seconds
@@ -134,7 +140,7 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
                                                 params, timing, report, solver_cache, meta)
     quality = _quality(im, mask, grid, sol, params, timing, meta)
     sol.reason = _uncertain_as_exported(sol, quality, params)
-    _record(meta, sol, ref_spec, grid, params, timing, t_start, im.j_sigma)
+    _record(meta, sol, ref_spec, grid, params, timing, (t_start, c_start), im.j_sigma)
     report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
 
@@ -208,7 +214,7 @@ def _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec, params, timing,
 
 
 def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
-            t_start: float, j_sigma: float) -> None:
+            t_start: tuple[float, float], j_sigma: float) -> None:
     """What the result's ``meta`` tells about the run (refinement, ADMM, timing,
     IC-GN's convergence, with a warning when many nodes ended at the cap)."""
     if ref_spec is not None:
@@ -217,13 +223,18 @@ def _record(meta: dict, sol, ref_spec, grid, params: DICParams, timing: dict,
                        ("validity", sol.validity)):
         if value is not None:
             meta[key] = value
-    timing["total"] = time.perf_counter() - t_start
+    timing["total"] = time.perf_counter() - t_start[0]
+    # Numba's first-run compilation, reported apart from the analysis (core/compiling.py)
+    timing["compile"] = compile_seconds() - t_start[1]
+    timing["analysis"] = max(timing["total"] - timing["compile"], 0.0)
     meta["timing"] = timing
     meta["n_nodes"] = grid.n
     meta["n_valid"] = int(np.count_nonzero(sol.reason == Reason.OK))
     meta["convergence"] = convergence_record(sol.reason, sol.iters, sol.sub.reason == Reason.OK,
                                              params.max_iter)
     meta["convergence"]["jacobian_sigma_px"] = float(j_sigma)
+    log.debug("correlate: %d nodes, %d trusted, %.3f s analysis, %.3f s compiling kernels",
+              grid.n, meta["n_valid"], timing["analysis"], timing["compile"])
     warn_iteration_cap(meta["convergence"], stacklevel=4)
 
 

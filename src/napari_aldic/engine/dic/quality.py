@@ -197,7 +197,10 @@ class SpeckleQuality:
 def _gradients(image: np.ndarray, order: int):
     """The spline gradients the IC-GN kernels use, and their noise gain."""
     gx, gy = reference_gradients(prefilter(image, order))
-    return gx.astype(np.float64), gy.astype(np.float64), gradient_noise_gain(order)
+    # float32 as in correlate: one compiled specialisation of the moments kernel
+    # (a float64 copy compiled it a second time, ~20 s on a first run)
+    return (np.asarray(gx, np.float32), np.asarray(gy, np.float32),
+            gradient_noise_gain(order))
 
 
 @functools.lru_cache(maxsize=16)

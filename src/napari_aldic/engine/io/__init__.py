@@ -4,6 +4,7 @@
   image-stack reader (arrays, multi-page TIFF, image folders, lists of image files)
   used by ``track``, the CLI and the napari reader; :func:`open_image` /
   :func:`open_lazy` -- one image read window by window (tiled TIFF, zarr, OME-Zarr);
+  the pixel size and frame interval their metadata records (``FrameSource.units``);
 * :func:`load_run`, :func:`collect_frames`, :func:`load_mat` -- results back from
   any file or folder the package writes;
 * writers/readers per format: CSV, MATLAB, VTK (.vtu/.pvd), DaVis text;
@@ -12,10 +13,12 @@
 """
 
 from ..core.files import available_memory, file_sha256, read_json_file, regular_file
+from .axes import ChannelChoiceError
 from .columns import FIELD_INFO, frame_columns
 from .csv import export_csv, read_csv
 from .davis import export_davis
 from .matlab import export_mat
+from .metadata import FrameInterval
 from .runs import Frame, FrameSet, collect_frames, load_mat, load_run
 from .settings_file import read_settings, write_settings
 from .stack import (
@@ -42,4 +45,5 @@ __all__ = [
     "export_davis", "read_settings", "write_settings", "regular_file", "read_json_file",
     "file_sha256", "available_memory",
     "read_volumes",
+    "ChannelChoiceError", "FrameInterval",
 ]

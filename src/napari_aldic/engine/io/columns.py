@@ -125,7 +125,9 @@ def frame_columns(fr: Frame, units: Units) -> dict[str, tuple[np.ndarray, str]]:
         vals = getattr(res, name, None)
         vals = np.full(n, np.nan) if vals is None else np.asarray(vals, float)
         length = name.endswith("_std")
-        cols[name] = (vals * (ps if length else 1.0), L if length else "")
+        # grey levels (GL) of the reference image: squared gradients summed, mean gradient
+        unit = L if length else {"sssig": "GL^2", "mig": "GL/px"}[name]
+        cols[name] = (vals * (ps if length else 1.0), unit)
     cols["u_attempt"] = (np.asarray(res.u, float) * ps, L)
     cols["v_attempt"] = (np.asarray(res.v, float) * ps, L)
     return cols

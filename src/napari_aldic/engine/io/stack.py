@@ -33,6 +33,9 @@ import numpy as np
 
 from ..core.files import regular_file
 from ..core.images import as_gray_float
+from . import metadata as md, tiles
+from .axes import plan_frames
+from .metadata import FrameInterval, PixelSize
 
 __all__ = ["FrameSource", "open_stack", "read_image", "open_image", "image_files",
            "natural_key", "grey_frame", "frame_numbers", "IMAGE_SUFFIXES", "TIFF_SUFFIXES"]
@@ -60,20 +63,29 @@ def image_files(folder) -> list[Path]:
                    if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=natural_key)
 
 
+def _is_zarr_dir(path: Path) -> bool:
+    return path.is_dir() and tiles.is_lazy_source(path)
+
+
 def _image_file(path) -> Path:
-    """``path`` as a Path, checked to be an existing file."""
+    """``path`` as a Path, checked to be an existing file or zarr/OME-Zarr image."""
     path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no such file: {path}")
     if path.is_dir():
-        raise ValueError(f"{path} is a folder; expected an image file")
+        if not _is_zarr_dir(path):
+            raise ValueError(f"{path} is a folder; expected an image file (or a zarr image)")
+        return path
     return regular_file(path, "image file")  # a pipe or device would block the reader
 
 
 def read_image(path) -> np.ndarray:
     """Read one image file as an array, keeping its data type.
 
-    TIFF files (:data:`TIFF_SUFFIXES`) are read with tifffile, other files with
-    scikit-image. A multi-page TIFF gives all its pages (use
-    :class:`FrameSource` to read a stack frame by frame).
+    TIFF files (:data:`TIFF_SUFFIXES`) are read with tifffile, zarr and
+    OME-Zarr image folders with zarr, other files with scikit-image. A
+    multi-page TIFF gives all its pages (use :class:`FrameSource` to read a
+    stack frame by frame).
 
     Raises
     ------
@@ -84,6 +96,9 @@ def read_image(path) -> np.ndarray:
         message names the file and the reader's reason.
     """
     path = _image_file(path)
+    if path.is_dir():  # a zarr / OME-Zarr image
+        with tiles.open_lazy(path) as img:
+            return img[0:img.shape[0], 0:img.shape[1]]
     try:
         with warnings.catch_warnings():  # the readers' own deprecation chatter
             warnings.simplefilter("ignore", DeprecationWarning)
@@ -212,13 +227,17 @@ class FrameSource:
     ``FrameSource(stack)`` takes
 
     * a (T, H, W) NumPy or dask array (or any array-like with ``ndim == 3``);
-    * the path of a multi-page TIFF file: the frames of its first series
-      (leading axes, e.g. time and depth, are flattened into frames); when
+    * the path of a multi-page TIFF file: the frames of its first series,
+      along its one frame axis (T, or the page axis of plain multi-page files;
+      :func:`~napari_aldic.engine.io.axes.plan_frames`); a hyperstack's
+      channel axis needs ``channel=N``, other extra axes are refused; when
       every frame is one page, one page is read per request;
+    * the path of a zarr array (T, H, W) or OME-Zarr image folder (its
+      full-resolution level, axes as for TIFF);
     * the path of a folder of images (:data:`IMAGE_SUFFIXES`), in natural
       order (``img_2`` before ``img_10``);
-    * a list of image file paths, one frame each, in the order given (a list
-      holding one path is that path).
+    * a list of image file paths (or zarr images), one frame each, in the
+      order given (a list holding one path is that path).
 
     ``len(src)`` is the number of frames (at least two), ``src[k]`` reads
     frame ``k``, ``src.frame_name(k)`` names it. Use it as a context manager,
@@ -235,11 +254,21 @@ class FrameSource:
         for colour frames.
     series_shape : tuple or None
         Shape of the TIFF series as stored in the file (None for other sources).
+    axes : str or None
+        Axis letters of a TIFF series or OME-Zarr image (e.g. ``"TYX"``).
+    pixel_size, frame_interval : PixelSize, FrameInterval or None
+        What the file's metadata records (OME, ImageJ, SEM, resolution tags,
+        OME-Zarr scales; :mod:`.metadata`); see :attr:`units`.
     """
 
-    def __init__(self, stack):
+    def __init__(self, stack, channel: int | None = None):
         self.name: str | None = None
         self.series_shape: tuple | None = None
+        self.axes: str | None = None
+        self.channel = channel
+        self.pixel_size: PixelSize | None = None
+        self.frame_interval: FrameInterval | None = None
+        self._plan = None
         self._files: list[Path] | None = None
         self._tiff: Path | None = None
         self._pages = False  # TIFF: one page per frame
@@ -257,6 +286,9 @@ class FrameSource:
             self._open_path(Path(stack))
         elif self._files is None:
             self._use_array(stack)
+        if channel is not None and self._plan is None:
+            raise ValueError(f"channel {channel} was chosen, but {self.name or 'the stack'} "
+                             "has no channel axis")
         if len(self) < 2:
             raise ValueError(f"a sequence needs at least two frames; {self.name or 'the stack'} "
                              f"holds {len(self)}")
@@ -264,7 +296,9 @@ class FrameSource:
     # ------------------------------------------------------------ opening
     def _open_path(self, path: Path) -> None:
         self.name = str(path)
-        if path.is_dir():
+        if _is_zarr_dir(path):
+            self._open_zarr(path)
+        elif path.is_dir():
             files = image_files(path)
             if len(files) < 2:
                 raise ValueError(f"folder {path} holds {len(files)} image(s); a sequence needs "
@@ -285,6 +319,8 @@ class FrameSource:
         self._files = files
         self.frame_shape = tuple(_one_frame(read_image(files[0]), files[0]).shape)
         self.shape = (len(files),) + self.frame_shape[:2]
+        if tiles.is_lazy_source(files[0]):  # TIFF, zarr: the first image's pixel size
+            self.pixel_size = tiles.pixel_size_of(files[0])
 
     def _use_array(self, stack) -> None:
         if isinstance(stack, (list, tuple)) and stack and all(hasattr(f, "shape")
@@ -310,25 +346,81 @@ class FrameSource:
                 shape, axes = tuple(series.shape), str(series.axes)
                 n_pages = len(series.pages)
                 page_shape = tuple(series.pages[0].shape) if n_pages else None
-                frame_axes = len(shape) - (3 if axes.endswith("S") else 2)
-                n = int(np.prod(shape[:frame_axes])) if frame_axes > 0 else 1
-                cut = _truncation(tf, series, path.stat().st_size, n)
+                n_image = 3 if axes.endswith("S") and shape[-1] in (3, 4) else 2
+                planes = int(np.prod(shape[:-n_image]))
+                cut = _truncation(tf, series, path.stat().st_size, planes)
                 if damage and not cut:
                     cut = (f"damaged: {damage[0]}; only pages 0 to {len(tf.pages) - 1} can be "
                            "read")
+                self.pixel_size, self.frame_interval = (md.tiff_pixel_size(tf),
+                                                        md.tiff_frame_interval(tf))
         except Exception as exc:
             raise ValueError(f"cannot read TIFF stack {path}: {_reader_error(exc)}") from None
         if cut:
             raise ValueError(f"TIFF stack {path} is {cut} (an interrupted copy or "
                              "acquisition?)")
-        if n < 2:
-            raise ValueError(f"{path} holds a single frame (shape {shape}); a sequence needs "
-                             "a reference and at least one deformed frame")
+        self._use_plan(plan_frames(shape, axes, n_image, str(path), self.channel), shape,
+                       n_image, str(path))
         self._tiff = path
         self.series_shape = shape
-        self.frame_shape = shape[frame_axes:]
-        self.shape = (n,) + self.frame_shape[:2]
-        self._pages = n_pages == n and page_shape == self.frame_shape
+        self._pages = n_pages == planes and page_shape == self.frame_shape
+
+    def _use_plan(self, plan, shape, n_image: int, name: str) -> None:
+        if plan.n_frames < 2:
+            raise ValueError(f"{name} holds a single frame (shape {shape}); a sequence needs "
+                             "a reference and at least one deformed frame")
+        self._plan, self.axes = plan, plan.axes
+        self.frame_shape = tuple(int(n) for n in shape[-n_image:])
+        self.shape = (plan.n_frames,) + self.frame_shape[:2]
+
+    def _open_zarr(self, path: Path) -> None:
+        """A zarr array (T, H, W) or the full-resolution level of an OME-Zarr image."""
+        import zarr
+
+        try:
+            node = zarr.open(str(path), mode="r")
+            axes = None
+            if not hasattr(node, "shape"):  # a group: OME-Zarr multiscales
+                ms = node.attrs.get("multiscales") or (node.attrs.get("ome") or {}).get(
+                    "multiscales")
+                if not ms:
+                    raise ValueError("a zarr group without OME-Zarr 'multiscales' metadata")
+                level0 = ms[0]["datasets"][0]
+                names = [a.get("name") if isinstance(a, dict) else a
+                         for a in ms[0].get("axes") or []]
+                axes = "".join(str(a)[:1].upper() for a in names) or None
+                self.pixel_size = md.ome_zarr_pixel_size(ms[0], level0)
+                self.frame_interval = md.ome_zarr_frame_interval(ms[0], level0)
+                node = node[level0["path"]]
+        except Exception as exc:
+            raise ValueError(f"cannot read {path} as a zarr/OME-Zarr stack: {exc}") from None
+        shape = tuple(int(n) for n in node.shape)
+        if axes is not None and len(axes) == len(shape):
+            self._arr = node
+            self._use_plan(plan_frames(shape, axes, 2, str(path), self.channel), shape, 2,
+                           str(path))
+        elif len(shape) == 3:
+            self._use_array(node)
+        else:
+            raise ValueError(f"zarr array {path} has shape {shape}; a stack needs (frames, "
+                             "rows, cols)")
+
+    def _units(self):
+        # a list of files is named by its first file (whose metadata is read)
+        first = self.name or (str(self._files[0]) if self._files else "")
+        return md.units_of(self.pixel_size, self.frame_interval,
+                           Path(first).name if first else "")
+
+    @property
+    def units(self):
+        """:class:`~napari_aldic.engine.Units` from the file's metadata, or None."""
+        return self._units()[0]
+
+    @property
+    def units_source(self) -> dict:
+        """Where :attr:`units` came from, e.g. ``{"pixel_size": "ImageJ metadata of
+        s.tif", "frame_interval": ...}`` (empty without metadata)."""
+        return self._units()[1]
 
     # ------------------------------------------------------------ reading
     def __len__(self) -> int:
@@ -343,6 +435,8 @@ class FrameSource:
             return self._read_file(k)
         if self._tiff is not None:
             return self._read_tiff(k)
+        if self._plan is not None:
+            return np.asarray(self._arr[self._plan.index(k)])
         return np.asarray(self._arr[k])
 
     def _read_file(self, k: int) -> np.ndarray:
@@ -362,12 +456,12 @@ class FrameSource:
                 if not self._pages:
                     if self._whole is None:
                         self._whole = tifffile.imread(self._tiff, series=0).reshape(
-                            len(self), *self.frame_shape)
-                    frame = self._whole[k]
+                            *self._plan.lead, *self.frame_shape)
+                    frame = self._whole[self._plan.index(k)]
                 else:
                     if self._handle is None:
                         self._handle = tifffile.TiffFile(self._tiff)
-                    frame = self._handle.asarray(series=0, key=k)
+                    frame = self._handle.asarray(series=0, key=self._plan.page(k))
         except Exception as exc:
             raise ValueError(f"cannot read frame {k}{page} of {self._tiff}: "
                              f"{_reader_error(exc)}") from None

@@ -21,54 +21,17 @@ the entry point that also accepts the other image formats.
 from __future__ import annotations
 
 import json
-import math
-import re
 import threading
-import xml.etree.ElementTree as ET
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core.files import regular_file
+from .metadata import PixelSize, ome_zarr_pixel_size, tiff_pixel_size
 
 __all__ = ["LazyImage", "PixelSize", "open_lazy", "pixel_size_of", "is_lazy_source"]
 
-#: length units, normalised, and their size in metres
-_UNITS = {"nm": 1e-9, "um": 1e-6, "mm": 1e-3, "cm": 1e-2, "m": 1.0}
-_ALIASES = {"nanometer": "nm", "nanometre": "nm", "micron": "um", "microns": "um",
-            "micrometer": "um", "micrometre": "um", "µm": "um", "μm": "um", "\\u00b5m": "um",
-            "millimeter": "mm", "millimetre": "mm", "centimeter": "cm", "centimetre": "cm",
-            "meter": "m", "metre": "m"}
-#: resolutions (dots per inch) that programs write by default: not a measurement
-_SCREEN_DPI = (1.0, 72.0, 96.0)
 _TIFF = (".tif", ".tiff", ".btf", ".tf8")
-
-
-@dataclass(frozen=True)
-class PixelSize:
-    """Length of one pixel found in a file's metadata: ``value`` in ``unit``
-    (nm, um, mm, cm or m), and where it came from (``source``)."""
-
-    value: float
-    unit: str
-    source: str
-
-    @classmethod
-    def make(cls, value, unit, source: str) -> PixelSize | None:
-        """A pixel size in a known unit, tidied (m -> nm or um), or None."""
-        try:
-            value = float(value)
-        except (TypeError, ValueError):
-            return None
-        name = _ALIASES.get(str(unit).strip().lower(), str(unit).strip().lower())
-        if name not in _UNITS or not (math.isfinite(value) and value > 0):
-            return None
-        metres = value * _UNITS[name]
-        if name in ("m", "cm"):  # SEM tags are in metres: say nm or um
-            name = "nm" if metres < 1e-6 else ("um" if metres < 1e-3 else "mm")
-            value = metres / _UNITS[name]
-        return cls(float(f"{value:.12g}"), name, source)
 
 
 class LazyImage:
@@ -235,7 +198,7 @@ def _open_tiff(path: Path) -> LazyImage:
         if not tf.series:
             raise ValueError("no image in the file")
         series = tf.series[0]
-        ps = _tiff_pixel_size(tf)
+        ps = tiff_pixel_size(tf)
         contiguous = _contiguous_reader(tf, series)
         if contiguous is not None:
             rows, cols = series.shape[-2:]
@@ -276,83 +239,6 @@ def _contiguous_reader(tf, series):
     return read
 
 
-def _tiff_pixel_size(tf) -> PixelSize | None:
-    """The pixel size in a TIFF's metadata: OME-XML, ImageJ, FEI, Zeiss SEM,
-    then resolution tags in centimetres (or inches other than screen values)."""
-    for reader in (_ome_xml_size, _imagej_size, _fei_size, _sem_size, _resolution_size):
-        try:
-            ps = reader(tf)
-        except Exception:  # odd metadata must not stop reading the pixels
-            ps = None
-        if ps is not None:
-            return ps
-    return None
-
-
-def _ome_xml_size(tf) -> PixelSize | None:
-    xml = tf.ome_metadata
-    if not xml:
-        return None
-    root = ET.fromstring(xml)
-    for el in root.iter():
-        if el.tag.endswith("}Pixels") or el.tag == "Pixels":
-            if "PhysicalSizeX" in el.attrib:
-                return PixelSize.make(el.attrib["PhysicalSizeX"],
-                                      el.attrib.get("PhysicalSizeXUnit", "um"), "OME-XML")
-    return None
-
-
-def _resolution(page) -> float | None:
-    tag = page.tags.get("XResolution")
-    if tag is None:
-        return None
-    num, den = tag.value
-    return num / den if den else None
-
-
-def _imagej_size(tf) -> PixelSize | None:
-    meta = tf.imagej_metadata
-    if not meta or "unit" not in meta:
-        return None
-    res = _resolution(tf.pages[0])
-    if not res:
-        return None
-    return PixelSize.make(1.0 / res, meta["unit"], "ImageJ")
-
-
-def _fei_size(tf) -> PixelSize | None:
-    meta = tf.fei_metadata
-    if not meta:
-        return None
-    for section in ("Scan", "EScan", "IScan"):
-        width = (meta.get(section) or {}).get("PixelWidth")
-        if width:
-            return PixelSize.make(width, "m", "FEI SEM")
-    return None
-
-
-def _sem_size(tf) -> PixelSize | None:
-    meta = tf.sem_metadata
-    if not meta:
-        return None
-    for key, val in meta.items():
-        if "pixel_size" in str(key).lower() and isinstance(val, tuple) and len(val) >= 3:
-            return PixelSize.make(val[1], val[2], "Zeiss SEM")
-    return None
-
-
-def _resolution_size(tf) -> PixelSize | None:
-    page = tf.pages[0]
-    res = _resolution(page)
-    unit = page.tags.get("ResolutionUnit")
-    unit = int(unit.value) if unit is not None else 2
-    if not res or unit not in (2, 3):
-        return None
-    if unit == 2 and any(abs(res - d) < 1e-9 for d in _SCREEN_DPI):
-        return None
-    return PixelSize.make((2.54 if unit == 2 else 1.0) / res, "cm", "TIFF resolution")
-
-
 # ------------------------------------------------------------------ zarr
 def _zarr_meta(path: Path) -> dict | None:
     """The attributes of a zarr folder (v2 ``.zattrs``/``.zarray``, v3
@@ -384,28 +270,11 @@ def _open_zarr(path: Path) -> LazyImage:
             if not ms:
                 raise ValueError("a zarr group without OME-Zarr 'multiscales' metadata")
             level0 = ms[0]["datasets"][0]
-            ps = _ome_zarr_size(ms[0], level0)
+            ps = ome_zarr_pixel_size(ms[0], level0)
             node = node[level0["path"]]
         return _from_array(node, str(path), ps)
     except Exception as exc:
         raise ValueError(f"cannot read {path} as a zarr/OME-Zarr image: {exc}") from None
-
-
-def _ome_zarr_size(ms: dict, level0: dict) -> PixelSize | None:
-    """Pixel size of OME-Zarr level 0: its x scale in the x axis' unit."""
-    axes = ms.get("axes") or []
-    scale = next((t.get("scale") for t in level0.get("coordinateTransformations", [])
-                  if t.get("type") == "scale"), None)
-    if not scale or not axes or len(scale) != len(axes):
-        return None
-    names = [a.get("name") if isinstance(a, dict) else a for a in axes]
-    if "x" not in names:
-        return None
-    ax = axes[names.index("x")]
-    unit = ax.get("unit") if isinstance(ax, dict) else None
-    if not unit:
-        return None
-    return PixelSize.make(scale[names.index("x")], re.sub(r"\s", "", unit), "OME-Zarr")
 
 
 def pixel_size_of(source) -> PixelSize | None:

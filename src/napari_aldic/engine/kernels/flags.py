@@ -32,5 +32,6 @@ PARALLEL = {"cache": True, "nogil": True, "parallel": True}
 
 #: a helper inlined into its callers at the Numba-IR level; it is compiled
 #: with the caller's options (its own ``fastmath`` only matters when it is
-#: called from plain Python)
-INLINE = {"inline": "always"}
+#: called from plain Python, and then ``cache`` keeps that compilation too:
+#: every kernel of the engine is cached, tests/engine/test_kernel_cache.py)
+INLINE = {"inline": "always", "cache": True}

@@ -21,23 +21,28 @@ PLOT_SUFFIXES = (".png", ".pdf")
 def export_kymograph_csv(kymo: Kymograph, path) -> Path:
     """Write a profile / kymograph: one row per point along the line.
 
-    Lines starting with ``#`` describe the file (software, field, units as
-    JSON); the header is ``distance [unit]``, ``x_px [px]``, ``y_px [px]`` and one
-    column per frame, ``frame_<k> [field unit]``. Missing values are empty cells.
+    A plain table: the header is ``distance [unit]``, ``x_px [px]``, ``y_px [px]``
+    and one column per frame, ``frame_<k> [field unit]``; missing values are
+    empty cells. What describes it (software, field, units, coordinates) goes
+    to ``NAME.json`` beside it.
     """
     path = target_path(path, (".csv", ".txt"))
-    unit = f" [{kymo.unit}]" if kymo.unit else ""
+    unit = f" [{kymo.unit}]" if kymo.unit else " [1]"
     header = [f"distance [{kymo.units.unit}]", "x_px [px]", "y_px [px]"]
     header += [f"frame_{int(k)}{unit}" for k in kymo.frames]
-    lines = [f"# {software_name()} profile along a line: one row per point, one "
-             "column per frame",
-             f"# field: {kymo.field}; settings: {json.dumps(kymo.units.to_dict())}",
-             "# coordinates: reference-image pixels (x = column, y = row); empty cell = no "
-             "trusted value there", ",".join(header)]
+    lines = [",".join(header)]
     for j in range(kymo.x.size):
         cells = [f"{kymo.distance[j]:.10g}", f"{kymo.x[j]:.10g}", f"{kymo.y[j]:.10g}"]
         cells += ["" if not np.isfinite(v) else f"{v:.10g}" for v in kymo.values[:, j]]
         lines.append(",".join(cells))
+    meta = {"software": software_name(), "csv": path.name,
+            "content": "profile along a line: one row per point, one column per frame",
+            "field": kymo.field, "field_unit": kymo.unit or "1",
+            "settings": kymo.units.to_dict(), "header": header,
+            "coordinates": "reference-image pixels (x = column, y = row); empty cell = no "
+                           "trusted value there"}
+    with atomic_write(path.with_suffix(".json")) as tmp:
+        tmp.write_text(json.dumps(meta, indent=1, ensure_ascii=False), encoding="utf-8")
     with atomic_write(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -119,6 +119,7 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
     meta : dict, optional
         JSON-compatible entries added to every frame's ``meta`` (e.g.
         ``{"units": units.to_dict()}``); part of a run folder's identity.
+        Without ``"units"``: the stack file's own (``FrameSource.units``).
     progress : callable(ProgressEvent), optional
         Each frame's start, end (or load) and correlation stages, ``event.frame``
         its number in ``stack``; 0.1's ``(frame, fraction, message)`` is deprecated.
@@ -148,12 +149,22 @@ def track(stack, roi=None, subset: int | None = None, step: int | None = None,
     params = DICParams.combine(params, kwargs, subset=subset, step=step, method=method)
     idx = frame_numbers(frames, len(src))
     run = SequenceRun(src, idx, reference, update_every, roi, rois, params, refine,
-                      dict(meta or {}), event_callback(progress, "track"), on_frame)
+                      _with_file_units(src, meta), event_callback(progress, "track"),
+                      on_frame)
     if out_dir is None:
         return run.execute(stack, scheduler, workers, cancel)
     with run_folder(out_dir, info := run.identity()) as out:
         run.out, run.run_id = out, run_id(info)
         return run.execute(stack, scheduler, workers, cancel)
+
+
+def _with_file_units(src, meta: dict | None) -> dict:
+    """``meta`` with the pixel size / frame interval the stack's file records
+    (and where they came from) when it gives no ``"units"`` itself."""
+    meta = dict(meta or {})
+    if "units" not in meta and getattr(src, "units", None) is not None:
+        meta.update(units=src.units.to_dict(), units_source=src.units_source)
+    return meta
 
 
 def _check_modes(reference: str, update_every: int | None) -> None:

@@ -1,0 +1,104 @@
+"""Cold and warm start of napari-aldic beside pyALDIC's cold start, in one session.
+
+Each case runs as a fresh process, timed from its start to its exit (the
+time to the first result, imports and Numba compilation included):
+
+* cold: ``NUMBA_CACHE_DIR`` points at a new empty folder, so every kernel
+  is compiled;
+* warm: the same command again with that folder, now holding the cache.
+
+Cases: ``napari-aldic demo`` (512² synthetic pair, Local), ``napari-aldic run``
+on the open-hole tension (OHT) pair with ``--method local`` and
+``--method aldic``, and pyALDIC (``benchmarks/pyaldic_runner.py``, one
+repeat, no warm-up) Local and AL-DIC on the same pair, cold.
+
+Usage::
+
+    python benchmarks/bench_cold_start.py --pyaldic /work/pyaldic-venv/bin/python \\
+        [--cases demo local aldic py-local py-aldic] [--json OUT.json]
+
+Prints one JSON line per case and the targets: ours cold <= 0.5 x pyALDIC
+cold, and ours cold <= 1.5 x ours warm + 20 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent.parent / "shared" / "data" / "open_hole_tension"
+if not DATA.is_dir():
+    DATA = Path("/work/shared/data/open_hole_tension")
+PAIR = [str(DATA / "oht_cfrp_00.tiff"), str(DATA / "oht_cfrp_11.tiff")]
+
+
+def _timed(cmd: list[str], cache: Path, cwd: Path) -> tuple[float, str]:
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    t0 = time.perf_counter()
+    out = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
+    secs = time.perf_counter() - t0
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{out.stderr[-2000:]}")
+    return secs, out.stdout + out.stderr
+
+
+def _ours(case: str, work: Path) -> list[str]:
+    cli = [sys.executable, "-m", "napari_aldic.cli"]
+    if case == "demo":
+        return cli + ["demo", "--out", str(work / "demo")]
+    return cli + ["run", *PAIR, "--subset", "31", "--step", "8", "--method", case,
+                  "--tile-size", "0", "-o", str(work / f"{case}.npz")]
+
+
+def _pyaldic(python: str, method: str, work: Path) -> list[str]:
+    return [python, str(HERE / "pyaldic_runner.py"), *PAIR, "--subset", "31", "--step", "8",
+            "--method", method, "--repeat", "1", "--no-warmup",
+            "--out", str(work / f"py_{method}.npz")]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pyaldic", default="/work/pyaldic-venv/bin/python")
+    ap.add_argument("--cases", nargs="+",
+                    default=["py-local", "py-aldic", "demo", "local", "aldic"])
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for case in args.cases:
+            cache = work / f"cache-{case}"
+            cache.mkdir()
+            if case.startswith("py-"):
+                cmd = _pyaldic(args.pyaldic, case[3:], work)
+                cold, _ = _timed(cmd, cache, work)
+                row = {"case": case, "cold_s": round(cold, 2)}
+            else:
+                cmd = _ours(case, work)
+                cold, text = _timed(cmd, cache, work)
+                warm, _ = _timed(cmd, cache, work)
+                row = {"case": case, "cold_s": round(cold, 2), "warm_s": round(warm, 2),
+                       "compile_lines": [ln.strip() for ln in text.splitlines()
+                                         if "compil" in ln.lower()][:3]}
+            rows[case] = row
+            print(json.dumps(row), flush=True)
+    for ours, ref in (("local", "py-local"), ("aldic", "py-aldic")):
+        if ours in rows and ref in rows:
+            c, w, p = rows[ours]["cold_s"], rows[ours]["warm_s"], rows[ref]["cold_s"]
+            print(json.dumps({"target": ours, "cold_over_pyaldic_cold": round(c / p, 3),
+                              "ok_half_pyaldic": c <= 0.5 * p,
+                              "cold_minus_1.5warm": round(c - 1.5 * w, 2),
+                              "ok_warm_plus_20": c <= 1.5 * w + 20}))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
