@@ -33,17 +33,21 @@ def volume_layers(res: VolumeResult, vector_scale: float = 1.0) -> list[tuple]:
     grids = {k: res.to_grid(k) for k in ("u", "v", "w")}
     grids["|u|"] = np.sqrt(grids["u"] ** 2 + grids["v"] ** 2 + grids["w"] ** 2)
     for name, g in grids.items():
+        # the components start hidden (one at a time is readable); |u| shows as a
+        # translucent cloud over the volume, brightest where the motion is largest
+        style = ({"rendering": "attenuated_mip", "opacity": 0.6, "blending": "additive"}
+                 if name == "|u|" else {"rendering": "mip", "visible": False})
         layers.append((g.astype(np.float32), {"name": name, "scale": scale,
                                               "translate": translate, "colormap": "turbo",
-                                              "rendering": "mip" if name == "|u|" else
-                                              "attenuated_mip"}, "image"))
+                                              **style}, "image"))
     ok = res.valid
     pos = np.stack([res.z, res.y, res.x], 1)[ok]
     vec = np.stack([res.w, res.v, res.u], 1)[ok] * vector_scale
-    layers.append((np.stack([pos, vec], 1), {"name": "displacement", "edge_width": 0.5,
+    layers.append((np.stack([pos, vec], 1), {"name": "displacement", "edge_width": 0.6,
                                              "edge_color": "white"}, "vectors"))
     bad = ~ok
     layers.append((np.stack([res.z, res.y, res.x], 1)[bad],
-                   {"name": "untrusted nodes", "size": 2.0, "face_color": "red",
-                    "properties": {"reason": res.reason[bad].astype(int)}}, "points"))
+                   {"name": "untrusted nodes", "size": 0.5 * min(scale), "face_color": "red",
+                    "border_width": 0, "features": {"reason": res.reason[bad].astype(int)}},
+                   "points"))
     return layers
