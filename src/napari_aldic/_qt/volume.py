@@ -20,6 +20,7 @@ from magicgui.widgets import ComboBox, Container, Label, PushButton, SpinBox
 from .._volume_layers import vector_scale, volume_layers
 from ..engine import DICParams, correlate_volume
 from ..i18n import tr
+from . import warmup
 from .controls import Panel
 
 __all__ = ["VolumeChoice", "VolumePanel", "volume_of", "roi_of", "VOLUME_META"]
@@ -89,6 +90,7 @@ class VolumeChoice:
 
 def _correlate(ref, dfm, roi, params):
     """Worker thread: the correlation, then the layers' data (the viewer only adds them)."""
+    warmup.wait()  # the dock's engine warm-up first: parallel kernels one thread at a time
     yield  # a cancellation point before the long call
     res = correlate_volume(ref, dfm, roi, params=params)
     yield
@@ -119,6 +121,7 @@ class VolumePanel(Panel):
         self.run_button = PushButton(text=tr("Run volume"))
         self.cancel_button = PushButton(text=tr("Cancel"), enabled=False)
         self.state = Label(value=tr("Choose two volumes (3-D image layers)."))
+        self.state.native.setWordWrap(True)  # a long message never widens the dock
         buttons = Container(layout="horizontal", labels=False,
                             widgets=[self.run_button, self.cancel_button])
         buttons.margins = (0, 0, 0, 0)
