@@ -54,6 +54,7 @@ def test_choice_reads_3d_and_4d_layers_and_names_bad_input(pair):
             choice.inputs()
 
 
+@pytest.mark.slow
 def test_volume_section_runs_in_a_worker(make_napari_viewer, qtbot, pair, tmp_path,
                                          save_screenshot, keep_for_docs, monkeypatch):
     from napari_aldic._qt import DICWidget
