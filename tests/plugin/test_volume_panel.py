@@ -109,8 +109,10 @@ def test_volume_section_runs_in_a_worker(make_napari_viewer, qtbot, pair, tmp_pa
     # nodes only inside the ROI (y 8..35), and the layers carry the shift
     assert res.y.min() >= 8 and res.y.max() <= 35
     added = [lay for lay in viewer.layers if lay.metadata.get(VOLUME_META)]
-    assert [lay.name for lay in added] == ["DVC u", "DVC v", "DVC w", "DVC |u|",
-                                           "DVC displacement", "DVC untrusted nodes"]
+    assert [lay.name for lay in added] == [
+        "DVC u", "DVC v", "DVC w", "DVC |u|", "DVC von Mises strain", "DVC exx", "DVC eyy",
+        "DVC ezz", "DVC displacement", "DVC untrusted nodes"]
+    assert np.nanmax(np.abs(viewer.layers["DVC exx"].data)) < 2e-3  # a pure shift
     for lay, s in zip(added[:3], SHIFT):
         assert abs(np.nanmedian(lay.data) - s) < 0.03
     assert "DVC u" not in [n for n, _ in panel._volume_layers()]  # results are not offered as input

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from magicgui.widgets import ComboBox, Container, Label, PushButton, SpinBox
 
-from .._volume_layers import vector_scale, volume_layers
-from ..engine import DICParams, correlate_volume
+from .._volume_layers import auto_vector_scale, volume_layers
+from ..engine import DICParams, compute_strain_volume, correlate_volume
 from ..i18n import tr
 from . import warmup
 from .controls import Panel
@@ -94,7 +94,11 @@ def _correlate(ref, dfm, roi, params):
     yield  # a cancellation point before the long call
     res = correlate_volume(ref, dfm, roi, params=params)
     yield
-    return res, volume_layers(res, vector_scale(res))
+    try:
+        strain = compute_strain_volume(res)
+    except ValueError:  # e.g. too few nodes for the strain window: displacement only
+        strain = None
+    return res, volume_layers(res, auto_vector_scale(res), strain)
 
 
 class VolumePanel(Panel):
