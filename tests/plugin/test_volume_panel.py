@@ -65,11 +65,13 @@ def test_volume_section_runs_in_a_worker(make_napari_viewer, qtbot, pair, tmp_pa
     viewer = make_napari_viewer(show=True)
     viewer.window.resize(1600, 1000)
     viewer.add_image(ref[0], name="a 2-D image")  # not a volume: never offered
-    viewer.add_image(ref, name="reference", colormap="gray", opacity=0.5)
-    viewer.add_image(dfm, name="deformed", colormap="gray", visible=False)
+    # voxels 2 units deep, 1.5 wide, the volume moved: the results must follow
+    geometry = {"scale": (2.0, 1.5, 1.5), "translate": (10.0, -5.0, 3.0)}
+    viewer.add_image(ref, name="reference", colormap="gray", opacity=0.5, **geometry)
+    viewer.add_image(dfm, name="deformed", colormap="gray", visible=False, **geometry)
     labels = np.zeros(SHAPE, np.uint8)
     labels[:, 8:36, :] = 1
-    viewer.add_labels(labels, name="material", opacity=0.2)
+    viewer.add_labels(labels, name="material", opacity=0.2, **geometry)
     w = DICWidget(viewer)
     viewer.window.add_dock_widget(w, area="right", name="napari-aldic")
     panel = w.volume
@@ -115,6 +117,16 @@ def test_volume_section_runs_in_a_worker(make_napari_viewer, qtbot, pair, tmp_pa
     assert np.nanmax(np.abs(viewer.layers["DVC exx"].data)) < 2e-3  # a pure shift
     for lay, s in zip(added[:3], SHIFT):
         assert abs(np.nanmedian(lay.data) - s) < 0.03
+    # a node of every layer sits on its voxel of the reference layer, in world space
+    source = viewer.layers["reference"]
+    node = np.array([res.grid_zs[1], res.grid_ys[2], res.grid_xs[3]])
+    world = source.data_to_world(node)
+    np.testing.assert_allclose(viewer.layers["DVC |u|"].data_to_world([1, 2, 3]), world)
+    vec, pts = viewer.layers["DVC displacement"], viewer.layers["DVC untrusted nodes"]
+    k = int(np.flatnonzero(res.valid)[0])
+    np.testing.assert_allclose(vec.data_to_world(vec.data[0, 0]),
+                               source.data_to_world([res.z[k], res.y[k], res.x[k]]))
+    np.testing.assert_allclose(pts.data_to_world(pts.data[0]), source.data_to_world(pts.data[0]))
     assert "DVC u" not in [n for n, _ in panel._volume_layers()]  # results are not offered as input
 
     viewer.layers["material"].visible = False

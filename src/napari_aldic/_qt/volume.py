@@ -23,7 +23,7 @@ from ..i18n import tr
 from . import warmup
 from .controls import Panel
 
-__all__ = ["VolumeChoice", "VolumePanel", "volume_of", "roi_of", "VOLUME_META"]
+__all__ = ["VolumeChoice", "VolumePanel", "volume_of", "roi_of", "placed", "VOLUME_META"]
 
 #: metadata key marking the layers of a volume result
 VOLUME_META = "napari_aldic_volume"
@@ -88,6 +88,16 @@ class VolumeChoice:
         return ref, dfm, roi, params
 
 
+def placed(kwargs: dict, scale, translate) -> dict:
+    """``kwargs`` of a result layer (in voxels) put on a source layer of world
+    ``scale``/``translate`` (z, y, x): a voxel of the result is that voxel of the source."""
+    scale, translate = np.asarray(scale, float), np.asarray(translate, float)
+    own = np.asarray(kwargs.get("scale", (1.0, 1.0, 1.0)), float)
+    shift = np.asarray(kwargs.get("translate", (0.0, 0.0, 0.0)), float)
+    return {**kwargs, "scale": tuple(scale * own), "translate": tuple(translate + scale * shift),
+            "axis_labels": ("z", "y", "x")}
+
+
 def _correlate(ref, dfm, roi, params):
     """Worker thread: the correlation, then the layers' data (the viewer only adds them)."""
     warmup.wait()  # the dock's engine warm-up first: parallel kernels one thread at a time
@@ -107,6 +117,7 @@ class VolumePanel(Panel):
     def __init__(self, viewer):
         self._viewer = viewer
         self._worker = None
+        self._placement = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
         #: the last result shown (a :class:`~napari_aldic.engine.VolumeResult`)
         self.result = None
         super().__init__(labels=True)
@@ -193,6 +204,8 @@ class VolumePanel(Panel):
                                _worker_class=GeneratorWorker, _ignore_errors=True)
         worker.returned.connect(self._on_returned)
         worker.errored.connect(self._on_errored)
+        source = self.reference.value  # the results go where its voxels are
+        self._placement = (tuple(source.scale)[-3:], tuple(source.translate)[-3:])
         self._worker = worker
         self._set_running(True)
         self.state.value = tr("Correlating {shape} voxels (subset {subset}, step {step})..."
@@ -229,8 +242,8 @@ class VolumePanel(Panel):
         res, layers = value
         self.result = res
         for data, kwargs, kind in layers:
-            kwargs = {**kwargs, "name": "DVC " + kwargs["name"],  # beside 2-D "DIC u"...
-                      "metadata": {VOLUME_META: True}}
+            kwargs = {**placed(kwargs, *self._placement), "metadata": {VOLUME_META: True},
+                      "name": "DVC " + kwargs["name"]}  # beside the 2-D "DIC u" ...
             getattr(self._viewer, f"add_{kind}")(data, **kwargs)
         self.state.value = tr("Done: {n} nodes, {trusted} trusted, in {seconds:.1f} s.").format(
             n=len(res), trusted=res.n_valid, seconds=res.meta["timing"]["total"])
