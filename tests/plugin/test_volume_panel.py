@@ -24,10 +24,22 @@ def _layer(data, name):
     return SimpleNamespace(data=data, name=name)
 
 
-def test_choice_reads_3d_and_4d_layers_and_names_bad_input(pair):
+def test_choice_reads_3d_and_4d_layers_and_names_bad_input(pair, tmp_path):
+    import tifffile
+
     from napari_aldic._qt.volume import VolumeChoice
+    from napari_aldic._reader import get_reader
 
     ref, dfm = pair
+    # 3-D TIFFs opened by the plugin's reader (lazy stacks) are volumes for the panel
+    opened = []
+    for name, vol in (("ref", ref), ("dfm", dfm)):
+        path = str(tmp_path / f"{name}.tif")
+        tifffile.imwrite(path, vol, photometric="minisblack")
+        data, kwargs, _ = get_reader(path)(path)[0]
+        opened.append(_layer(data, kwargs["name"]))
+    a, b, _, _ = VolumeChoice(*opened, subset=15, step=6).inputs()
+    assert isinstance(a, np.ndarray) and np.array_equal(a, ref) and np.array_equal(b, dfm)
     stack = _layer(np.stack([ref, dfm, ref]), "t-stack")
     a, b, roi, params = VolumeChoice(stack, stack, 0, 1, subset=15, step=6).inputs()
     assert a is not b and np.array_equal(a, ref) and np.array_equal(b, dfm) and roi is None

@@ -149,7 +149,7 @@ class VolumePanel(Panel):
         events = self._viewer.layers.events
         for event in (events.inserted, events.removed):
             event.connect(self._refresh)
-        self.native.destroyed.connect(lambda *_: self._disconnect(events))
+        self.native.destroyed.connect(lambda *_: (self._disconnect(events), self._unhook()))
         self._refresh()
 
     def _disconnect(self, events) -> None:
@@ -217,20 +217,26 @@ class VolumePanel(Panel):
         """Drop the running correlation's result (it ends in the background)."""
         if self._worker is None:
             return
-        self._worker.quit()
         self._forget()
         self.state.value = tr("Cancelled: the correlation ends in the background and its "
                               "result is dropped.")
 
     def _forget(self) -> None:
+        self._unhook()
+        self._set_running(False)
+
+    def _unhook(self) -> None:
+        """Stop listening to the worker (asked to quit): its result goes nowhere."""
         worker, self._worker = self._worker, None
+        if worker is None:
+            return
+        worker.quit()
         for signal, slot in ((worker.returned, self._on_returned),
                              (worker.errored, self._on_errored)):
             try:
                 signal.disconnect(slot)
             except (TypeError, RuntimeError):
                 pass
-        self._set_running(False)
 
     def _set_running(self, running: bool) -> None:
         self.run_button.enabled, self.cancel_button.enabled = not running, running
