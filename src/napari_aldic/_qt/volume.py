@@ -132,7 +132,7 @@ class VolumePanel(Panel):
                               max=255, step=2)
         self.step = SpinBox(label=tr("Step (voxels)"), value=_DEFAULTS.step, min=1, max=128)
         self.method = ComboBox(label=tr("Method"), value=_DEFAULTS.method,
-                               choices=[(tr("Local (IC-GN)"), "local"), ("AL-DVC", "aldic")])
+                               choices=[(tr("Local (IC-GN)"), "local"), (tr("AL-DVC"), "aldic")])
         self.run_button = PushButton(text=tr("Run volume"))
         self.cancel_button = PushButton(text=tr("Cancel"), enabled=False)
         self.state = Label(value=tr("Choose two volumes (3-D image layers)."))
