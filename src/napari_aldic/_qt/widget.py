@@ -108,7 +108,7 @@ class DICWidget(Container):
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
         align_labels([self.inputs, self.correlation, self.strain_panel, self.units,
-                      self.display, self.exports])
+                      self.display, self.exports, self.volume])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
         scroll, self.sections = sections_area(sections)
