@@ -35,7 +35,7 @@ TRANSLATED = ("zh_CN", "zh_TW", "ja", "ko", "de", "fr", "es")
 #: file filters. "*": every language; a language code: that language only (e.g. words
 #: that are the same in German or French). Add an entry only with a reason.
 SAME_AS_ENGLISH: dict[str, set[str]] = {
-    "*": {"AL-DIC", "MATLAB (.mat)", "MATLAB (*.mat)", "CSV (*.csv)", "PNG (*.png)",
+    "*": {"AL-DIC", "AL-DVC", "MATLAB (.mat)", "MATLAB (*.mat)", "CSV (*.csv)", "PNG (*.png)",
           "GIF (*.gif)", "PDF (*.pdf)", "ZNCC", "px", "µm", "mm", "{prog}: error: {message}"},
     "de": {"Format", "Export", "Subset (px)", "Tracking", "Status", "Name"},
     "fr": {"Format", "Local (IC-GN)", "Export", "Position", "Regions", "Zones",

@@ -1,14 +1,14 @@
 """The dock widget: the panels, composed and wired together.
 
-Collapsible sections in one scroll area, in the order a first analysis takes;
-the run controls stay below it, always in view. Each panel is a small class of
-its own (this package); this module only connects them.
+Collapsible sections in one scroll area (the order a first analysis takes), the run
+controls below it, always in view; each panel is its own class, connected here.
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from magicgui.widgets import Container
 
 from .._analysis import Analysis, Job
@@ -33,6 +33,7 @@ from .run import RunPanel
 from .settings import SettingsPanel
 from .strain import StrainPanel
 from .units import UnitsPanel
+from .volume import VolumePanel
 
 if TYPE_CHECKING:  # pragma: no cover
     import napari
@@ -62,6 +63,7 @@ SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
             (tr_noop("6. Export"), "exports", False),
             (tr_noop("Project and parameters"), "settings", False),
             (tr_noop("Live (watch a camera folder)"), "live", False),
+            (tr_noop("Volume (DVC)"), "volume", False),
             (tr_noop("Log"), "log", True))
 
 
@@ -99,13 +101,14 @@ class DICWidget(Container):
         self.live = LivePanel(self._viewer, lambda: (  # issue 26: live mode, its own panel
             self._current_params(), self.strain_panel.as_dict(),
             self.correlation.reference.value), self._display_options, self._results)
+        self.volume = VolumePanel(self._viewer)  # issue 28: 3-D volumes, its own section
         self.language = LanguageSelector()
         self.settings.append(self.language)
         for panel, names in CONTROLS.items():
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
         align_labels([self.inputs, self.correlation, self.strain_panel, self.units,
-                      self.display, self.exports])
+                      self.display, self.exports, self.volume])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
         scroll, self.sections = sections_area(sections)
@@ -202,9 +205,8 @@ class DICWidget(Container):
 
     # ------------------------------------------------------------ wiring
     def _write_model(self, *_) -> None:
-        """The panels' values into the model (a value a control holds for a moment
-        that makes no valid parameters, e.g. while a file is applied, waits for the
-        next change)."""
+        """The panels' values into the model (a value that makes no valid parameters,
+        e.g. while a file is applied, waits for the next change)."""
         m, c = self.model, self.correlation
         try:
             m.update("params", c.params((), init="fft"))
@@ -368,8 +370,6 @@ class DICWidget(Container):
         last = next((r for r in reversed(self.analysis.results) if r is not None), None)
         counts = {}
         if last is not None:
-            import numpy as np
-
             codes, n = np.unique(np.asarray(last.reason)[~np.asarray(last.valid, bool)],
                                  return_counts=True)
             counts = {int(c): int(k) for c, k in zip(codes, n)}
