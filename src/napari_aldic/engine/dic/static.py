@@ -79,6 +79,9 @@ _BLOCK = 2  # half-width of the lag block searched around a candidate
 FLAT_WINDOW = 9
 FLAT_NOISE = 1.5
 FLAT_GL = 0.5
+#: a flat window's standard deviation is at most this share of the image's
+#: typical (75th percentile) local standard deviation
+FLAT_CONTRAST = 0.5
 #: pixels this close (px) to a flat region are left out of the edge test's
 #: refit: the region's edge, which the spline gradients spread over a few
 #: pixels, is what may not move (2 px kept the false strain: the first
@@ -240,15 +243,23 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
 
 
 def _flat_pixels(f, g, roi, image_var: float) -> np.ndarray:
-    """Pixels of the ROI flat in both images (:data:`FLAT_NOISE`)."""
+    """Pixels of the ROI flat in both images: their window's variance is that
+    of the noise (:data:`FLAT_NOISE`) and well below the image's typical
+    local contrast (:data:`FLAT_CONTRAST` of the 75th percentile). The second
+    condition keeps speckle under heavy noise (whose windows are not much
+    above the noise either) from counting as flat: a static region stands
+    out from the speckle around it, noise does not."""
     thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
-    flat = np.asarray(roi, bool).copy()
+    roi = np.asarray(roi, bool)
+    flat = roi.copy()
     for a in (f, g):
         if not flat.any():  # speckle: the reference alone shows nothing flat
             break
         a = np.asarray(a, np.float64)
         m = ndi.uniform_filter(a, FLAT_WINDOW)
-        flat &= ndi.uniform_filter(a * a, FLAT_WINDOW) - m * m <= thr2
+        var = ndi.uniform_filter(a * a, FLAT_WINDOW) - m * m
+        typical = np.percentile(var[roi], 75) if roi.any() else np.inf
+        flat &= (var <= thr2) & (var <= FLAT_CONTRAST ** 2 * typical)
     return flat
 
 
