@@ -96,9 +96,8 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
         cross-correlation or seed guess; nodes that then fail are rescued as
         usual. ``track`` passes the previous frame.
     progress : callable(ProgressEvent), optional
-        Called as the analysis advances with a
-        :class:`~napari_aldic.engine.ProgressEvent` (``str(event)`` is its
-        text); a 0.1 callback ``(fraction, message)`` still works (deprecated).
+        Called as the analysis advances (``str(event)`` is its text); a 0.1
+        callback ``(fraction, message)`` still works (deprecated).
     cancel : callable() -> bool, optional
         Polled between stages (and between repair waves and ADMM
         iterations); returning True raises :class:`~napari_aldic.engine.Cancelled`.
