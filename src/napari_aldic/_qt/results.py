@@ -75,6 +75,14 @@ def _keep_colours(layer, kw: dict) -> None:
     kw["contrast_limits"] = tuple(float(c) * ratio for c in layer.contrast_limits)
 
 
+def show_bar(layer, visible: bool) -> None:
+    """Show or hide the canvas colour bar of a field image with, beside it, the
+    layer's name, which carries the field's unit (napari's bar has no label)."""
+    layer.colorbar.visible = visible
+    layer.name_overlay.position = layer.colorbar.position
+    layer.name_overlay.visible = visible
+
+
 def update_layer(layer, data, kw: dict, kind: str) -> bool:
     """Update a result layer in place (cheaper than removing and adding it; the
     user's visibility, opacity, colormap and contrast limits stay). False if it
@@ -229,7 +237,7 @@ class ResultLayers:
         for k in DISPLAY_FIELDS:
             lay = self.layer(k)
             if lay is not None and hasattr(lay, "colorbar"):
-                lay.colorbar.visible = k == key
+                show_bar(lay, k == key)
         yield DRAW
         if target is not None:
             self._viewer.layers.selection.active = target

@@ -108,10 +108,9 @@ class DICWidget(Container):
                       self.display, self.exports])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
-        scroll, self.sections = sections_area(sections)
-        self.scroll_area = scroll
+        self.scroll_area, self.sections = sections_area(sections)
         layout = self.native.layout()
-        layout.addWidget(scroll, 1)
+        layout.addWidget(self.scroll_area, 1)
         layout.addWidget(divider(), 0)
         layout.addWidget(self.run_panel.native, 0)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -137,6 +136,7 @@ class DICWidget(Container):
         self.settings.project_opened.connect(self._on_project_opened)
         self.run_panel.run_requested.connect(self.run)
         self.run_panel.running_changed.connect(self._on_running)
+        self.live.watch_run(self.run_panel)  # one analysis at a time, its status said
         self.run_panel.show_results = self._show_steps
         # closing the widget stops a run after its frame and unhooks it from the viewer
         # (the slot holds no reference to the widget, which may be torn down by then)
