@@ -189,3 +189,25 @@ def test_live_status_says_live_and_no_two_analyses_at_once(make_napari_viewer_pr
     assert not w.live.model.running
     qtbot.waitUntil(lambda: not w.running, timeout=60_000)
     assert w.live.start_button.enabled
+
+
+# ------------------------------------------------------------------ 5
+def test_trap05_a_reopened_dock_keeps_the_analysis(make_napari_viewer_proxy, small_analysis):
+    from dataclasses import replace
+
+    from napari_aldic._qt import DICWidget
+
+    viewer = make_napari_viewer_proxy()
+    seeded = replace(small_analysis, params=small_analysis.params.replace(
+        init="seeds", seeds=((100.0, 100.0),)))
+    results = _show(viewer, seeded)
+    results.image.name = seeded.source
+    first = DICWidget(viewer)
+    assert first.analysis is seeded  # the dock takes up what the viewer shows
+    # the language changes: the user closes the dock and opens a new one
+    first.native.close()
+    again = DICWidget(viewer)
+    assert again.analysis is not None and again.analysis.params == seeded.params
+    assert again.analysis.frames == seeded.frames and again._results.image.name == "speckle"
+    assert again.exports.export_button.enabled
+    assert again.correlation.init.value == "seeds" == again.model.init

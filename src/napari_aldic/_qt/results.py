@@ -152,6 +152,22 @@ class ResultLayers:
         #: the image layer the analysis was computed on
         self.image = None
 
+    def adopt(self, init_control=None) -> bool:
+        """Take up the analysis already shown in the viewer (a dock opened again,
+        e.g. after a language change) and the image it was computed on; a run
+        from seed points sets ``init_control`` back to seeds. False: none shown."""
+        for lay in self._viewer.layers:
+            a = (getattr(lay, "metadata", None) or {}).get("napari_aldic_analysis")
+            if a is None or not is_result_layer(lay):
+                continue
+            self.analysis = a
+            names = [img for img in self._viewer.layers if img.name == a.source]
+            self.image = names[0] if names else None
+            if init_control is not None and getattr(a.params, "init", "") == "seeds":
+                init_control.value = "seeds"
+            return True
+        return False
+
     @property
     def layers(self) -> list:
         """The viewer's result layers."""

@@ -1,8 +1,7 @@
 """The dock widget: the panels, composed and wired together.
 
-Collapsible sections in one scroll area, in the order a first analysis takes;
-the run controls stay below it, always in view. Each panel is a small class of
-its own (this package); this module only connects them.
+Collapsible sections in one scroll area, in the order a first analysis takes; the run
+controls below, always in view. Each panel is a class of its own; this module connects them.
 """
 from __future__ import annotations
 
@@ -80,6 +79,7 @@ class DICWidget(Container):
         self.inputs.assign_existing_layers()
         self._on_image_changed()
         self.settings.restore_last_used()
+        self._results.adopt(self.correlation.init) and self.exports.refresh()  # reopened
         warmup.start_in_background(self.run_panel.set_preparing, self._on_engine_ready,
                                    self.native)
 
