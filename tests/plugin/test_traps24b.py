@@ -22,13 +22,13 @@ def _bar_ticks(lo, hi, dpi=96):
     return np.asarray(_get_ticks_talbot(lo, hi, 150 / dpi, 2))
 
 
-def _show(viewer, analysis, display=Display()):
+def _show(viewer, analysis, display: Display | None = None):
     from napari_aldic._qt.results import ResultLayers
 
     image = viewer.add_image(np.zeros((3, 192, 192), np.float32), name="speckle")
     results = ResultLayers(viewer)
     results.analysis, results.image = analysis, image
-    results.show(display, image)
+    results.show(display or Display(), image)
     return results
 
 

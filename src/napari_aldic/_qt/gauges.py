@@ -40,6 +40,7 @@ def fill_gauges(combo, table) -> None:
         combo.addItem(tr("{gauge} (degraded)").format(gauge=gauge) if bad else gauge, name)
     index = combo.findData(keep)
     combo.setCurrentIndex(max(index, 0))
+    combo.setEnabled(combo.count() > 1)  # a choice only between gauges
     combo.blockSignals(False)
 
 
