@@ -179,6 +179,8 @@ def test_live_status_says_live_and_no_two_analyses_at_once(make_napari_viewer_pr
     assert w.live.model.running
     assert "Ready." not in w.status.value and "Live" in w.status.value
     assert not w.run_button.enabled
+    w.run()  # a script's run is refused too
+    assert not w.running
     w.live.stop()
     qtbot.waitUntil(lambda: not w.live.model.running and w.live.start_button.enabled,
                     timeout=20_000)

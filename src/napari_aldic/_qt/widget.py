@@ -316,7 +316,7 @@ class DICWidget(Container):
         """Start the analysis in a worker thread (no-op while one runs)."""
         from napari.utils.notifications import show_error, show_warning
 
-        if self.running:
+        if self.running or self.run_panel.live:  # one analysis at a time
             return
         if not self._validate():
             show_warning("napari-aldic: " + " ".join(self._errors))
