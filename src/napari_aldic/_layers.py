@@ -71,6 +71,23 @@ def layer_name(key: str, unit: str | None = None) -> str:
     return PREFIX + key + (f" [{unit}]" if unit else "")
 
 
+#: mantissas of a limit that napari's colour bar (vispy's tick finder, at its
+#: 150 px height) labels: with these, its ticks read -a, 0, +a (or 0, a)
+_BAR_MANTISSAS = (1.0, 2.0, 3.0, 4.0, 5.0, 10.0)
+
+
+def bar_limits(clim: tuple[float, float]) -> tuple[float, float]:
+    """Colour limits ``(-a, a)`` or ``(0, a)`` with ``a`` rounded up to a value the
+    canvas colour bar puts a tick on (otherwise ``±0.8`` is labelled "0" only);
+    other limits are returned as they are."""
+    lo, hi = (float(c) for c in clim)
+    if hi <= 0 or not (lo == 0 or np.isclose(lo, -hi, rtol=1e-9)):
+        return lo, hi
+    exp = 10.0 ** np.floor(np.log10(hi))
+    a = next(m * exp for m in _BAR_MANTISSAS if m * exp >= hi * (1 - 1e-9))
+    return (0.0 if lo == 0 else -a), a
+
+
 def is_result_name(name: str) -> bool:
     """Whether ``name`` is the name of a result layer (any unit)."""
     m = _NAME.match(name)
@@ -298,7 +315,7 @@ def _image_layers(analysis, geo: Geometry, display: Display, meta: dict) -> list
             u_txt = display.length_unit
         else:
             u_txt = f"{analysis.strain.measure.replace('_', '-')} strain (dimensionless)"
-        clim = colour_limits(data[moving] if moving is not None else data, limits)
+        clim = bar_limits(colour_limits(data[moving] if moving is not None else data, limits))
         layers.append((data, {
             "name": layer_name(k, display.unit_of(k)), **lat, "colormap": cmap,
             "contrast_limits": clim, "interpolation2d": "nearest",

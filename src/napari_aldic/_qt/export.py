@@ -77,10 +77,7 @@ class ExportPanel(Panel):
 
     def _setup_ui(self) -> None:
         self.format = ComboBox(label=tr("Format"), value="npz",
-                               choices=[(tr(text), key) for key, (text, _, _) in FORMATS.items()],
-                               tooltip=tr("Results reopen in napari (File > Open); the others "
-                                       "are the engine's exports, described in "
-                                       "docs/exports.md."))
+                               choices=[(tr(text), key) for key, (text, _, _) in FORMATS.items()])
         self.field = ComboBox(label=tr("Field"), value="u",
                               choices=[(tr(text), key) for key, text in FIELDS.items()],
                               tooltip=tr("The field drawn in PNG, GIF and MP4 exports."))
@@ -111,6 +108,10 @@ class ExportPanel(Panel):
 
     def _on_format(self, *_) -> None:
         fmt = self.format.value
+        # the whole choice on hover too (a narrow dock may cut it)
+        self.format.tooltip = self.format.native.currentText() + "\n" + tr(
+            "Results reopen in napari (File > Open); the others are the engine's exports, "
+            "described in docs/exports.md.")
         self.field.enabled = fmt in _PICTURES
         self.fps.enabled = fmt in ("gif", "mp4")
         self.frames.enabled = fmt != "npz"

@@ -167,7 +167,21 @@ class LivePanel(Panel):
         self.model = LiveModel()
         self._moving = False
         self._first = None
+        self._run = None  # the dock's RunPanel (watch_run): one analysis at a time
         super().__init__(labels=True)
+
+    def watch_run(self, run_panel) -> None:
+        """Share the dock's run status with ``run_panel``: while a run runs Start is
+        disabled, while the watch runs the run status says so and Run is disabled."""
+        self._run = run_panel
+        run_panel.running_changed.connect(
+            lambda running: setattr(self.start_button, "enabled",
+                                    not running and not self.model.running))
+
+    def _say_live(self, live: bool) -> None:
+        self.start_button.enabled, self.stop_button.enabled = not live, live
+        if self._run is not None:
+            self._run.set_live(live)
 
     def _setup_ui(self) -> None:
         self.folder = FileEdit(mode="d", label=tr("Camera folder"))
@@ -196,6 +210,9 @@ class LivePanel(Panel):
     def start(self, *_) -> None:
         """Start watching the chosen folder into the run folder."""
         folder, run = Path(self.folder.value), Path(self.run_dir.value)
+        if self._run is not None and self._run.running:
+            self.state.value = tr("An analysis is running: start live when it has ended.")
+            return
         if str(self.folder.value) in ("", ".") or str(self.run_dir.value) in ("", "."):
             self.state.value = tr("Choose the camera folder and a run folder first.")
             return
@@ -208,7 +225,7 @@ class LivePanel(Panel):
                                    if k in ("window", "method", "measure")})
         self._first = None
         self.model.start(folder, run, params, strain, reference, display=self._display())
-        self.start_button.enabled, self.stop_button.enabled = False, True
+        self._say_live(True)
         self.state.value = tr("Watching {folder} (waiting for frames)...").format(folder=folder)
         self._timer.start()
 
@@ -225,7 +242,7 @@ class LivePanel(Panel):
             self._show()
         if not self.model.running:
             self._timer.stop()
-            self.start_button.enabled, self.stop_button.enabled = True, False
+            self._say_live(False)
             self.state.value = self._final_words()
 
     def _show(self) -> None:

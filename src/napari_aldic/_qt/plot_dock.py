@@ -1,11 +1,8 @@
 """The probe plot dock: curves of probes over the frames and the stress-strain curve.
 
-Probes are drawn in napari: a Shapes layer (a line is a gauge; a rectangle,
-ellipse or polygon an area) and a Points layer (point probes), on the analysed
-image. The dock measures them on the analysis behind the ``DIC ...`` result
-layers and redraws when a probe moves or the result layers change (also while a
-run updates them). The current frame is marked; clicking the plot moves the
-frame slider. Load data from a testing-machine CSV adds the stress-strain curve.
+Probes (Shapes: line = gauge, rectangle/ellipse/polygon = area; Points) are measured on
+the analysis behind the ``DIC ...`` layers, again when a probe or the results change.
+Clicking the plot moves the frame slider; a machine CSV adds the stress-strain curve.
 """
 
 from __future__ import annotations
@@ -40,6 +37,7 @@ from ..engine.probes import (
     read_load_csv,
 )
 from ..i18n import tr, tr_noop
+from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, translate_axes
 from .language import apply_ui_language, combo_of, plot_fonts
 from .probes import (
     PROBE_POINTS,
@@ -109,12 +107,14 @@ class ProbePlotDock(QWidget):
         self.fps_spin = QDoubleSpinBox(decimals=4, minimum=0.0001, maximum=1e6, value=1.0)
         self.offset_spin = QDoubleSpinBox(decimals=4, minimum=-1e6, maximum=1e6, value=0.0,
                                           suffix=" s")
+        self.gauge_combo = QComboBox()  # the gauge of the stress-strain curve
         load_form = QFormLayout()
         load_form.addRow(self.load_button, self.load_label)
         load_form.addRow(tr("Cross-section"), self.area_spin)
         load_form.addRow(tr("Synchronise by"), self.sync_combo)
         load_form.addRow(tr("Camera fps"), self.fps_spin)
         load_form.addRow(tr("Time of frame 0"), self.offset_spin)
+        load_form.addRow(tr("Gauge"), self.gauge_combo)
         load_box = QGroupBox(tr("Testing machine (stress-strain)"))
         load_box.setLayout(load_form)
         self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
@@ -125,8 +125,7 @@ class ProbePlotDock(QWidget):
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
             QPushButton(tr("Save plot..."))
         buttons = QHBoxLayout()
-        for button in (self.save_csv_button, self.save_plot_button):
-            buttons.addWidget(button)
+        _ = [buttons.addWidget(b) for b in (self.save_csv_button, self.save_plot_button)]
         lay = QVBoxLayout(self)
         lay.addLayout(form)
         lay.addWidget(load_box)
@@ -135,15 +134,17 @@ class ProbePlotDock(QWidget):
         lay.addLayout(buttons)
         for combo in (self.shapes_combo, self.points_combo):
             combo.currentTextChanged.connect(self._on_probe_layers_chosen)
-        for combo in (self.quantity_combo, self.field_combo):
+        for combo in (self.quantity_combo, self.field_combo, self.gauge_combo):
             combo.currentTextChanged.connect(lambda *_: self.redraw())
         for w in (self.area_spin, self.fps_spin, self.offset_spin):
             w.valueChanged.connect(self.schedule)
         self.sync_combo.currentTextChanged.connect(self.schedule)
         self.add_button.clicked.connect(self.add_probe_layers)
         self.load_button.clicked.connect(self._ask_load)
-        self.save_csv_button.clicked.connect(self._ask_save_csv)
-        self.save_plot_button.clicked.connect(self._ask_save_plot)
+        self.save_csv_button.clicked.connect(lambda: self._ask_save(tr("Save probe values"),
+                                                                    tr("CSV (*.csv)")))
+        self.save_plot_button.clicked.connect(lambda: self._ask_save(
+            tr("Save probe plot"), "PNG (*.png);;PDF (*.pdf)", self.save_plot))
         self.canvas.mpl_connect("button_press_event", self._on_click)
 
     # ------------------------------------------------------------ layers
@@ -244,8 +245,9 @@ class ProbePlotDock(QWidget):
                 if len(probes):
                     self.table = measure_analysis(self.view, probes)
                     self._attach_load()
-                    self.message = "\n".join(self.table.status_summary(5)) or tr(
+                    self.message = "\n".join(probe_messages(self.table)) or tr(
                         "{n} frames, every probe value trusted.").format(n=len(self.table))
+                    notes += deformed_hint(self.view)
                 else:
                     self.message = tr("Draw probes: a line (gauge) or a rectangle/ellipse/"
                                       "polygon (area) in a Shapes layer, points in a Points "
@@ -253,6 +255,7 @@ class ProbePlotDock(QWidget):
             except (ValueError, TypeError) as exc:
                 self.message = tr("Cannot measure the probes: {exc}").format(exc=exc)
         self.status_label.setText("\n".join([self.message, *notes]))
+        fill_gauges(self.gauge_combo, self.table)
         self.redraw()
 
     def _attach_load(self) -> None:
@@ -333,10 +336,11 @@ class ProbePlotDock(QWidget):
             for ax, (key, names) in zip(axes, panels):
                 draw_probe_curves(ax, self.table, names, current=k)
                 self.axes[key] = ax
-            if stress:  # against the engineering strain of the first gauge shown
-                self._ss_column = f"{lines[0].split('_', 1)[0]}_strain"
+            if stress:  # against the engineering strain of the gauge chosen
+                self._ss_column = chosen_gauge(self.gauge_combo, self.table)
                 draw_stress_strain(axes[-1], self.table, self._ss_column, current=k)
                 self.axes["stress"] = axes[-1]
+            translate_axes(axes)
 
     def _on_frame(self, *_) -> None:
         if self.table is not None:
@@ -378,13 +382,9 @@ class ProbePlotDock(QWidget):
                              tr("CSV or text (*.csv *.txt *.tsv *.dat)"), save=False):
             self.load_csv(path)
 
-    def _ask_save_csv(self) -> None:
-        if path := self._ask(tr("Save probe values"), tr("CSV (*.csv)")):
-            self._report(self.save_csv, path)
-
-    def _ask_save_plot(self) -> None:
-        if path := self._ask(tr("Save probe plot"), "PNG (*.png);;PDF (*.pdf)"):
-            self._report(self.save_plot, path)
+    def _ask_save(self, title: str, filt: str, fn=None) -> None:
+        if path := self._ask(title, filt):
+            self._report(fn or self.save_csv, path)
 
     def _report(self, fn, path) -> None:
         from napari.utils.notifications import show_error, show_info

@@ -75,6 +75,14 @@ def _keep_colours(layer, kw: dict) -> None:
     kw["contrast_limits"] = tuple(float(c) * ratio for c in layer.contrast_limits)
 
 
+def show_bar(layer, visible: bool) -> None:
+    """Show or hide the canvas colour bar of a field image with, beside it, the
+    layer's name, which carries the field's unit (napari's bar has no label)."""
+    layer.colorbar.visible = visible
+    layer.name_overlay.position = layer.colorbar.position
+    layer.name_overlay.visible = visible
+
+
 def update_layer(layer, data, kw: dict, kind: str) -> bool:
     """Update a result layer in place (cheaper than removing and adding it; the
     user's visibility, opacity, colormap and contrast limits stay). False if it
@@ -143,6 +151,22 @@ class ResultLayers:
         self.analysis: Analysis | None = None
         #: the image layer the analysis was computed on
         self.image = None
+
+    def adopt(self, init_control=None) -> bool:
+        """Take up the analysis already shown in the viewer (a dock opened again,
+        e.g. after a language change) and the image it was computed on; a run
+        from seed points sets ``init_control`` back to seeds. False: none shown."""
+        for lay in self._viewer.layers:
+            a = (getattr(lay, "metadata", None) or {}).get("napari_aldic_analysis")
+            if a is None or not is_result_layer(lay):
+                continue
+            self.analysis = a
+            names = [img for img in self._viewer.layers if img.name == a.source]
+            self.image = names[0] if names else None
+            if init_control is not None and getattr(a.params, "init", "") == "seeds":
+                init_control.value = "seeds"
+            return True
+        return False
 
     @property
     def layers(self) -> list:
@@ -229,7 +253,7 @@ class ResultLayers:
         for k in DISPLAY_FIELDS:
             lay = self.layer(k)
             if lay is not None and hasattr(lay, "colorbar"):
-                lay.colorbar.visible = k == key
+                show_bar(lay, k == key)
         yield DRAW
         if target is not None:
             self._viewer.layers.selection.active = target

@@ -38,6 +38,7 @@ DRAW_PAUSE_MS = 50
 PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
 #: the status line while a run computes or shows its results
 RUNNING = tr_noop("Running…")
+LIVE = tr_noop("Live analysis running: Run is disabled until the watch stops.")
 #: progress events written to the log (the others move the bar only)
 LOGGED_STAGES = ("frame_done", "frame_loaded", "stopped", "strain")
 
@@ -78,6 +79,7 @@ class RunPanel(Panel):
         self.show_results: Callable[[Analysis, Any], Iterator | None] | None = None
         self.preparing = False
         self._running = False
+        self.live = False  # a live watch analyses: no run beside it (set_live)
         self._worker = None
         self._worker_done = True
         self._steps: Iterator | None = None
@@ -149,14 +151,20 @@ class RunPanel(Panel):
         self._problems = (list(errors), list(warnings))
         lines = [f"<span style='color:#ff6b6b'>&#9888; {e}</span>" for e in errors]
         lines += [f"<span style='color:#f0c040'>{w}</span>" for w in warnings]
-        if self._running:  # never "Ready." while a run computes or shows its results
-            lines.insert(0, "<span style='color:#8ab4f8'>" + tr(RUNNING) + "</span>")
+        if self._running or self.live:  # never "Ready." while an analysis computes
+            lines.insert(0, "<span style='color:#8ab4f8'>" + tr(LIVE if self.live else RUNNING)
+                         + "</span>")
         elif not errors:
             lines.insert(0, "<span style='color:#6bd66b'>" + tr("Ready.") + "</span>")
         if self.preparing:
             lines.insert(0, f"<span style='color:#8ab4f8'>{tr(PREPARING)}</span>")
         self.status.value = "<br>".join(lines)
-        self.run_button.enabled = not errors and not self._running
+        self.run_button.enabled = not errors and not self._running and not self.live
+
+    def set_live(self, live: bool) -> None:
+        """Say that a live watch runs (Run disabled), or that it ended."""
+        self.live = live
+        self.show_problems(*self._problems)
 
     def set_preparing(self, preparing: bool) -> None:
         """Say (or stop saying) that the correlation engine is being prepared."""

@@ -82,6 +82,7 @@ class DICWidget(Container):
         self.inputs.assign_existing_layers()
         self._on_image_changed()
         self.settings.restore_last_used()
+        self._results.adopt(self.correlation.init) and self.exports.refresh()  # reopened
         warmup.start_in_background(self.run_panel.set_preparing, self._on_engine_ready,
                                    self.native)
 
@@ -111,10 +112,9 @@ class DICWidget(Container):
                       self.display, self.exports, self.volume])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
-        scroll, self.sections = sections_area(sections)
-        self.scroll_area = scroll
+        self.scroll_area, self.sections = sections_area(sections)
         layout = self.native.layout()
-        layout.addWidget(scroll, 1)
+        layout.addWidget(self.scroll_area, 1)
         layout.addWidget(divider(), 0)
         layout.addWidget(self.run_panel.native, 0)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -140,6 +140,7 @@ class DICWidget(Container):
         self.settings.project_opened.connect(self._on_project_opened)
         self.run_panel.run_requested.connect(self.run)
         self.run_panel.running_changed.connect(self._on_running)
+        self.live.watch_run(self.run_panel)  # one analysis at a time, its status said
         self.run_panel.show_results = self._show_steps
         # closing the widget stops a run after its frame and unhooks it from the viewer
         # (the slot holds no reference to the widget, which may be torn down by then)
@@ -160,13 +161,9 @@ class DICWidget(Container):
         return self._results.analysis
 
     def current_settings(self) -> dict[str, Any]:
-        """The complete analysis settings of the controls, as
-        :func:`~napari_aldic.engine.io.load_settings` gives them:
-        ``{"params": DICParams, "units": Units, "strain": dict, "tracking": dict}``.
-
-        Raises ``ValueError`` when the controls do not make valid settings (an
-        even subset, 'Seed points' without points, a pixel size in 'px' ...).
-        """
+        """The controls' settings: ``{"params", "units", "strain", "tracking"}``
+        (as :func:`~napari_aldic.engine.read_settings` gives them); ``ValueError``
+        when they make no valid settings (an even subset, a pixel size in 'px' ...)."""
         s = self.settings.current()
         return {"params": s.params, "units": s.units, "strain": s.strain,
                 "tracking": s.tracking}
@@ -318,7 +315,7 @@ class DICWidget(Container):
         """Start the analysis in a worker thread (no-op while one runs)."""
         from napari.utils.notifications import show_error, show_warning
 
-        if self.running:
+        if self.running or self.run_panel.live:  # one analysis at a time
             return
         if not self._validate():
             show_warning("napari-aldic: " + " ".join(self._errors))

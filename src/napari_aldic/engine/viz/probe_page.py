@@ -95,7 +95,12 @@ def draw_stress_strain(ax, table, strain: str | None = None, *, current=None) ->
         ax.set_axis_off()
         return []
     e, s = table.columns[strain].values, table.columns["stress_MPa"].values
-    (ln,) = ax.plot(e, s, marker="o", ms=3.5, lw=1.4, color="C3")
+    (ln,) = ax.plot(e, s, marker="o", ms=3.5, lw=1.4, color="C3", label=strain.split("_")[0])
+    deg = np.asarray(table.columns[strain].status) == DEGRADED
+    if deg.any():  # the gauge's values read with care: another marker and colour
+        ax.plot(e[deg], s[deg], ls="none", marker="s", ms=6, mfc="none", mec="C1", mew=1.4,
+                label="degraded")
+    ax.legend(fontsize=7, loc="best")
     if current is not None and current in list(table.frames):
         i = list(table.frames).index(current)
         ax.plot([e[i]], [s[i]], marker="o", ms=10, mfc="none", mec="k", mew=1.5)
