@@ -162,7 +162,7 @@ class DICWidget(Container):
 
     def current_settings(self) -> dict[str, Any]:
         """The controls' settings: ``{"params", "units", "strain", "tracking"}``
-        (as :func:`~napari_aldic.engine.read_settings` gives them); ``ValueError``
+        (the fields of a :class:`~napari_aldic.engine.Settings`); ``ValueError``
         when they make no valid settings (an even subset, a pixel size in 'px' ...)."""
         s = self.settings.current()
         return {"params": s.params, "units": s.units, "strain": s.strain,
