@@ -70,7 +70,7 @@ class SEMChoice:
         path = str(Path(path).expanduser())
         try:
             _load(kind, path)
-            digest = file_sha256(path, tr("{kind} calibration").format(kind=kind))
+            digest = file_sha256(path, f"{kind} calibration")
         except (OSError, ValueError) as exc:
             raise ValueError(" ".join(str(exc).split())) from None
         return replace(self, **{kind: path, f"{kind}_sha256": digest})
