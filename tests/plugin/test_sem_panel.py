@@ -56,10 +56,7 @@ def _dock(viewer, stack):
     return w
 
 
-def test_distortion_file_changes_the_run_and_survives_a_project(make_napari_viewer_proxy,
-                                                                sem_pair, tmp_path):
-    from napari_aldic._qt.sem import SEMChoice
-
+def test_distortion_file_changes_the_run(make_napari_viewer_proxy, sem_pair, tmp_path):
     path = _calibration(tmp_path / "distortion.json")
     w = _dock(make_napari_viewer_proxy(), sem_pair)
     plain = w._job().run().results[1]
@@ -69,7 +66,7 @@ def test_distortion_file_changes_the_run_and_survives_a_project(make_napari_view
     assert "distortion.json" in w.sem.state.value
     job = w._job()
     assert job.sem is not None and "distortion" in job.sem
-    res = job.run().results[1]
+    res = job.run().results[1]  # the Run button's job (its worker adds only layers)
     assert res.meta["sem"]["distortion"]["degree"] == 4
     # the corrected field is the specimen's: the rigid shift everywhere (truth), the
     # uncorrected one carries the distortion's gradient
@@ -79,8 +76,13 @@ def test_distortion_file_changes_the_run_and_survives_a_project(make_napari_view
     assert ok.sum() > 50 and np.abs(res.u - plain.u)[ok].max() > 0.05
     assert np.sqrt(np.mean(err**2)) < 0.5 * np.sqrt(np.mean(err_plain**2))
 
-    # saved with the project (path + hash), restored into the model and the panel
-    w.sem.scan_lines.value = True
+
+
+def test_the_choice_survives_a_project(make_napari_viewer_proxy, sem_pair, tmp_path):
+    """Saved with the project (paths + hashes), restored into the model and the panel."""
+    from napari_aldic._qt.sem import SEMChoice
+
+    path = _calibration(tmp_path / "distortion.json")
     tif = tmp_path / "pair.tif"
     import tifffile
 
@@ -93,7 +95,7 @@ def test_distortion_file_changes_the_run_and_survives_a_project(make_napari_view
     project = w2.save_project(tmp_path / "analysis")
     doc = json.loads(project.read_text(encoding="utf-8"))
     assert doc["sem"]["distortion"] == str(path) and doc["sem"]["scan_lines"] is True
-    assert doc["sem"]["distortion_sha256"] == w.model.sem.distortion_sha256
+    assert doc["sem"]["distortion_sha256"] == w2.model.sem.distortion_sha256
     w3 = _docked(make_napari_viewer_proxy())
     assert w3.model.sem is None  # the remembered settings keep no SEM files
     assert w3.open_project(project) is True
