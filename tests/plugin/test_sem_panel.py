@@ -126,4 +126,6 @@ def test_bad_files_are_refused_naming_them(make_napari_viewer_proxy, sem_pair, t
     _calibration(good)
     w2.sem.distortion.value = str(good)
     with pytest.raises(ValueError, match="apply to a pair"):
-        w2._job().run()
+        w2._job()  # refused before a run starts (the dock shows the message)
+    w2.stop.value = 1  # a frame range with one deformed frame is a pair
+    assert "SEM corrections: distortion d.json" in w2._job().summary

@@ -19,6 +19,7 @@ from psygnal import Signal
 
 from .._analysis import Job
 from ..engine import DICParams, Settings, StrainParams, Units
+from ..i18n import tr
 from .sem import SEMChoice
 
 __all__ = ["DockModel", "PARAM_CONTROLS", "ROLES", "ROLE_KEY", "layer_role", "remember_role",
@@ -103,6 +104,11 @@ class DockModel:
                   brush=brush, strain=self.strain, source=source,
                   sem=self.sem.options() if self.sem and self.sem.active else None)
         job.summary = job.describe(notes or [], self.hidden_params())
+        if job.sem is not None:  # issue 27: refused before the run starts, and logged
+            if job.n_deformed != 1 or (brush is not None and brush.any()):
+                raise ValueError(tr("SEM corrections apply to a pair: choose a frame range "
+                                    "with one deformed frame and no brush refinement region"))
+            job.summary += "; " + tr("SEM corrections: {parts}").format(parts=self.sem.words())
         return job
 
     def hidden_params(self) -> dict:

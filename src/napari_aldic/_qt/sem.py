@@ -92,6 +92,16 @@ class SEMChoice:
             out["start_times"] = self.start_times
         return out
 
+    def words(self) -> str:
+        """The corrections in words ("distortion d.json, scan lines")."""
+        parts = [tr("distortion {name}").format(name=Path(self.distortion).name)] \
+            if self.distortion else []
+        if self.drift:
+            parts.append(tr("drift {name}").format(name=Path(self.drift).name))
+        if self.scan_lines:
+            parts.append(tr("scan lines"))
+        return ", ".join(parts)
+
     def to_dict(self) -> dict:
         return {"distortion": self.distortion, "distortion_sha256": self.distortion_sha256,
                 "drift": self.drift, "drift_sha256": self.drift_sha256,
@@ -206,14 +216,6 @@ class SEMPanel(Panel):
 
     def _describe(self) -> None:
         c = self.choice
-        if not c.active:
-            self.state.value = tr("No SEM correction: the pair is correlated as it is.")
-            return
-        parts = [tr("distortion {name}").format(name=Path(c.distortion).name)] \
-            if c.distortion else []
-        if c.drift:
-            parts.append(tr("drift {name}").format(name=Path(c.drift).name))
-        if c.scan_lines:
-            parts.append(tr("scan lines"))
         self.state.value = tr("Run corrects: {parts} (a pair: one deformed frame).").format(
-            parts=", ".join(parts))
+            parts=c.words()) if c.active else \
+            tr("No SEM correction: the pair is correlated as it is.")
