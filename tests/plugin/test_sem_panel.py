@@ -96,6 +96,7 @@ def test_the_choice_survives_a_project(make_napari_viewer_proxy, sem_pair, tmp_p
     doc = json.loads(project.read_text(encoding="utf-8"))
     assert doc["sem"]["distortion"] == str(path) and doc["sem"]["scan_lines"] is True
     assert doc["sem"]["distortion_sha256"] == w2.model.sem.distortion_sha256
+    w2._remember()  # what a Run remembers for the next dock
     w3 = _docked(make_napari_viewer_proxy())
     assert w3.model.sem is None  # the remembered settings keep no SEM files
     assert w3.open_project(project) is True
