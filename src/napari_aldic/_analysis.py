@@ -27,6 +27,7 @@ from .engine import (
     StrainParams,
     TrackError,
     compute_strain,
+    correlate_sem,
     resolve_refinement,
     track,
 )
@@ -119,43 +120,9 @@ def _relative_frames(n: int, start: int, stop: int, stride: int) -> list[int]:
     return rel
 
 
-def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
-                 start: int = 0, stop: int | None = None, stride: int = 1,
-                 brush: np.ndarray | None = None,
-                 strain: StrainSettings | None = _STRAIN,
-                 progress: ProgressFn | None = None, cancel: Callable[[], bool] | None = None,
-                 source: str = "") -> Analysis:
-    """Track frames ``start, start + stride, ... <= stop`` of ``stack`` against
-    frame ``start`` and compute strain.
-
-    Parameters
-    ----------
-    stack : (T, H, W) array (NumPy or dask; read lazily frame by frame)
-    roi : (H, W) bool or None
-    params : DICParams
-    reference : {"accumulative", "incremental"}
-    start, stop, stride : int
-        Frame range (``stop`` inclusive; ``None`` = last frame).
-    brush : (H, W) bool, optional
-        Region painted for mesh refinement; combined with ``params.refine``
-        (its preset, or two levels of refinement when no preset is chosen).
-    strain : StrainSettings or None
-        ``None`` skips strain.
-    progress : callable(ProgressEvent)
-        ``event.frame`` is the index in ``stack`` (not in the tracked slice);
-        ``event.fraction`` of the tracking done; stages of ``track`` plus
-        ``"stopped"`` (a bad frame ended the run) and ``"strain"``.
-    cancel : callable() -> bool
-        Polled between frames; finished frames are kept.
-    """
-    t0 = time.perf_counter()
-    n = int(stack.shape[0])
-    stop = n - 1 if stop is None else int(stop)
-    rel = _relative_frames(n, start, stop, stride)
-    frames = [start + k for k in rel]
-    sub = stack[start:stop + 1]
-    report = progress or (lambda ev: None)
-
+def _tracked(sub, roi, params, reference, rel, start, brush, report, cancel):
+    """``track`` of the sliced stack: ``(results, cancelled, error)`` (a bad frame
+    ends the run with the frames finished before it)."""
     def rel_report(ev: ProgressEvent) -> None:
         # the engine counts frames in the sliced stack; report stack indices
         ref = None if ev.reference is None else ev.reference + start
@@ -178,7 +145,58 @@ def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulativ
         report(ProgressEvent("stopped", 1.0, frame=start + exc.frame, n_frames=len(rel) - 1,
                              message="stopped at a bad frame, finished frames kept (done "
                                      f"before it): {error}"))
-    results, cancelled = list(seq.frames), bool(seq.meta.get("cancelled", False))
+    return list(seq.frames), bool(seq.meta.get("cancelled", False)), error
+
+
+def run_analysis(stack, roi, params: DICParams, *, reference: str = "accumulative",
+                 start: int = 0, stop: int | None = None, stride: int = 1,
+                 brush: np.ndarray | None = None,
+                 strain: StrainSettings | None = _STRAIN,
+                 progress: ProgressFn | None = None, cancel: Callable[[], bool] | None = None,
+                 source: str = "", sem: dict | None = None) -> Analysis:
+    """Track frames ``start, start + stride, ... <= stop`` of ``stack`` against
+    frame ``start`` and compute strain.
+
+    Parameters
+    ----------
+    stack : (T, H, W) array (NumPy or dask; read lazily frame by frame)
+    roi : (H, W) bool or None
+    params : DICParams
+    reference : {"accumulative", "incremental"}
+    start, stop, stride : int
+        Frame range (``stop`` inclusive; ``None`` = last frame).
+    brush : (H, W) bool, optional
+        Region painted for mesh refinement; combined with ``params.refine``
+        (its preset, or two levels of refinement when no preset is chosen).
+    strain : StrainSettings or None
+        ``None`` skips strain.
+    progress : callable(ProgressEvent)
+        ``event.frame`` is the index in ``stack`` (not in the tracked slice);
+        ``event.fraction`` of the tracking done; stages of ``track`` plus
+        ``"stopped"`` (a bad frame ended the run) and ``"strain"``.
+    cancel : callable() -> bool
+        Polled between frames; finished frames are kept.
+    sem : dict, optional
+        ``correlate_sem`` options (issue 27): the pair of the range (one
+        deformed frame) is measured with those SEM corrections.
+    """
+    t0 = time.perf_counter()
+    n = int(stack.shape[0])
+    stop = n - 1 if stop is None else int(stop)
+    rel = _relative_frames(n, start, stop, stride)
+    frames = [start + k for k in rel]
+    sub = stack[start:stop + 1]
+    report = progress or (lambda ev: None)
+
+    if sem is not None:  # issue 27: one SEM pair with its corrections
+        if len(rel) != 2 or (brush is not None and np.any(brush)):
+            raise ValueError(tr("SEM corrections apply to a pair: choose a frame range with "
+                                "one deformed frame and no brush refinement region"))
+        pair = correlate_sem(np.asarray(sub[0]), np.asarray(sub[rel[1]]), roi, params, **sem)
+        results, cancelled, error = [zero_field(pair), pair], False, ""
+    else:
+        results, cancelled, error = _tracked(sub, roi, params, reference, rel, start, brush,
+                                             report, cancel)
     for k, r in zip(frames, results):
         if r is not None:
             r.meta["frame"] = k  # index in the full stack
@@ -220,6 +238,8 @@ class Job:
     strain: StrainSettings = field(default_factory=StrainSettings)
     source: str = ""
     summary: str = ""
+    #: ``correlate_sem`` options (issue 27), or None for a plain run
+    sem: dict | None = None
 
     @property
     def n_deformed(self) -> int:
@@ -269,7 +289,7 @@ class Job:
         return run_analysis(self.stack, self.roi, self.params, reference=self.reference,
                             start=self.start, stop=self.stop, stride=self.stride,
                             brush=self.brush, strain=self.strain, progress=progress,
-                            cancel=cancel, source=self.source)
+                            cancel=cancel, source=self.source, sem=self.sem)
 
 
 def run_in_thread(job: Job, cancel: threading.Event,

@@ -19,6 +19,8 @@ from psygnal import Signal
 
 from .._analysis import Job
 from ..engine import DICParams, Settings, StrainParams, Units
+from ..i18n import tr
+from .sem import SEMChoice
 
 __all__ = ["DockModel", "PARAM_CONTROLS", "ROLES", "ROLE_KEY", "layer_role", "remember_role",
            "DEFAULT_PARAMS", "DEFAULT_TRACKING"]
@@ -71,12 +73,15 @@ class DockModel:
     strain: StrainParams = field(default_factory=StrainParams)
     units: Units | None = None
     display: dict = field(default_factory=dict)
+    #: SEM corrections (issue 27): kept with a project, not with the remembered settings
+    sem: SEMChoice | None = None
 
     changed = Signal(str)
 
     def update(self, section: str, value: Any) -> None:
         """Set one section (a panel writes its part); ``changed`` when it differs."""
-        if section not in ("params", "init", "tracking", "strain", "units", "display"):
+        if section not in ("params", "init", "tracking", "strain", "units", "display",
+                           "sem"):
             raise KeyError(section)
         if getattr(self, section) != value:
             setattr(self, section, value)
@@ -96,8 +101,14 @@ class DockModel:
         job = Job(stack=stack, roi=roi, params=self.run_params(seeds),
                   reference=t["reference"], start=int(t["start"]),
                   stop=None if t["stop"] is None else int(t["stop"]), stride=int(t["stride"]),
-                  brush=brush, strain=self.strain, source=source)
+                  brush=brush, strain=self.strain, source=source,
+                  sem=self.sem.options() if self.sem and self.sem.active else None)
         job.summary = job.describe(notes or [], self.hidden_params())
+        if job.sem is not None:  # issue 27: refused before the run starts, and logged
+            if job.n_deformed != 1 or (brush is not None and brush.any()):
+                raise ValueError(tr("SEM corrections apply to a pair: choose a frame range "
+                                    "with one deformed frame and no brush refinement region"))
+            job.summary += "; " + tr("SEM corrections: {parts}").format(parts=self.sem.words())
         return job
 
     def hidden_params(self) -> dict:
@@ -123,4 +134,7 @@ class DockModel:
             units = None
         s = Settings(replace(self.params, init="fft", seeds=()), units, self.strain.to_dict(),
                      tracking)
-        return {"settings": s.to_dict(), "init": self.init, "display": dict(self.display)}
+        doc = {"settings": s.to_dict(), "init": self.init, "display": dict(self.display)}
+        if frame_range and self.sem is not None:
+            doc["sem"] = self.sem.to_dict()
+        return doc

@@ -27,6 +27,7 @@ from .project import (
     read_project,
     write_project,
 )
+from .sem import SEMChoice
 
 __all__ = ["ProjectActions", "PROJECT_FILTER"]
 
@@ -105,6 +106,7 @@ class ProjectActions:
         try:
             doc = read_project(path)
             settings = Settings.from_dict(doc.get("settings") or {})
+            sem = SEMChoice.from_dict(doc.get("sem"))  # issue 27: files checked by its panel
             image = self._image(doc["image"])
             shape, data = doc["image"].get("shape"), image.data
             now = list(np.shape(data[0] if getattr(image, "multiscale", False) else data))
@@ -124,6 +126,7 @@ class ProjectActions:
         if init == "seeds" and self._inputs.seeds.value is not None:
             self._panel.set_init("seeds")
         self._panel.set_display(doc.get("display") or {})
+        self._model.update("sem", sem)
         self._viewer.reset_view()  # the project's image in view (not a speck of the old view)
         self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
                      "layer(s)").format(

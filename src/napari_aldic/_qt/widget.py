@@ -30,6 +30,7 @@ from .model import DockModel
 from .project import is_probe_layer
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
+from .sem import SEMPanel
 from .settings import SettingsPanel
 from .strain import StrainPanel
 from .units import UnitsPanel
@@ -64,6 +65,7 @@ SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
             (tr_noop("Project and parameters"), "settings", False),
             (tr_noop("Live (watch a camera folder)"), "live", False),
             (tr_noop("Volume (DVC)"), "volume", False),
+            (tr_noop("SEM corrections (HRDIC)"), "sem", False),
             (tr_noop("Log"), "log", True))
 
 
@@ -103,6 +105,7 @@ class DICWidget(Container):
             self._current_params(), self.strain_panel.as_dict(),
             self.correlation.reference.value), self._display_options, self._results)
         self.volume = VolumePanel(self._viewer)  # issue 28: 3-D volumes, its own section
+        self.sem = SEMPanel(self.model)  # issue 27: SEM corrections, kept in the model
         self.language = LanguageSelector()
         self.settings.append(self.language)
         for panel, names in CONTROLS.items():
@@ -145,9 +148,8 @@ class DICWidget(Container):
         # closing the widget stops a run after its frame and unhooks it from the viewer
         # (the slot holds no reference to the widget, which may be torn down by then)
         stop, unhook = self.run_panel.stopper(), self.inputs.disconnector()
-        remember = self.settings.remember_last_used
         self.native.destroyed.connect(lambda *_: (stop(), unhook()))
-        self._remember = remember
+        self._remember = self.settings.remember_last_used
 
     # ------------------------------------------------------------ state
     @property
@@ -328,8 +330,7 @@ class DICWidget(Container):
             self.run_panel.write_log(tr("ERROR preparing the run: {exc}").format(exc=exc))
             return
         self._remember()
-        image = self.inputs.image_layer
-        self._results.image = image
+        self._results.image = image = self.inputs.image_layer
         geometry, display = geometry_of(image), self._display_options()
         # the result layers are made in the worker too: the viewer only adds them
         self.run_panel.start(job, after=lambda a: prepare(a, geometry, display, True),
