@@ -112,7 +112,7 @@ class DICWidget(Container):
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
         align_labels([self.inputs, self.correlation, self.strain_panel, self.units,
-                      self.display, self.exports, self.volume])
+                      self.display, self.exports, self.volume, self.sem])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
         self.scroll_area, self.sections = sections_area(sections)
