@@ -20,7 +20,7 @@ from psygnal import Signal
 from .._analysis import Job
 from ..engine import DICParams, Settings, StrainParams, Units
 from ..i18n import tr
-from .sem import SEMChoice
+from .sem_choice import SEMChoice
 
 __all__ = ["DockModel", "PARAM_CONTROLS", "ROLES", "ROLE_KEY", "layer_role", "remember_role",
            "DEFAULT_PARAMS", "DEFAULT_TRACKING"]

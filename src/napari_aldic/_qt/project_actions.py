@@ -27,7 +27,7 @@ from .project import (
     read_project,
     write_project,
 )
-from .sem import SEMChoice
+from .sem_choice import SEMChoice
 
 __all__ = ["ProjectActions", "PROJECT_FILTER"]
 
