@@ -79,7 +79,7 @@ def npz_headers(path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
     except zipfile.BadZipFile as exc:
         raise _fail(path, f"the archive is truncated or damaged ({exc}); an interrupted "
                           "copy or save leaves such a file") from None
-    except (OSError, EOFError, zlib.error, NotImplementedError) as exc:
+    except (OSError, EOFError, zlib.error, NotImplementedError, RuntimeError) as exc:
         raise _fail(path, f"the archive is damaged ({exc})") from None
     return heads
 
@@ -96,7 +96,8 @@ def _member_header(path: Path, zf: zipfile.ZipFile, info: zipfile.ZipInfo):
                 shape, _, dtype = fmt.read_array_header_2_0(fh)
             else:
                 raise ValueError(f".npy format version {version} is not supported")
-    except (ValueError, EOFError, zlib.error, zipfile.BadZipFile, NotImplementedError) as exc:
+    except (ValueError, EOFError, zlib.error, zipfile.BadZipFile, NotImplementedError,
+            RuntimeError) as exc:  # RuntimeError: zipfile's "encrypted" member
         raise _fail(path, f"array {name!r} is damaged ({exc})") from None
     if dtype.hasobject:
         raise _fail(path, f"array {name!r} holds Python objects (pickled data), which "
@@ -122,7 +123,7 @@ def _read_header(path: Path, heads: dict, fmt: str) -> dict:
         with np.load(path, allow_pickle=False) as z:
             text = str(z["header"])
     except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile,
-            NotImplementedError) as exc:
+            NotImplementedError, RuntimeError) as exc:
         raise _fail(path, f"its header is damaged ({exc})") from None
     try:
         header = parse_json(text, path)
@@ -252,7 +253,7 @@ def _load(path: Path, names) -> dict:
             for k in names:
                 out[k] = z[k]
     except (ValueError, OSError, EOFError, zlib.error, zipfile.BadZipFile,
-            NotImplementedError) as exc:
+            NotImplementedError, RuntimeError) as exc:
         raise _fail(path, f"array {k!r} is damaged ({exc})") from None
     except MemoryError:
         raise _fail(path, f"array {k!r} does not fit in the memory available now") from None
