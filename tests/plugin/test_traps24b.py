@@ -60,21 +60,20 @@ def test_trap14_symmetric_and_from_zero_limits_get_ticks_at_their_ends(a):
     assert bar_limits((-0.3, 1.7)) == (-0.3, 1.7)  # a plain range stays as it is
 
 
-def test_trap14_the_canvas_colour_bar_says_limits_and_unit(make_napari_viewer_proxy,
+def test_trap14_the_canvas_colour_bar_shows_its_limits(make_napari_viewer_proxy,
                                                            small_analysis):
     viewer = make_napari_viewer_proxy()
     results = _show(viewer, small_analysis, Display(length_scale=0.01, length_unit="mm"))
     for key, unit in (("|u|", "[mm]"), ("exx", "[-]"), ("von Mises", "[-]")):
         results.show_field(key)
         layer = results.layer(key)
-        assert layer.colorbar.visible and layer.name_overlay.visible
-        assert layer.name_overlay.position == layer.colorbar.position  # beside the bar
+        assert layer.colorbar.visible  # its unit is in the layer's name (no bar label)
         assert layer.name.endswith(unit)
         lo, hi = layer.contrast_limits
         ticks = _bar_ticks(lo, hi)
         assert all(np.isclose(ticks, e, atol=1e-9 * hi).any() for e in (lo, 0.0, hi)), ticks
         others = [results.layer(k) for k in ("u", "exy") if k != key]
-        assert not any(o.colorbar.visible or o.name_overlay.visible for o in others)
+        assert not any(o.colorbar.visible for o in others)
 
 
 # ------------------------------------------------------------------ 8
