@@ -272,16 +272,7 @@ def add_probe(sub) -> None:
     prb.add_argument("--field", nargs="+", dest="fields", metavar="FIELD",
                      help=tr("fields of point and area probes (default u v exx eyy exy)"))
     prb.add_argument("--load", type=Path, metavar="LOAD.csv", help=tr("testing-machine CSV"))
-    prb.add_argument("--load-column", dest="load_column", metavar="NAME",
-                     help=tr("name of the load column (default: found by name)"))
-    prb.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
-                     help=tr("cross-section in mm² (stress = load / A in MPa)"))
-    prb.add_argument("--sync", choices=("frame", "time"),
-                     help=tr("match load rows to frames by a frame column, or by time = "
-                          "frame / fps + offset (default: frame when the file has one)"))
-    prb.add_argument("--fps", type=float, metavar="F", help=tr("camera frames per second"))
-    prb.add_argument("--offset", type=float, default=0.0, metavar="S",
-                     help=tr("time of frame 0 on the load file's clock, s (default 0)"))
+    add_load_sync_options(prb)
     prb.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.csv")
     prb.add_argument("--plot", nargs="+", choices=("png", "pdf"),
                      help=tr("also write the curves (and stress-strain) as OUT.png/OUT.pdf"))
@@ -293,6 +284,21 @@ def add_probe(sub) -> None:
 
 
 # ----------------------------------------------------------------- shared options
+def add_load_sync_options(p: argparse.ArgumentParser) -> None:
+    """How a testing-machine load file is read and matched to the frames
+    (``probe`` and ``watch``)."""
+    p.add_argument("--load-column", dest="load_column", metavar="NAME",
+                   help=tr("name of the load column (default: found by name)"))
+    p.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
+                   help=tr("cross-section in mm² (stress = load / A in MPa)"))
+    p.add_argument("--sync", choices=("frame", "time"),
+                   help=tr("match load rows to frames by a frame column, or by time = "
+                           "frame / fps + offset (default: frame when the file has one)"))
+    p.add_argument("--fps", type=float, metavar="F", help=tr("camera frames per second"))
+    p.add_argument("--offset", type=float, default=0.0, metavar="S",
+                   help=tr("time of frame 0 on the load file's clock, s (default 0)"))
+
+
 def add_advise(sub) -> None:
     adv = _command(sub, "advise")
     adv.add_argument("image", type=Path, metavar="IMAGE", help=tr("reference image"))
@@ -485,15 +491,6 @@ def add_watch(sub) -> None:
                    help=tr("probe CSV, a row appended per frame (the columns of 'probe')"))
     w.add_argument("--load", type=Path, metavar="LOAD.csv",
                    help=tr("testing-machine CSV, read again as it grows"))
-    w.add_argument("--load-column", dest="load_column", metavar="NAME",
-                   help=tr("name of the load column (default: found by name)"))
-    w.add_argument("--area-mm2", type=float, dest="area_mm2", metavar="A",
-                   help=tr("cross-section in mm² (stress = load / A in MPa)"))
-    w.add_argument("--sync", choices=("frame", "time"),
-                   help=tr("match load rows to frames by a frame column, or by time = "
-                           "frame / fps + offset (default: frame when the file has one)"))
-    w.add_argument("--fps", type=float, metavar="F", help=tr("camera frames per second"))
-    w.add_argument("--offset", type=float, default=0.0, metavar="S",
-                   help=tr("time of frame 0 on the load file's clock, s (default 0)"))
+    add_load_sync_options(w)
     add_unit_options(w)
     add_strain_options(w)
