@@ -171,9 +171,11 @@ def test_dock_at_common_screen_sizes(make_napari_viewer, qtbot, tmp_path, size,
     keep_for_docs(shot)
 
 
-def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speckle_stack):
+def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speckle_stack,
+                                         monkeypatch):
     """A heartbeat timer every 10 ms while a run tracks frames and its result layers
-    are added: no gap between two beats may exceed 0.2 s.
+    are added: no gap between two beats may exceed 0.2 s outside the canvas' drawing,
+    and no drawing of the canvas may take 1 s.
 
     The run computes in worker threads and makes the result layers there; the main
     thread only adds them, one layer per turn of the event loop. Each such step (this
@@ -181,16 +183,32 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     main thread. The heartbeat gaps are wall-clock time, which also holds napari's
     drawing of the new layer after its step and whatever other programs on a loaded
     machine take: that limit is scaled by the machine's load (1-minute load average
-    per CPU, at least 1) measured just before. A full garbage collection of Python
-    (generation 2) stops every thread for a time set by the whole process' heap
-    (~0.3 s for the ~400,000 objects of napari, Qt, vispy and Numba here); the run
-    keeps the objects of before out of collections while it shows its results (about
-    0.02 s each then), and any beats around one are reported, not counted.
+    per CPU, at least 1) measured just before. The first drawing of a layer kind
+    compiles its OpenGL shaders: Mesa's software renderer under Xvfb takes 0.1-0.2 s
+    of the main thread for that (a GPU driver milliseconds), napari's and vispy's cost
+    whatever shows the layer; the canvas' drawing (vispy's draw event) is timed apart
+    and held to 1 s. A full garbage collection of Python (generation 2) stops every
+    thread for a time set by the whole process' heap (~0.3 s for the ~400,000 objects
+    of napari, Qt, vispy and Numba here); the run keeps the objects of before out of
+    collections while it shows its results (about 0.02 s each then), and any beats
+    around one are reported, not counted.
     """
     import gc
 
     from qtpy.QtCore import QTimer
+    from vispy.scene import SceneCanvas
 
+    draws: list[tuple[float, float]] = []  # [start, end] of the canvas' drawings
+    on_draw = SceneCanvas.on_draw
+
+    def timed_draw(self, event):
+        t0 = time.perf_counter()
+        try:
+            return on_draw(self, event)
+        finally:
+            draws.append((t0, time.perf_counter()))
+
+    monkeypatch.setattr(SceneCanvas, "on_draw", timed_draw)  # before the canvas exists
     viewer = make_napari_viewer_proxy(show=True)
     viewer.add_image(speckle_stack(4, (192, 192)), name="speckle")
     w = DICWidget(viewer)
@@ -215,6 +233,7 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     try:
         timer.start()
         qtbot.wait(100)
+        draws.clear()
         w.run_button.clicked()
         qtbot.waitUntil(lambda: not w.running, timeout=120_000)
         qtbot.wait(200)
@@ -226,7 +245,10 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     in_gc = np.zeros(gaps.size, bool)
     for start, end in collections:
         in_gc |= (t[:-1, 0] <= end) & (t[1:, 0] >= start)
-    gaps = np.where(in_gc, 0.0, gaps)
+    drawing = np.zeros(gaps.size)  # seconds of each gap spent drawing the canvas
+    for start, end in draws:
+        drawing += np.clip(np.minimum(t[1:, 0], end) - np.maximum(t[:-1, 0], start), 0, None)
+    rest = np.where(in_gc, 0.0, gaps - drawing)
     assert "finished" in w.log.value
 
     def no_gc(start, end) -> bool:
@@ -234,7 +256,12 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
 
     steps = [cpu_s for start, end, cpu_s in w.run_panel.display_steps if no_gc(start, end)]
     assert len(w.run_panel.display_steps) >= 9 and max(steps) < 0.2, steps  # a layer a step
+    assert draws, "the canvas was never drawn during the run"
+    longest_draw = max(end - start for start, end in draws if no_gc(start, end))
+    assert longest_draw < 1.0 * load, f"one drawing of the canvas took {longest_draw:.3f} s"
     gc_s = [round(end - start, 3) for start, end in collections]
-    assert gaps.max() < 0.2 * load, (f"event loop stalled {gaps.max():.3f} s (main thread "
-                                     f"{cpu[np.argmax(gaps)]:.3f} s of it; load factor "
-                                     f"{load:.1f}; full garbage collections {gc_s} s)")
+    k = int(np.argmax(rest))
+    assert rest[k] < 0.2 * load, (f"event loop stalled {rest[k]:.3f} s outside drawing "
+                                  f"(gap {gaps[k]:.3f} s, main thread {cpu[k]:.3f} s of it; "
+                                  f"load factor {load:.1f}; full garbage collections "
+                                  f"{gc_s} s)")
