@@ -175,7 +175,7 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
                                          monkeypatch):
     """A heartbeat timer every 10 ms while a run tracks frames and its result layers
     are added: no gap between two beats may exceed 0.2 s outside the canvas' drawing,
-    and no drawing of the canvas may take 1 s.
+    and no drawing of the canvas may take 0.5 s (issue 24's goal for any stall).
 
     The run computes in worker threads and makes the result layers there; the main
     thread only adds them, one layer per turn of the event loop. Each such step (this
@@ -187,7 +187,7 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     compiles its OpenGL shaders: Mesa's software renderer under Xvfb takes 0.1-0.2 s
     of the main thread for that (a GPU driver milliseconds), napari's and vispy's cost
     whatever shows the layer; the canvas' drawing (vispy's draw event) is timed apart
-    and held to 1 s. A full garbage collection of Python (generation 2) stops every
+    and held to 0.5 s. A full garbage collection of Python (generation 2) stops every
     thread for a time set by the whole process' heap (~0.3 s for the ~400,000 objects
     of napari, Qt, vispy and Numba here); the run keeps the objects of before out of
     collections while it shows its results (about 0.02 s each then), and any beats
@@ -258,7 +258,7 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     assert len(w.run_panel.display_steps) >= 9 and max(steps) < 0.2, steps  # a layer a step
     assert draws, "the canvas was never drawn during the run"
     longest_draw = max(end - start for start, end in draws if no_gc(start, end))
-    assert longest_draw < 1.0 * load, f"one drawing of the canvas took {longest_draw:.3f} s"
+    assert longest_draw < 0.5 * load, f"one drawing of the canvas took {longest_draw:.3f} s"
     gc_s = [round(end - start, 3) for start, end in collections]
     k = int(np.argmax(rest))
     assert rest[k] < 0.2 * load, (f"event loop stalled {rest[k]:.3f} s outside drawing "
