@@ -155,6 +155,29 @@ def test_trap09_the_status_is_not_ready_during_a_run(make_napari_viewer_proxy, q
     assert "Ready." in w.status.value
 
 
+def test_trap09_a_run_that_compiles_says_so(make_napari_viewer_proxy, qtbot, speckle_stack,
+                                            monkeypatch):
+    """A first AL-DIC frame can spend a minute compiling kernels: the run's clock line
+    says so (engine.is_compiling) instead of showing 0/N frames without a word."""
+    import napari_aldic._qt.run as run_module
+
+    viewer = make_napari_viewer_proxy()
+    viewer.add_image(speckle_stack(4, SHAPE), name="speckle")
+    w = _dock(viewer)
+    w.method.value, w.subset.value, w.step.value = "local", 21, 16
+    qtbot.waitUntil(lambda: not w.run_panel.preparing, timeout=120_000)
+    monkeypatch.setattr(run_module, "is_compiling", lambda: True)
+    w.run_button.clicked()
+    w.run_panel._show_time()  # the clock's tick
+    assert "compiling kernels" in w.run_panel.eta.value
+    qtbot.waitUntil(lambda: not w.running, timeout=60_000)
+    monkeypatch.setattr(run_module, "is_compiling", lambda: False)
+    w.run_button.clicked()
+    w.run_panel._show_time()
+    assert "compiling" not in w.run_panel.eta.value
+    qtbot.waitUntil(lambda: not w.running, timeout=60_000)
+
+
 # ------------------------------------------------------------------ 18
 CLOSE_SCRIPT = textwrap.dedent("""
     import sys, time

@@ -24,6 +24,7 @@ from magicgui.widgets import Container, Label, ProgressBar, PushButton, TextEdit
 from psygnal import Signal
 
 from .._analysis import Analysis, Job, run_in_thread
+from ..engine import is_compiling
 from ..i18n import ntr, tr, tr_noop
 from .controls import Panel
 from .explain import result_summary, with_explanation
@@ -36,6 +37,8 @@ STEP_PAUSE_MS = 15
 DRAW_PAUSE_MS = 50
 #: said while the Numba kernels are compiled or loaded (the first run of a new install)
 PREPARING = tr_noop("Preparing the correlation engine (first run only)…")
+#: said while Numba compiles a kernel during a run (a first run, or a new case)
+COMPILING = tr_noop("compiling kernels (first run only)")
 #: the status line while a run computes or shows its results
 RUNNING = tr_noop("Running…")
 LIVE = tr_noop("Live analysis running: Run is disabled until the watch stops.")
@@ -262,6 +265,8 @@ class RunPanel(Panel):
             parts.append(tr("about {time} left").format(time=format_seconds(left)))
         if self.preparing and frac == 0:
             parts.append(tr(PREPARING))
+        elif is_compiling():  # a frame's time then is mostly compilation
+            parts.append(tr(COMPILING))
         self.eta.value = " · ".join(parts)
 
     def _on_progress(self, event) -> None:
