@@ -21,6 +21,8 @@ __all__ = ["deformed_hint", "fill_gauges", "chosen_gauge", "translate_axes", "pr
 
 DEGRADED = 1
 STATUS = {0: tr_noop("ok"), 1: tr_noop("degraded"), 2: tr_noop("missing")}
+#: the probe table's group of the testing machine's columns (load_N, stress_MPa)
+LOAD_GROUP = tr_noop("load")
 #: the English texts of the engine's probes (engine/probes, engine/viz/probe_page),
 #: word for word with their values as placeholders: the dock shows them translated
 #: (tests/plugin/test_probe_text.py holds them to the engine's own output)
@@ -121,7 +123,8 @@ def probe_messages(table, max_frames: int = 5) -> list[str]:
         frames += " ..." if bad.size > max_frames else ""
         why = next((reasons[i] for i in bad if reasons[i]), "")
         out.append(tr("{probe}: {status} at frame(s) {frames}: {why}").format(
-            probe=group, status=tr(STATUS[int(status.max())]), frames=frames, why=said(why)))
+            probe=tr(LOAD_GROUP) if group == "load" else group,
+            status=tr(STATUS[int(status.max())]), frames=frames, why=said(why)))
     return out
 
 
