@@ -15,6 +15,7 @@ Nothing is rebuilt, so every control keeps its value and the analysis stays.
 from __future__ import annotations
 
 import os
+import weakref
 from collections.abc import Callable
 
 from magicgui.widgets import ComboBox, Container, Label
@@ -38,8 +39,8 @@ __all__ = ["ui_language", "apply_ui_language", "LanguageSelector", "SYSTEM", "co
 SYSTEM = "system"
 #: a widget property: its texts are data (layer or column names), never retranslated
 KEEP_TEXT = "napari_aldic_keep_text"
-#: ``(owner, callback)`` of the docks that follow the language
-_FOLLOWERS: list[tuple[object, Callable]] = []
+#: ``(weak reference to the owner, callback)`` of the docks that follow the language
+_FOLLOWERS: list[tuple[weakref.ref, Callable]] = []
 #: the Noto CJK family (fonts-noto-cjk) that matplotlib needs for each CJK language
 _CJK_FAMILIES = {"zh_CN": "SC", "zh_TW": "TC", "ja": "JP", "ko": "KR"}
 
@@ -77,23 +78,35 @@ def switch_language(code: str) -> str:
     new = set_language(code)
     if new != old:
         rt = Retranslator(old, new)
-        for owner, callback in list(_FOLLOWERS):
+        for ref, callback in list(_FOLLOWERS):
+            owner = ref()
             try:
-                callback(rt)
-            except RuntimeError:  # its Qt object is gone: forget it
-                _forget(owner)
+                if owner is not None:
+                    callback(owner, rt)
+            except RuntimeError:  # its Qt object is gone
+                owner = None
+            except Exception as exc:  # one dock never keeps the others from following
+                from napari.utils.notifications import show_error
+
+                show_error(tr("napari-aldic: could not change the language of a dock: "
+                              "{exc}").format(exc=exc))
+            if owner is None:
+                _forget(ref)
     return new
 
 
-def _forget(owner) -> None:
-    _FOLLOWERS[:] = [(o, cb) for o, cb in _FOLLOWERS if o is not owner]
+def _forget(ref) -> None:
+    _FOLLOWERS[:] = [(r, cb) for r, cb in _FOLLOWERS if r is not ref]
 
 
-def follow_language(owner, callback: Callable[[Retranslator], None] | None = None) -> None:
-    """Say ``owner`` (a ``QWidget``) in each new language until it is destroyed:
-    ``callback(retranslator)``, by default :func:`retranslate_tree` of ``owner``."""
-    _FOLLOWERS.append((owner, callback or (lambda rt: retranslate_tree(owner, rt))))
-    owner.destroyed.connect(lambda *_: _forget(owner))
+def follow_language(owner, callback: Callable | None = None) -> None:
+    """Say ``owner`` (a ``QWidget``, or a magicgui widget) in each new language
+    until it is destroyed: ``callback(owner, retranslator)``, by default
+    :func:`retranslate_tree` of it. Only a weak reference to ``owner`` is kept."""
+    ref = weakref.ref(owner)
+    _FOLLOWERS.append((ref, callback or (lambda o, rt: retranslate_tree(
+        getattr(o, "native", o), rt))))
+    getattr(owner, "native", owner).destroyed.connect(lambda *_: _forget(ref))
 
 
 def _plain(value) -> bool:
@@ -121,7 +134,7 @@ def _combo(combo, rt: Retranslator) -> None:
                 pairs is not None or data is None)):
             _put(rt, combo.itemText(i), lambda t, i=i: combo.setItemText(i, t))
     if pairs is not None:
-        magic._default_choices = [(rt.text(t) or t, v) for t, v in pairs]
+        magic._default_choices = [((rt.text(t) or t) if _plain(v) else t, v) for t, v in pairs]
     if magic is not None and "null_string" in vars(magic):
         _put(rt, magic.null_string, lambda t: setattr(magic, "null_string", t))
 

@@ -64,8 +64,7 @@ class ProbePlotDock(QWidget):
         apply_ui_language()  # before any text is made
         super().__init__()
         self._viewer = napari_viewer
-        self.view = None  # ResultView of the analysis in the viewer
-        self.table = None  # ProbeTable of the last measurement
+        self.view, self.table = None, None  # ResultView of the analysis, ProbeTable measured
         self.load_record = None
         self.message = ""
         self._hooks: list = []  # (emitter, callback) of the watched layers
@@ -75,7 +74,8 @@ class ProbePlotDock(QWidget):
         self._timer = QTimer(self, singleShot=True, interval=150)
         self._timer.timeout.connect(self.recompute)
         self._setup_ui()  # and a new language said at once ("(none)", status, plot anew):
-        follow_language(self, lambda rt: (retranslate_tree(self, rt), self._on_layers_changed()))
+        follow_language(self, lambda dock, rt: (retranslate_tree(dock, rt),
+                                                dock._on_layers_changed()))
         layers = napari_viewer.layers
         layers.events.inserted.connect(self._on_layers_changed)
         layers.events.removed.connect(self._on_layers_changed)

@@ -87,7 +87,7 @@ class DICWidget(Container):
         self._on_image_changed()
         self.settings.restore_last_used()
         self._results.adopt(self.correlation.init) and self.exports.refresh()  # reopened
-        follow_language(self.native, self.retranslate)  # a new language applies at once
+        follow_language(self, DICWidget.retranslate)  # a new language applies at once
         warmup.start_in_background(self.run_panel.set_preparing, self._on_engine_ready,
                                    self.native)
 
