@@ -190,6 +190,29 @@ def retranslate_tree(root, rt: Retranslator) -> None:
         magic = getattr(w, "_magic_widget", None)
         if isinstance(getattr(magic, "_label", None), str):
             _put(rt, magic._label, lambda t, m=magic: setattr(m, "label", t))
+    from qtpy.QtCore import QTimer
+
+    QTimer.singleShot(0, lambda: _fit_dock(root))  # once the new texts are laid out
+
+
+def _fit_dock(root) -> None:
+    """Widen the napari dock holding ``root`` when its new texts need more room
+    (a dock keeps the width it was given; a longer language would be cut off)."""
+    from qtpy.QtCore import QCoreApplication, QEvent, Qt
+    from qtpy.QtWidgets import QDockWidget, QMainWindow
+
+    try:
+        QCoreApplication.sendPostedEvents(None, QEvent.Type.LayoutRequest)  # sizes anew
+        dock = root.parentWidget()
+        while dock is not None and not isinstance(dock, QDockWidget):
+            dock = dock.parentWidget()
+        window = dock.parentWidget() if dock is not None else None
+        need = root.minimumSizeHint().width()
+        if isinstance(window, QMainWindow) and root.width() < need:
+            window.resizeDocks([dock], [need + dock.width() - root.width()],
+                               Qt.Orientation.Horizontal)
+    except RuntimeError:  # closed meanwhile
+        pass
 
 
 def combo_of(items):
