@@ -155,6 +155,8 @@ class Retranslator:
         if not text or not text.strip() or self.old == self.new:
             return None
         if text not in self._memo:
+            if len(self._memo) > 10_000:  # texts with values (coordinates) never repeat
+                self._memo.clear()
             self._memo[text] = self._text(text)
         return self._memo[text]
 
