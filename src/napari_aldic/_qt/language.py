@@ -241,8 +241,8 @@ def plot_fonts() -> dict:
 
 
 class LanguageSelector(Container):
-    """A label and a combo box of the languages (their own names); the choice is
-    remembered and applies when the widget is opened again."""
+    """A label and a combo box of the languages (their own names); the choice
+    applies at once to the open docks (:func:`switch_language`) and is remembered."""
 
     def __init__(self):
         super().__init__(layout="horizontal", labels=False)
@@ -261,11 +261,10 @@ class LanguageSelector(Container):
         from napari.utils.notifications import show_info
 
         write_language(None if code == SYSTEM else code)
-        wanted = ui_language()
-        if switch_language(wanted) == wanted and resolve_language(
-                os.environ.get(ENV_VAR, "")) is None:
+        override = os.environ.get(ENV_VAR, "")
+        switch_language(ui_language())  # every open dock follows (the override wins)
+        if resolve_language(override) is None:
             show_info(tr("napari-aldic: language changed; the choice is remembered."))
-        else:  # the override decides (docs/languages.md)
+        else:  # docs/languages.md
             show_info(tr("napari-aldic: the choice is remembered, but {var}={value} sets the "
-                         "language while it is set.").format(
-                             var=ENV_VAR, value=os.environ.get(ENV_VAR, "")))
+                         "language while it is set.").format(var=ENV_VAR, value=override))

@@ -157,7 +157,8 @@ class Retranslator:
         if text not in self._memo:
             if len(self._memo) > 10_000:  # texts with values (coordinates) never repeat
                 self._memo.clear()
-            self._memo[text] = self._text(text)
+            said = self._text(text)
+            self._memo[text] = None if said == text else said
         return self._memo[text]
 
     def _text(self, text: str) -> str | None:
