@@ -289,3 +289,53 @@ def test_fonts_for_chinese_japanese_korean(qapp):
         assert plot_fonts() == {}
     finally:
         i18n.set_language("en")
+
+
+# ------------------------------------------------------------------ a live change (issue 24)
+def test_a_live_change_to_the_pseudo_locale_leaves_no_text_behind(make_napari_viewer, qtbot,
+                                                                   language, small_analysis):
+    """Made in English, then switched while open: every text is said anew (the log
+    keeps the lines it wrote), as if the docks had been made in the new language."""
+    from napari_aldic._qt.language import switch_language
+
+    language("en")
+    viewer = make_napari_viewer()
+    w = _widget(viewer, qtbot)
+    w.show_analysis(small_analysis)
+    dock = ProbePlotDock(viewer)
+    qtbot.addWidget(dock)
+    dock.recompute()
+    english = list(_texts(w.native)) + list(_texts(dock))
+    assert sum(bool(_untranslated(t)) for _, t in english) > 100  # English before
+    switch_language("qps")
+    qtbot.wait(300)  # the probe dock measures again after its timer
+    found = [(where, text) for where, text in list(_texts(w.native)) + list(_texts(dock))
+             if where != "QTextEdit line"]
+    assert sum(OPEN in text for _, text in found) > 80
+    bad = sorted({f"{where}: {text!r}" for where, text in found if _untranslated(text)})
+    assert not bad, f"{len(bad)} texts not said anew:\n  " + "\n  ".join(bad)
+
+
+@pytest.mark.parametrize("code", ["de", "ja"])
+def test_a_live_change_fits_like_a_dock_made_in_the_language(make_napari_viewer, qtbot,
+                                                              tmp_path, language,
+                                                              save_screenshot, code):
+    """English at 1280 x 720, then the language changed while open: the labels'
+    column takes the new widths, nothing is cut off (screenshot in the test folder)."""
+    from napari_aldic._qt.language import switch_language
+
+    language("en")
+    viewer = make_napari_viewer(show=True)
+    viewer.window.resize(1280, 720)
+    w = _widget(viewer, qtbot)
+    for title in ("Project and parameters", "3. Strain"):
+        w.sections[title].expand(animate=False)
+    switch_language(code)
+    qtbot.wait(200)
+    shot = tmp_path / f"widget_live_{code}_1280x720.png"
+    save_screenshot(viewer, shot)
+    assert w.sections["3. Strain"].text() == i18n.tr("3. Strain") != "3. Strain"
+    area = w.scroll_area
+    assert area.widget().width() <= area.viewport().width()  # nothing cut at the right
+    bad = _cut_off(w.native)
+    assert not bad, f"{code}: text cut off (screenshot {shot}):\n  " + "\n  ".join(bad)

@@ -37,8 +37,8 @@ from ..engine.probes import (
     read_load_csv,
 )
 from ..i18n import tr, tr_noop
-from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, translate_axes
-from .language import apply_ui_language, combo_of, plot_fonts
+from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, said, translate_axes
+from .language import apply_ui_language, combo_of, follow_language, plot_fonts, retranslate_tree
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -64,18 +64,18 @@ class ProbePlotDock(QWidget):
         apply_ui_language()  # before any text is made
         super().__init__()
         self._viewer = napari_viewer
-        self.view = None  # ResultView of the analysis in the viewer
-        self.table = None  # ProbeTable of the last measurement
+        self.view, self.table = None, None  # ResultView of the analysis, ProbeTable measured
         self.load_record = None
         self.message = ""
         self._hooks: list = []  # (emitter, callback) of the watched layers
         self.axes: dict = {}  # "lines", "spatial", "stress" -> the matplotlib axes shown
         self._ss_column = ""  # the strain of the stress-strain curve
-        self._timer = QTimer(self)
-        self._timer.setSingleShot(True)
-        self._timer.setInterval(150)  # a dragged probe fires many events: measure once
+        # a dragged probe fires many events: measure once
+        self._timer = QTimer(self, singleShot=True, interval=150)
         self._timer.timeout.connect(self.recompute)
-        self._setup_ui()
+        self._setup_ui()  # and a new language said at once ("(none)", status, plot anew):
+        follow_language(self, lambda dock, rt: (retranslate_tree(dock, rt),
+                                                dock._on_layers_changed()))
         layers = napari_viewer.layers
         layers.events.inserted.connect(self._on_layers_changed)
         layers.events.removed.connect(self._on_layers_changed)
@@ -283,8 +283,8 @@ class ProbePlotDock(QWidget):
             return False
         sync = sync or ("frame" if self.load_record.frame is not None else "time")
         self.sync_combo.setCurrentIndex(max(0, self.sync_combo.findData(sync)))
-        self.load_label.setText(self.load_record.describe())
-        self.load_label.setToolTip(f"{self.load_record.source}\n{self.load_record.describe()}")
+        self.load_label.setText(said(self.load_record.describe()))  # the engine's English
+        self.load_label.setToolTip(f"{self.load_record.source}\n{self.load_label.text()}")
         self.recompute()
         return True
 

@@ -23,7 +23,7 @@ from .display import DisplayPanel
 from .explain import with_explanation
 from .export import ExportPanel
 from .inputs import InputsPanel
-from .language import LanguageSelector, apply_ui_language
+from .language import LanguageSelector, apply_ui_language, follow_language, retranslate_tree
 from .layout import divider, sections_area
 from .live import LivePanel
 from .model import DockModel
@@ -67,6 +67,8 @@ SECTIONS = ((tr_noop("1. Images and region"), "inputs", True),
             (tr_noop("Volume (DVC)"), "volume", False),
             (tr_noop("SEM corrections (HRDIC)"), "sem", False),
             (tr_noop("Log"), "log", True))
+#: the panels whose labels share one column
+ALIGNED = ("inputs", "correlation", "strain_panel", "units", "display", "exports", "volume", "sem")
 
 
 class DICWidget(Container):
@@ -85,6 +87,7 @@ class DICWidget(Container):
         self._on_image_changed()
         self.settings.restore_last_used()
         self._results.adopt(self.correlation.init) and self.exports.refresh()  # reopened
+        follow_language(self, DICWidget.retranslate)  # a new language applies at once
         warmup.start_in_background(self.run_panel.set_preparing, self._on_engine_ready,
                                    self.native)
 
@@ -111,8 +114,7 @@ class DICWidget(Container):
         for panel, names in CONTROLS.items():
             for name in names:
                 setattr(self, name, getattr(getattr(self, panel), name))
-        align_labels([self.inputs, self.correlation, self.strain_panel, self.units,
-                      self.display, self.exports, self.volume, self.sem])
+        align_labels([getattr(self, name) for name in ALIGNED])
         sections = [(title, getattr(self, attr).native, open_)
                     for title, attr, open_ in SECTIONS]
         self.scroll_area, self.sections = sections_area(sections)
@@ -163,9 +165,8 @@ class DICWidget(Container):
         return self._results.analysis
 
     def current_settings(self) -> dict[str, Any]:
-        """The controls' settings: ``{"params", "units", "strain", "tracking"}``
-        (the fields of a :class:`~napari_aldic.engine.Settings`); ``ValueError``
-        when they make no valid settings (an even subset, a pixel size in 'px' ...)."""
+        """The controls' settings: the fields of a :class:`~napari_aldic.engine.Settings`;
+        ``ValueError`` when they make none (an even subset, a pixel size in 'px' ...)."""
         s = self.settings.current()
         return {"params": s.params, "units": s.units, "strain": s.strain,
                 "tracking": s.tracking}
@@ -174,19 +175,14 @@ class DICWidget(Container):
         return self.settings.current_params()
 
     def save_settings(self, path) -> Path | None:
-        """Write the current settings to the JSON file ``path`` (``.json`` is
-        appended when missing); also read by ``napari-aldic run STACK --params``.
-        Returns the path written, or ``None`` after an error notification."""
+        """Write the settings to the JSON file ``path`` (``.json`` appended when missing;
+        read by ``napari-aldic run --params``); the path, or ``None`` after an error."""
         return self.settings.save(path)
 
     def load_settings(self, path) -> bool:
-        """Set every control from a settings file (see :meth:`save_settings`;
-        also files of ``napari-aldic params`` / ``run --params-out``, or a plain
-        JSON object of DICParams fields). An invalid file changes nothing
-        (``False``, with an error notification); missing sections leave their
-        controls; DICParams fields the widget does not show are kept for runs;
-        the file's seed points become a Points layer when no seeds are chosen;
-        a frame range beyond the stack is clamped to it."""
+        """Set every control from a settings file (also of ``napari-aldic params``, or
+        a JSON object of DICParams fields); an invalid one changes nothing (``False``).
+        Hidden DICParams fields are kept; seeds become a layer; frame ranges clamped."""
         return self.settings.load(path)
 
     def save_project(self, path) -> Path | None:
@@ -202,10 +198,17 @@ class DICWidget(Container):
         """Set every parameter, unit and display control to its default."""
         self.settings.restore_defaults()
 
+    def retranslate(self, rt) -> None:
+        """Say the dock in the language just chosen, keeping every value and the
+        analysis (issue 24, trap 5): texts, label column, status, export note."""
+        retranslate_tree(self.native, rt)
+        align_labels([getattr(self, name) for name in ALIGNED])  # their new widths
+        self._validate()
+        self.exports.refresh()
+
     # ------------------------------------------------------------ wiring
     def _write_model(self, *_) -> None:
-        """The panels' values into the model (a value that makes no valid parameters,
-        e.g. while a file is applied, waits for the next change)."""
+        """The panels' values into the model (invalid ones wait for the next change)."""
         m, c = self.model, self.correlation
         try:
             m.update("params", c.params((), init="fft"))
@@ -249,8 +252,7 @@ class DICWidget(Container):
         self._refresh_results()
 
     def _apply_units(self) -> None:
-        """Apply the units to the image, its input layers and the result layers
-        (values of u, v, |u| are shown in the length unit)."""
+        """Apply the units to the image, its input, probe and result layers."""
         self.exports.refresh()
         if self.inputs.image_layer is None:
             return

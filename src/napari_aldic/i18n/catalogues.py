@@ -14,11 +14,12 @@ import gettext
 import hashlib
 import io
 import os
+import struct
 import tempfile
 from pathlib import Path
 
 __all__ = ["DOMAIN", "LOCALE_DIR", "po_path", "mo_path", "load_translations",
-           "compile_catalogue", "cache_dir"]
+           "compile_catalogue", "cache_dir", "catalogue_entries"]
 
 DOMAIN = "napari_aldic"
 #: the catalogue sources, ``LOCALE_DIR/<lang>/LC_MESSAGES/napari_aldic.po``
@@ -105,3 +106,31 @@ def load_translations(lang: str) -> gettext.NullTranslations:
     if data is None:
         return gettext.NullTranslations()
     return gettext.GNUTranslations(io.BytesIO(data))
+
+
+def catalogue_entries(lang: str) -> list[tuple[str, str | None, list[str]]]:
+    """Every message of the catalogue of ``lang``: ``(msgid, msgid_plural or None,
+    translations)`` (one translation per plural form); ``[]`` without a catalogue.
+
+    Read from the compiled ``.mo`` (gettext keeps neither the plural English text
+    nor the list of messages): what :mod:`.retranslate` needs to recognise a text
+    shown in one language and say it in another.
+    """
+    data = _mo_bytes(lang)
+    if not data or len(data) < 20:
+        return []
+    magic = struct.unpack("<I", data[:4])[0]
+    order = "<" if magic == 0x950412DE else ">"
+    n, originals, translations = struct.unpack(order + "3I", data[8:20])
+    out = []
+    for i in range(n):
+        olen, ooff = struct.unpack(order + "2I", data[originals + 8 * i:originals + 8 * i + 8])
+        tlen, toff = struct.unpack(order + "2I",
+                                   data[translations + 8 * i:translations + 8 * i + 8])
+        msgid = data[ooff:ooff + olen].decode("utf-8")
+        if not msgid or "\x04" in msgid:  # the header; message contexts (none are used)
+            continue
+        singular, _, plural = msgid.partition("\0")
+        forms = data[toff:toff + tlen].decode("utf-8").split("\0")
+        out.append((singular, plural or None, forms))
+    return out
