@@ -19,8 +19,10 @@ image, white) moves every quantity of an AL-DIC run linearly:
   are linear; the solver's matrix, weights and smoothing are frozen at the
   run's values), for the same number of ADMM iterations.
 
-Drawing ``K`` unit-variance noise images and pushing each through these
-maps gives per node the std of the smoothed field and of the Local DIC
+Drawing ``K`` unit-variance noise images (Rademacher: ±1 per pixel, which
+estimate the variances with less sampling error than Gaussian ones,
+:func:`~.quality.rademacher_images`) and pushing each through these maps
+gives per node the std of the smoothed field and of the Local DIC
 start under the same noise; their ratio (the smoothing gain, noise level
 free) scales the Local model's standard uncertainty (``dic.quality``),
 which already carries the node's own noise level, the interpolation and the
@@ -236,9 +238,9 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     ----------
     q : SpeckleQuality
         Of the nodes, with the run's steepest-descent images.
-    project : callable(rng) -> (n, 2k)
-        ``Σ_subset J t n`` per node for a fresh unit white noise image ``n``
-        drawn from ``rng`` (``dic.quality.noise_projector``).
+    project : callable(rng, count) -> (n, 2k, count)
+        ``Σ_subset J t n`` per node for ``count`` fresh unit white noise
+        images ``n`` drawn from ``rng`` (``dic.quality.noise_projector``).
     lin : ADMMLinearisation
     """
     k = q.hessian.shape[1] // 2
@@ -254,7 +256,7 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     lin = ADMMLinearisation(lin.solver, lin.iterations, lin.mu, active, lin.probes, lin.seed,
                             lin.curvature)
     rng = np.random.default_rng(lin.seed)
-    b = np.stack([project(rng) for _ in range(lin.probes)], axis=2)
+    b = project(rng, lin.probes)
     b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
     dp0 = np.einsum("nij,njk->nik", minv, b)
     # only the nodes whose local result is data (trusted) carry noise into the
