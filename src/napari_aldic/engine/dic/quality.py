@@ -53,7 +53,7 @@ from .interpolation import (
 )
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
-from .uncertainty_aldic import aldic_gain
+from .uncertainty_aldic import aldic_gain, noise_projector
 
 __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
            "SubsetAdvice", "advise_subset", "interpolated_noise_factor", "SHAPE_TERMS"]
@@ -412,57 +412,6 @@ def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
     return np.sqrt(_covariance_diag(q, var))
 
 
-def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "affine"):
-    """A callable ``(rng, count) -> (n, 2k, count)``: for ``count`` fresh
-    white noise images of unit variance drawn from ``rng`` (Rademacher: ±1
-    at each pixel, see :func:`rademacher_images`), ``Σ_subset J t n`` per
-    node (the right-hand side of the subset's Gauss-Newton step with the
-    noise as residual; ``J = (jx, jy)``). Its ``apply(images)`` gives the
-    same for given noise images (a list of (H, W) arrays)."""
-    mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
-    terms = SHAPE_TERMS[shape_function]
-    deg = max(p + q for p, q in terms)
-    col = [moment_terms(deg).index(t) for t in terms]
-    # the moment kernel takes 5 base images: jx, jy and 3 noise images a call
-    per_call = 3
-
-    def apply(images) -> np.ndarray:
-        out = np.empty((len(x), 2 * len(terms), len(images)))
-        for c0 in range(0, len(images), per_call):
-            chunk = [np.asarray(a, jx.dtype) for a in images[c0:c0 + per_call]]
-            prods = [(a, 2 + i, deg) for i in range(len(chunk)) for a in (0, 1)]
-            mom = window_moments([jx, jy, *chunk], prods, x, y, subset // 2, mask=mask,
-                                 centre=True)
-            for i in range(len(chunk)):
-                out[:, :, c0 + i] = np.column_stack([mom[2 * i][:, col], mom[2 * i + 1][:, col]])
-        return out
-
-    def project(rng, count: int = 1) -> np.ndarray:
-        return apply(rademacher_images(rng, np.shape(jx), count, jx.dtype))
-
-    project.apply = apply
-    return project
-
-
-def rademacher_images(rng, shape, count: int, dtype=np.float32) -> list:
-    """``count`` images of independent ±1 pixels (equally likely), from ``rng``'s
-    random bytes, one bit per pixel.
-
-    As probes of a linear map ``A`` of white noise (mean 0, variance 1 per
-    pixel), ``E[(A z)_i²] = Σ_j A_ij²`` for these as for Gaussian images, with
-    a smaller sampling variance, ``2 (Σ_j A_ij²)² - 2 Σ_j A_ij⁴`` against
-    ``2 (Σ_j A_ij²)²`` (Hutchinson's estimator); drawing them costs a few
-    per cent of Gaussian ones (1 bit a pixel instead of a normal deviate)."""
-    size = int(np.prod(shape))
-    out = []
-    for _ in range(count):
-        bits = np.unpackbits(rng.integers(0, 256, (size + 7) // 8, dtype=np.uint8))[:size]
-        z = np.multiply(bits, 2, dtype=dtype)
-        z -= 1
-        out.append(z.reshape(shape))
-    return out
-
-
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
                    shape_function: str = "affine", jacobian=None, aldic=None,
                    memo=None) -> dict:
@@ -494,7 +443,8 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)
         if aldic is not None:
-            project = noise_projector(*sd_images[:2], xi, yi, subset, roi, shape_function)
+            project = noise_projector(*sd_images[:2], xi, yi, subset, roi,
+                                      SHAPE_TERMS[shape_function])
             s = s * aldic_gain(q, project, aldic)
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out

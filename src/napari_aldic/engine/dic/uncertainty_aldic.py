@@ -21,7 +21,7 @@ image, white) moves every quantity of an AL-DIC run linearly:
 
 Drawing ``K`` unit-variance noise images (Rademacher: ±1 per pixel, which
 estimate the variances with less sampling error than Gaussian ones,
-:func:`~.quality.rademacher_images`) and pushing each through these maps
+:func:`rademacher_images`) and pushing each through these maps
 gives per node the std of the smoothed field and of the Local DIC
 start under the same noise; their ratio (the smoothing gain, noise level
 free) scales the Local model's standard uncertainty (``dic.quality``),
@@ -35,7 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver"]
+from ..kernels.moments import moment_terms, window_moments
+
+__all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver",
+           "noise_projector", "rademacher_images"]
 
 
 @dataclass
@@ -240,7 +243,7 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
         Of the nodes, with the run's steepest-descent images.
     project : callable(rng, count) -> (n, 2k, count)
         ``Σ_subset J t n`` per node for ``count`` fresh unit white noise
-        images ``n`` drawn from ``rng`` (``dic.quality.noise_projector``).
+        images ``n`` drawn from ``rng`` (:func:`noise_projector`).
     lin : ADMMLinearisation
     """
     k = q.hessian.shape[1] // 2
@@ -272,3 +275,54 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         gain = np.sqrt(s_glob / s_loc)
     return np.where(ok[:, None] & np.isfinite(gain), gain, np.nan)
+
+
+def noise_projector(jx, jy, x, y, subset: int, roi, terms):
+    """A callable ``(rng, count) -> (n, 2k, count)``: for ``count`` fresh
+    white noise images of unit variance drawn from ``rng`` (Rademacher: ±1
+    at each pixel, see :func:`rademacher_images`), ``Σ_subset J t n`` per
+    node (the right-hand side of the subset's Gauss-Newton step with the
+    noise as residual; ``J = (jx, jy)``, ``t`` the shape monomials
+    ``terms``, ``dic.quality.SHAPE_TERMS``). Its ``apply(images)`` gives the
+    same for given noise images (a list of (H, W) arrays)."""
+    mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
+    deg = max(p + q for p, q in terms)
+    col = [moment_terms(deg).index(t) for t in terms]
+    # the moment kernel takes 5 base images: jx, jy and 3 noise images a call
+    per_call = 3
+
+    def apply(images) -> np.ndarray:
+        out = np.empty((len(x), 2 * len(terms), len(images)))
+        for c0 in range(0, len(images), per_call):
+            chunk = [np.asarray(a, jx.dtype) for a in images[c0:c0 + per_call]]
+            prods = [(a, 2 + i, deg) for i in range(len(chunk)) for a in (0, 1)]
+            mom = window_moments([jx, jy, *chunk], prods, x, y, subset // 2, mask=mask,
+                                 centre=True)
+            for i in range(len(chunk)):
+                out[:, :, c0 + i] = np.column_stack([mom[2 * i][:, col], mom[2 * i + 1][:, col]])
+        return out
+
+    def project(rng, count: int = 1) -> np.ndarray:
+        return apply(rademacher_images(rng, np.shape(jx), count, jx.dtype))
+
+    project.apply = apply
+    return project
+
+
+def rademacher_images(rng, shape, count: int, dtype=np.float32) -> list:
+    """``count`` images of independent ±1 pixels (equally likely), from ``rng``'s
+    random bytes, one bit per pixel.
+
+    As probes of a linear map ``A`` of white noise (mean 0, variance 1 per
+    pixel), ``E[(A z)_i²] = Σ_j A_ij²`` for these as for Gaussian images, with
+    a smaller sampling variance, ``2 (Σ_j A_ij²)² - 2 Σ_j A_ij⁴`` against
+    ``2 (Σ_j A_ij²)²`` (Hutchinson's estimator); drawing them costs a few
+    per cent of Gaussian ones (1 bit a pixel instead of a normal deviate)."""
+    size = int(np.prod(shape))
+    out = []
+    for _ in range(count):
+        bits = np.unpackbits(rng.integers(0, 256, (size + 7) // 8, dtype=np.uint8))[:size]
+        z = np.multiply(bits, 2, dtype=dtype)
+        z -= 1
+        out.append(z.reshape(shape))
+    return out
