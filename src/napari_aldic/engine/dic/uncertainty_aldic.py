@@ -203,7 +203,7 @@ def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
 
 
 def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,
-               pen: np.ndarray, k: int, coupling: np.ndarray, fcoupling: np.ndarray):
+               pen: np.ndarray, k: int, coupling: np.ndarray | None, fcoupling: np.ndarray):
     """The linearised ADMM run for a batch of noise images (last axis): start
     ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
     the global ``û``, ``v̂`` (n, K) each."""
@@ -269,7 +269,9 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     # still swamp the field
     data = active[:, None, None]
     uh, vh = _propagate(lin, np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0),
-                        cinv, pen, k, _curvature_coupling(m, k), _gradient_coupling(m, k))
+                        cinv, pen, k,
+                        None if lin.curvature is None else _curvature_coupling(m, k),
+                        _gradient_coupling(m, k))
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
     s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
