@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from napari_aldic.engine import correlate, synthetic as S
-from napari_aldic.engine.dic import global_solve
+from napari_aldic.engine.dic import linear_solvers
 from napari_aldic.engine.dic.global_solve import GlobalSolver, Q4Mesh, solver_method
 
 
@@ -32,7 +32,7 @@ def _admm_like_solves(solver, mesh, rng):
 
 @pytest.mark.parametrize("adaptive", [False, True])
 def test_amg_cg_equals_the_direct_solve(monkeypatch, adaptive):
-    monkeypatch.setattr(global_solve, "DIRECT_MAX_UNKNOWNS", 1000)
+    monkeypatch.setattr(linear_solvers, "DIRECT_MAX_UNKNOWNS", 1000)
     mesh = _lattice(70)  # 4,900 unknowns per component: above the lowered threshold
     rng = np.random.default_rng(1)
     trusted = rng.random(mesh.n_nodes) > 0.03
@@ -63,7 +63,7 @@ def test_amg_cg_equals_the_direct_solve(monkeypatch, adaptive):
 
 def test_solver_choice_by_size_and_bad_names():
     assert solver_method(10, "auto") == "direct"
-    assert solver_method(global_solve.DIRECT_MAX_UNKNOWNS + 1) == "amg"
+    assert solver_method(linear_solvers.DIRECT_MAX_UNKNOWNS + 1) == "amg"
     assert solver_method(10, "jacobi") == "jacobi"
     with pytest.raises(ValueError, match="solver method 'lu'"):
         solver_method(10, "lu")
@@ -73,7 +73,7 @@ def test_aldic_through_the_amg_path_matches_the_direct_path(monkeypatch):
     field = S.Sinusoid(0.4, 0.3, wavelength=200.0)
     ref, dfm = S.speckle_pair((160, 160), field, noise=4.0, seed=4, n_quad=3)
     direct = correlate(ref, dfm, subset=21, step=6, method="aldic")
-    monkeypatch.setattr(global_solve, "DIRECT_MAX_UNKNOWNS", 100)
+    monkeypatch.setattr(linear_solvers, "DIRECT_MAX_UNKNOWNS", 100)
     amg = correlate(ref, dfm, subset=21, step=6, method="aldic")
     both = direct.valid & amg.valid
     assert both.mean() > 0.95
@@ -90,3 +90,45 @@ def test_aldic_through_the_amg_path_matches_the_direct_path(monkeypatch):
     assert 0.95 < np.median(amg.u_std[same]) / np.median(local.u_std[same]) < 1.05
     # ... and well above the propagated AL-DIC figure (measured 1.78x here)
     assert np.median(amg.u_std[same]) > 1.4 * np.median(direct.u_std[same])
+
+
+def test_single_precision_factor_solves_like_the_double_one():
+    """The smoothing choice's float32 factor, its solves refined in float64,
+    gives the float64 factor's solution to 1e-9 (a thin-plate smoother with
+    untrusted nodes of weight 1e-6); a system float32 cannot resolve falls
+    back to a float64 factor instead of returning a poor solution."""
+    import scipy.sparse as sp
+
+    from napari_aldic.engine.dic.global_solve import (
+        UNTRUSTED_WEIGHT,
+        curvature_operator,
+        uniform_mesh,
+    )
+    from napari_aldic.engine.dic.linear_solvers import SPDSolver
+    from napari_aldic.engine.dic.mesh import make_grid
+
+    roi = np.ones((200, 260), bool)
+    roi[80:120, 100:150] = False
+    mesh = uniform_mesh(make_grid(roi, 21, 6), roi)
+    rng = np.random.default_rng(1)
+    keep = rng.random(mesh.n_nodes) > 0.05
+    keep[:30] = False  # a run of untrusted nodes along the top edge
+    rhs = rng.normal(size=(mesh.n_nodes, 4)) * keep[:, None]
+    for ell in (2.0, 15.0):
+        A = (sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT))
+             + ell**4 * curvature_operator(mesh)).tocsc()
+        single = SPDSolver(A, "direct", 0.0, single=True)
+        x = single.solve(rhs, None)
+        assert single.single  # refined, no fallback
+        exact = SPDSolver(A, "direct", 0.0).solve(rhs, None)
+        assert np.abs(x - exact).max() <= 1e-9 * np.abs(exact).max()
+    # condition number 1e12 (a dense SPD matrix stored sparse): float32's 7
+    # digits cannot refine it
+    V, _ = np.linalg.qr(rng.normal(size=(60, 60)))
+    A = sp.csc_matrix((V * np.logspace(-12, 0, 60)) @ V.T)
+    A = (A + A.T) / 2
+    b = rng.normal(size=(60, 2))
+    solver = SPDSolver(A, "direct", 0.0, single=True)
+    x = solver.solve(b, None)
+    assert not solver.single  # it fell back to float64
+    np.testing.assert_array_equal(x, SPDSolver(A, "direct", 0.0).solve(b, None))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from napari_aldic.engine import Cancelled, Reason, correlate, correlate_tiled, synthetic as S
-from napari_aldic.engine.dic import global_solve
+from napari_aldic.engine.dic import global_solve, linear_solvers
 from napari_aldic.engine.dic.mesh import make_grid
 from napari_aldic.engine.io import LazyImage
 from napari_aldic.engine.workflow.tiled import coarse_guess
@@ -67,7 +67,7 @@ def test_tiled_aldic_on_the_iterative_solver_path(pair, monkeypatch):
     """Meshes past the direct solver's size (here forced small) are solved by
     AMG-preconditioned CG; u_std is then the Local model and says so."""
     ref, dfm, roi = pair
-    monkeypatch.setattr(global_solve, "DIRECT_MAX_UNKNOWNS", 100)
+    monkeypatch.setattr(linear_solvers, "DIRECT_MAX_UNKNOWNS", 100)
     tiled = correlate_tiled(ref, dfm, roi=roi, step=16, method="aldic", tile_size=160,
                             search=10)
     whole = _untiled(ref, dfm, roi, tiled)

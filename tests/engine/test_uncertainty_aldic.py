@@ -51,3 +51,56 @@ def test_aldic_std_is_below_the_subset_std_and_local_is_unchanged():
     ratio = np.median(al.u_std[ok] / loc.u_std[ok])
     assert 0.25 < ratio < 0.8, ratio
     assert np.isfinite(al.u_std[ok]).all() and np.isfinite(al.v_std[ok]).all()
+
+
+def _captured_gain_inputs(monkeypatch, ref, dfm, **kw):
+    """``(q, project, lin)`` that an AL-DIC run hands to ``aldic_gain``."""
+    import napari_aldic.engine.dic.quality as Q
+
+    seen = {}
+    real = Q.aldic_gain
+
+    def spy(q, project, lin):
+        seen["args"] = (q, project, lin)
+        return real(q, project, lin)
+
+    monkeypatch.setattr(Q, "aldic_gain", spy)
+    correlate(ref, dfm, method="aldic", max_uncertainty=None, **kw)
+    return seen["args"]
+
+
+def test_probed_gain_matches_the_exact_propagation(monkeypatch):
+    """The smoothing gain from random ±1 probe images against the exact one:
+    every pixel's unit impulse pushed through the same linearised run (an
+    orthonormal set of probes, so the sums of squares are exact). The
+    estimator is unbiased: 1024 probes agree within 8 % at every node
+    (sampling error ~ 1/sqrt(2 x 1024) = 2.2 %); the run's 16 within 18 %
+    in the median (measured over 20 seeds: 13 % with these probes, 14 % with
+    the Gaussian images they replaced; the worst node 77 % either way)."""
+    import dataclasses
+
+    from napari_aldic.engine.dic.uncertainty_aldic import aldic_gain
+
+    ref, dfm = S.speckle_pair((72, 72), S.Translation(0.4, -0.3), seed=5, noise=3.0)
+    q, project, lin = _captured_gain_inputs(monkeypatch, ref, dfm, subset=17, step=6)
+    shape = ref.shape
+    impulses = []
+    for p in range(shape[0] * shape[1]):
+        e = np.zeros(shape, np.float32)
+        e.flat[p] = 1.0
+        impulses.append(e)
+    every = project.apply(impulses)
+
+    def exact_project(rng, count):
+        assert count == every.shape[2]
+        return every
+
+    exact = aldic_gain(q, exact_project, dataclasses.replace(lin, probes=every.shape[2]))
+    ok = np.isfinite(exact).all(axis=1)
+    assert ok.sum() > 60 and np.all(exact[ok] > 0.05)
+    many = aldic_gain(q, project, dataclasses.replace(lin, probes=1024))
+    err = np.abs(many[ok] / exact[ok] - 1)
+    assert err.max() < 0.08, err.max()
+    run = aldic_gain(q, project, lin)
+    err = np.abs(run[ok] / exact[ok] - 1)
+    assert np.median(err) < 0.18, np.median(err)

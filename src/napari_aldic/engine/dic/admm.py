@@ -110,7 +110,7 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         :func:`~napari_aldic.engine.dic.regularise.shrink_curvature`).
     solver : a :class:`GlobalSolver` to reuse (same mesh and weights).
     solver_method : linear solver of the global step (see
-        :func:`~napari_aldic.engine.dic.global_solve.solver_method`).
+        :func:`~napari_aldic.engine.dic.linear_solvers.solver_method`).
     on_iteration : callable(k), optional; called before ADMM iteration k
         (a progress / cancellation point).
     """

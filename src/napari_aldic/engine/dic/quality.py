@@ -53,7 +53,7 @@ from .interpolation import (
 )
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
-from .uncertainty_aldic import aldic_gain
+from .uncertainty_aldic import aldic_gain, noise_projector
 
 __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
            "SubsetAdvice", "advise_subset", "interpolated_noise_factor", "SHAPE_TERMS"]
@@ -412,24 +412,6 @@ def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
     return np.sqrt(_covariance_diag(q, var))
 
 
-def noise_projector(jx, jy, x, y, subset: int, roi=None, shape_function: str = "affine"):
-    """A callable ``rng -> (n, 2k)``: for a fresh unit white noise image ``n``,
-    ``Σ_subset J t n`` per node (the right-hand side of the subset's
-    Gauss-Newton step with the noise as residual; ``J = (jx, jy)``)."""
-    mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
-    terms = SHAPE_TERMS[shape_function]
-    deg = max(p + q for p, q in terms)
-
-    def project(rng) -> np.ndarray:
-        noise = rng.standard_normal(np.shape(jx), dtype=np.float32)
-        mom = window_moments([jx, jy, noise], [(0, 2, deg), (1, 2, deg)], x, y,
-                             subset // 2, mask=mask, centre=True)
-        col = [moment_terms(deg).index(t) for t in terms]
-        return np.column_stack([mom[0][:, col], mom[1][:, col]])
-
-    return project
-
-
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
                    shape_function: str = "affine", jacobian=None, aldic=None,
                    memo=None) -> dict:
@@ -461,7 +443,8 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     if zncc is not None:
         s = node_uncertainty(q, zncc, u, v, grad, order)
         if aldic is not None:
-            project = noise_projector(*sd_images[:2], xi, yi, subset, roi, shape_function)
+            project = noise_projector(*sd_images[:2], xi, yi, subset, roi,
+                                      SHAPE_TERMS[shape_function])
             s = s * aldic_gain(q, project, aldic)
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
