@@ -149,12 +149,13 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         The reference's exact spline gradients, which linearise the warp
         (None: ``fgx, fgy`` themselves). With smoothed ``fgx, fgy`` each step
         is an instrumental-variable Gauss-Newton step (module docstring).
-    static : (g, var_img, min_motion, out) or None
+    static : (g, var_img, min_motion, out[, min_fraction]) or None
         Affine warps only: the deformed image (float32), the noise variance of
         one image and the least motion (px) at which the converged active
         nodes get the zero-motion evidence ``(S / D, z)`` of
         :func:`~napari_aldic.engine.kernels.static.zero_motion_evidence` in
-        ``out`` (n, 2) (NaN at the other active nodes; :mod:`.static`).
+        ``out`` (n, 2) (NaN at the other active nodes; :mod:`.static`);
+        ``z`` only where ``S / D > min_fraction`` (default 0), else NaN.
 
     Returns
     -------
@@ -169,12 +170,12 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         stats = np.empty((n, 5))
     egx, egy = (fgx, fgy) if lin is None else lin
     if shape == "affine":
-        g, var_img, min_motion, s_out = (f, 0.0, 0.0, np.empty((0, 2))) if static is None \
-            else static
+        g, var_img, min_motion, s_out, min_fraction = \
+            (f, 0.0, 0.0, np.empty((0, 2)), 0.0) if static is None else (*static, 0.0)[:5]
         icgn_affine(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y,
                     np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
                     int(half), int(max_iter), float(tol), p, zn, it, rs, stats,
-                    g, (float(var_img), float(min_motion)), s_out)
+                    g, (float(var_img), float(min_motion), float(min_fraction)), s_out)
     elif shape == "quadratic":
         p12 = np.zeros((n, NPAR))
         p12[:, :6] = p_init

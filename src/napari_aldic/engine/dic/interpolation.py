@@ -216,8 +216,32 @@ def steepest_descent_gradients(f: np.ndarray, order: int,
         sigma = jacobian_smoothing(f)
     if not sigma > 0:
         return reference_gradients(prefilter(f, order))
-    smooth = ndimage.gaussian_filter(np.asarray(f, np.float64), sigma, mode="reflect")
-    return reference_gradients(prefilter(smooth, order))
+    return reference_gradients(prefilter(gaussian_smooth(f, sigma), order))
+
+
+def gaussian_smooth(image: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """``ndimage.gaussian_filter(image, sigma, mode="reflect")`` in float64,
+    bit for bit (the same weights, the same order of the sums), from whole
+    shifted slices: a third of its time for the few taps of the smoothing
+    widths used here (its strided column pass dominates otherwise)."""
+    a = np.asarray(image, np.float64)
+    r = int(truncate * float(sigma) + 0.5)
+    if r < 1 or min(a.shape) <= r or a.ndim != 2:
+        return ndimage.gaussian_filter(a, sigma, mode="reflect", truncate=truncate)
+    x = np.arange(-r, r + 1)
+    w = np.exp(-0.5 / (sigma * sigma) * x ** 2)
+    w = w / w.sum()
+    for axis in (0, 1):
+        n = a.shape[axis]
+        pad = np.pad(a, [(r, r) if ax == axis else (0, 0) for ax in (0, 1)], mode="symmetric")
+
+        def shifted(o, pad=pad, n=n, axis=axis):
+            return pad[r + o:r + o + n] if axis == 0 else pad[:, r + o:r + o + n]
+        out = shifted(0) * w[r]
+        for j in range(r, 0, -1):  # ndimage's order: outermost taps first
+            out += (shifted(j) + shifted(-j)) * w[r + j]
+        a = out
+    return a
 
 
 def sample(spl: SplineImage, x, y) -> np.ndarray:

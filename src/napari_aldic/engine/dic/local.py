@@ -40,7 +40,7 @@ from .mesh import NodeGrid
 from .outliers import lattice_neighbours, median_test
 from .reliability import Validity
 from .rotation import rotated_search, spread_nodes
-from .static import STATIC_MIN_MOTION
+from .static import STATIC_FRACTION, STATIC_MIN_MOTION
 from .subsets import SubsetMasks
 
 __all__ = ["Images", "prepare_images", "solve_local"]
@@ -129,6 +129,7 @@ class _State:
         self.beyond = np.zeros(n, bool)
         self.searched = np.zeros(n, bool)  # own NCC search done
         self.rotation_tried = False
+        self.version = 0  # bumped by every store (the repair stage's memo)
         self._nbrs5 = None
         self._stats_scratch = np.empty((n, 5))
         # diagnostics (in ``meta["timing"]``): matched anchors; nodes the
@@ -153,7 +154,8 @@ class _State:
                          self.sub.slot, self.sub.masks, prm.half, prm.max_iter, prm.tol,
                          out=out, stats=self._stats_scratch, shape=prm.shape_function,
                          lin=(im.fgx, im.fgy),
-                         static=(im.g, self.validity.image_var, STATIC_MIN_MOTION, static))
+                         static=(im.g, self.validity.image_var, STATIC_MIN_MOTION, static,
+                                 STATIC_FRACTION))
         self._fill_stats(active)
         return (*res, static)
 
@@ -170,6 +172,7 @@ class _State:
         self.p[nodes], self.zncc[nodes] = rp[nodes], rz[nodes]
         self.iters[nodes], self.reason[nodes] = ri[nodes], rr[nodes]
         self.static[nodes] = rs[nodes]
+        self.version += 1
 
     def floor(self) -> np.ndarray:
         """Lowest acceptable ZNCC per node, from the current state."""
@@ -531,10 +534,13 @@ def _repair(st: _State, report: ProgressFn) -> None:
     grid, roi, usable = st.grid, st.roi, st.usable
     nbrs1 = lattice_neighbours(grid, roi, radius=1)  # propagation neighbours (3 x 3)
     zmin = st.floor()
+    memo = [-1, None]  # the good nodes of a state version (the median test's cost)
 
     def good_nodes() -> np.ndarray:
-        ok = st.acceptable(zmin)
-        return ok & ~median_test(st.p[:, 0], st.p[:, 3], ok, st.nbrs5)
+        if memo[0] != st.version:
+            ok = st.acceptable(zmin)
+            memo[:] = st.version, ok & ~median_test(st.p[:, 0], st.p[:, 3], ok, st.nbrs5)
+        return memo[1].copy()
 
     def bad_nodes() -> np.ndarray:
         return np.nonzero(usable & ~good_nodes() & (st.reason != Reason.OUT_OF_IMAGE))[0]

@@ -286,10 +286,11 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         Receives the reference subset's statistics as
         :func:`~.subset.subset_stats` computes them (free here: the sums are
         needed anyway).
-    g, static, static_out : (H, W) float32, (float, float), (n or 0, 2) float64
-        Deformed image; noise variance of one image and least motion (px);
-        receives :func:`~.static.zero_motion_evidence` of the converged nodes
-        moved that far, from the last step's samples (else NaN; no rows: off).
+    g, static, static_out : (H, W) float32, (float, float, float), (n or 0, 2) float64
+        Deformed image; noise variance of one image, least motion (px) and
+        the share ``S / D`` above which ``z`` is computed; receives
+        :func:`~.static.zero_motion_evidence` of the converged nodes moved
+        that far, from the last step's samples (else NaN; no rows: off).
     """
     n = nx.size
     test_static = static_out.shape[0] == n
@@ -325,7 +326,7 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
                 static_out[k, 0] = static_out[k, 1] = np.nan
                 if status == OK and p[0] * p[0] + p[3] * p[3] >= static[1] * static[1]:
                     static_out[k, 0], static_out[k, 1] = zero_motion_evidence(
-                        g, x0, y0, dxs, dys, fs, gv, m, static[0], xw)
+                        g, x0, y0, dxs, dys, fs, gv, m, static[0], xw, yw, static[2])
 
 
 # ------------------------------------------------------------- translation IC-GN

@@ -54,7 +54,7 @@ def _positive_part_moments(a, b):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0):
+def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0, dbuf, min_fraction):
     """How strongly part of a subset prefers zero motion to its found warp.
 
     With the subsets zero-normalised (ZNSSD), ``e = f̂ - ĝ_p`` the residual at
@@ -67,6 +67,9 @@ def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0):
     ``S`` has a known mean and variance (positive part of a Gaussian), so
     ``z = (S - E S) / sd S`` measures how far beyond noise the evidence is.
     IC-GN calls it on a converged node with the samples of its last step.
+    ``z`` is computed only where ``S / D > min_fraction`` (its per-pixel
+    moments cost most of the test; a node at or below the fraction is never
+    flagged, whatever ``z``).
 
     Parameters
     ----------
@@ -82,33 +85,33 @@ def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0):
         Subset pixels.
     var_img : float
         Noise variance of one image (grey levels²).
-    g0 : 1-D float64
-        Work buffer (receives ``g`` at the unwarped pixels).
+    g0, dbuf : 1-D float64
+        Work buffers (``g0`` receives ``g`` at the unwarped pixels).
+    min_fraction : float
+        ``z`` is left NaN where ``S / D`` is at most this.
 
     Returns
     -------
     (float, float)
         ``(S / D, z)``; NaN for flat subsets, ``(0, 0)`` when the warp is zero
-        motion.
+        motion, ``(S / D, NaN)`` at or below ``min_fraction``.
     """
-    for q in range(m):
-        g0[q] = g[y0 + np.int64(dys[q]), x0 + np.int64(dxs[q])]
     if m < 3:
         return np.nan, np.nan
-    return _evidence(fs, g0, gp, m, var_img)
+    mf = mg0 = mgp = 0.0
+    for q in range(m):
+        gz = np.float64(g[y0 + np.int64(dys[q]), x0 + np.int64(dxs[q])])
+        g0[q] = gz
+        mf += fs[q]
+        mg0 += gz
+        mgp += gp[q]
+    return _evidence(fs, g0, gp, m, var_img, mf / m, mg0 / m, mgp / m, dbuf, min_fraction)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _evidence(fs, g0, gp, m, var_img):
-    """``(S / D, z)`` of one gathered subset (see :func:`zero_motion_evidence`)."""
-    mf = mg0 = mgp = 0.0
-    for q in range(m):
-        mf += fs[q]
-        mg0 += g0[q]
-        mgp += gp[q]
-    mf /= m
-    mg0 /= m
-    mgp /= m
+def _evidence(fs, g0, gp, m, var_img, mf, mg0, mgp, dbuf, min_fraction):
+    """``(S / D, z)`` of one gathered subset (see :func:`zero_motion_evidence`;
+    ``mf, mg0, mgp``: the three subsets' means)."""
     sf = s0 = sp = 0.0
     for q in range(m):
         sf += (fs[q] - mf) ** 2
@@ -117,26 +120,31 @@ def _evidence(fs, g0, gp, m, var_img):
     if sf <= 0.0 or s0 <= 0.0 or sp <= 0.0:
         return np.nan, np.nan
     nf, n0, npp = 1.0 / math.sqrt(sf), 1.0 / math.sqrt(s0), 1.0 / math.sqrt(sp)
+    # S and D first (a loop LLVM vectorises), the noise moments of S only
+    # where S / D can flag the node
+    evid = disc = 0.0
+    for q in range(m):
+        gph = (gp[q] - mgp) * npp
+        d = (g0[q] - mg0) * n0 - gph
+        e = (fs[q] - mf) * nf - gph
+        dbuf[q] = d
+        evid += max(2.0 * e * d - d * d, 0.0)
+        disc += d * d
+    if disc <= 0.0:
+        return 0.0, 0.0
+    if not evid > min_fraction * disc:
+        return evid / disc, np.nan
     # noise of e per pixel, normalised like the subsets: both images' noise,
     # at least 1 % of the subset's contrast (noise-free images still round)
     s = math.sqrt(2.0 * (var_img + 1e-4 * sf / m)) * nf
-    evid = disc = mean = var = 0.0
+    mean = var = 0.0
     for q in range(m):
-        fh = (fs[q] - mf) * nf
-        gph = (gp[q] - mgp) * npp
-        d = (g0[q] - mg0) * n0 - gph
-        e = fh - gph
-        y = 2.0 * e * d - d * d
-        if y > 0.0:
-            evid += y
-        disc += d * d
+        d = dbuf[q]
         a = 2.0 * abs(d) * s
         if a > 0.0:
             mu, m2 = _positive_part_moments(a, d * d)
             mean += mu
             var += m2 - mu * mu
-    if disc <= 0.0:
-        return 0.0, 0.0
     z = (evid - mean) / math.sqrt(var) if var > 0.0 else (np.inf if evid > mean else 0.0)
     return evid / disc, z
 

@@ -1,0 +1,123 @@
+"""The fast paths of the static-feature tests and of the prefilter give what
+the plain definitions give (issue 22, speed): the flat-pixel map (windows
+from summed-area tables, the 75th percentile counted instead of sorted when
+the noise bound decides), the Gaussian smoothing of the steepest-descent
+images (bit for bit), and the zero-motion evidence, whose ``z`` is skipped
+where ``S / D`` cannot flag a node (the flags stay the same)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage as ndi
+
+from napari_aldic.engine import synthetic
+from napari_aldic.engine.dic import static as S
+from napari_aldic.engine.dic.icgn import icgn_solve
+from napari_aldic.engine.dic.interpolation import JACOBIAN_SIGMAS, gaussian_smooth
+from napari_aldic.engine.dic.local import prepare_images
+from napari_aldic.engine.dic.mesh import make_grid
+from napari_aldic.engine.dic.subsets import split_subsets
+
+FIELD = synthetic.Affine.strain_rotation(exx=0.005, center=(128, 128), t=(1.3, -0.6))
+
+
+def _flat_by_definition(f, g, roi, image_var):
+    """The flat-pixel map as first written: two uniform filters per image and
+    np.percentile, no short cuts."""
+    thr2 = (S.FLAT_NOISE * np.sqrt(image_var) + S.FLAT_GL) ** 2
+    flat = roi.copy()
+    for a in (f, g):
+        a = np.asarray(a, np.float64)
+        m = ndi.uniform_filter(a, S.FLAT_WINDOW)
+        var = ndi.uniform_filter(a * a, S.FLAT_WINDOW) - m * m
+        typical = np.percentile(var[roi], 75)
+        flat &= (var <= thr2) & (var <= S.FLAT_CONTRAST ** 2 * typical)
+    return flat
+
+
+def _pair(scale, noise, bar, shape=(256, 256)):
+    r, d = synthetic.speckle_pair(shape, FIELD, noise=noise)
+    rng = np.random.default_rng(5)
+    r = (r * scale + rng.normal(0, noise, r.shape)).astype(np.float32)
+    d = (d * scale + rng.normal(0, noise, d.shape)).astype(np.float32)
+    if bar:
+        r[:, 100:124] = 40
+        d[:, 100:124] = 40
+    return r, d
+
+
+@pytest.mark.parametrize("scale,noise,bar,roi_cut,decided", [
+    (1.0, 0.5, True, False, True),     # speckle beside a bar: the noise bound decides
+    (1.0, 0.5, False, True, True),     # clean speckle, a ROI with a hole
+    (0.05, 3.0, True, False, False),   # faint speckle under heavy noise: the percentile decides
+    (0.05, 3.0, True, True, False),
+])
+def test_flat_pixels_match_their_definition(scale, noise, bar, roi_cut, decided):
+    f, g = _pair(scale, noise, bar, shape=(250, 233))
+    roi = np.ones(f.shape, bool)
+    if roi_cut:
+        roi[60:120, 150:200] = False
+    var = noise ** 2
+    expect = _flat_by_definition(f, g, roi, var)
+    got = S._flat_pixels(f, g, roi, var)
+    assert np.array_equal(got, expect)
+    if bar:
+        assert got.sum() > 1000  # the bar's inside is flat
+    thr2 = (S.FLAT_NOISE * noise + S.FLAT_GL) ** 2
+    decides = S._typical_at_least(S._window_var(f), roi, bool(roi.all()),
+                                  thr2 / S.FLAT_CONTRAST ** 2)
+    assert decides == decided  # both branches are exercised
+
+
+def test_window_variance_mirrors_the_border_like_uniform_filter():
+    rng = np.random.default_rng(2)
+    a = rng.integers(0, 255, (131, 257)).astype(np.float32)
+    m = ndi.uniform_filter(a.astype(np.float64), S.FLAT_WINDOW)
+    ref = ndi.uniform_filter(a.astype(np.float64) ** 2, S.FLAT_WINDOW) - m * m
+    assert np.allclose(S._window_var(a), ref, rtol=0, atol=1e-8)
+
+
+def test_gaussian_smooth_is_ndimage_bit_for_bit():
+    rng = np.random.default_rng(1)
+    img = rng.normal(100, 30, (97, 140)).astype(np.float32)
+    for sigma in JACOBIAN_SIGMAS[1:]:
+        for a in (img, img[:5, :9]):
+            expect = ndi.gaussian_filter(np.asarray(a, np.float64), sigma, mode="reflect")
+            assert np.array_equal(gaussian_smooth(a, sigma), expect), sigma
+
+
+def test_zero_motion_z_skipped_only_where_it_cannot_flag():
+    r, d = synthetic.speckle_pair((256, 256), FIELD, noise=0.5)
+    r, d = r.astype(np.float32), d.astype(np.float32)
+    r[:, :128] = 0  # the static occluder of issue 22
+    d[:, :128] = 0
+    roi = np.ones(r.shape, bool)
+    im = prepare_images(r, d, "cubic")
+    grid = make_grid(roi, 31, 8)
+    sub = split_subsets(roi, grid, 31)
+    ut, vt = FIELD.displacement(grid.x, grid.y)
+    p0 = np.zeros((grid.n, 6))
+    p0[:, 0], p0[:, 3] = ut, vt
+    active = sub.reason == 0
+    jgx, jgy = (im.fgx, im.fgy) if im.jgx is None else (im.jgx, im.jgy)
+    ev = []
+    for extra in ((), (S.STATIC_FRACTION,)):
+        out = np.full((grid.n, 2), np.nan)
+        icgn_solve(im.f, jgx, jgy, im.g_spline, grid.x, grid.y, p0, active, sub.slot,
+                   sub.masks, 15, lin=(im.fgx, im.fgy),
+                   static=(im.g, 0.25, S.STATIC_MIN_MOTION, out) + extra)
+        ev.append(out)
+    full, fast = ev
+    tested = np.isfinite(full[:, 0])
+    assert tested.sum() > 100
+    assert np.array_equal(np.isfinite(fast[:, 0]), tested)
+    assert np.allclose(fast[tested, 0], full[tested, 0], rtol=1e-12, atol=1e-15)
+    above = tested & (full[:, 0] > S.STATIC_FRACTION)
+    assert above.sum() > 10 and (~above & tested).sum() > 10  # both kinds of node
+    assert np.allclose(fast[above, 1], full[above, 1], rtol=1e-9)
+    assert np.all(np.isnan(fast[tested & ~above, 1]))
+
+    def flags(e):
+        with np.errstate(invalid="ignore"):
+            return (e[:, 1] > S.STATIC_Z) & (e[:, 0] > S.STATIC_FRACTION)
+    assert np.array_equal(flags(fast), flags(full))
+    assert flags(full).sum() > 0  # the occluder is caught
