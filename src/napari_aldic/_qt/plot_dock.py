@@ -39,6 +39,7 @@ from ..engine.probes import (
 from ..i18n import tr, tr_noop
 from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, translate_axes
 from .language import apply_ui_language, combo_of, plot_fonts
+from .plot_parts import StatusText, report_saved, scrolled
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -117,21 +118,24 @@ class ProbePlotDock(QWidget):
         load_form.addRow(tr("Gauge"), self.gauge_combo)
         load_box = QGroupBox(tr("Testing machine (stress-strain)"))
         load_box.setLayout(load_form)
-        self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
+        self.figure = Figure(figsize=(4.5, 1.5), layout="constrained")  # grows with the dock
         self.canvas = FigureCanvasQTAgg(self.figure)
         self.canvas.setMinimumHeight(140)  # the DIC dock above keeps rows (1600 x 1000)
-        self.status_label = QLabel("")
-        self.status_label.setWordWrap(True)
+        self.status_label = StatusText()  # its own scrolling box under the plot (trap 7)
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
             QPushButton(tr("Save plot..."))
         buttons = QHBoxLayout()
         _ = [buttons.addWidget(b) for b in (self.save_csv_button, self.save_plot_button)]
-        lay = QVBoxLayout(self)
+        inner = QWidget()
+        lay = QVBoxLayout(inner)
         lay.addLayout(form)
         lay.addWidget(load_box)
         lay.addWidget(self.canvas, 1)
         lay.addWidget(self.status_label)
         lay.addLayout(buttons)
+        outer = QVBoxLayout(self)  # a low window scrolls the dock: nothing drawn over another
+        outer.setContentsMargins(0, 0, 0, 0)
+        outer.addWidget(scrolled(inner))
         for combo in (self.shapes_combo, self.points_combo):
             combo.currentTextChanged.connect(self._on_probe_layers_chosen)
         for combo in (self.quantity_combo, self.field_combo, self.gauge_combo):
@@ -384,17 +388,4 @@ class ProbePlotDock(QWidget):
 
     def _ask_save(self, title: str, filt: str, fn=None) -> None:
         if path := self._ask(title, filt):
-            self._report(fn or self.save_csv, path)
-
-    def _report(self, fn, path) -> None:
-        from napari.utils.notifications import show_error, show_info
-
-        try:
-            out = fn(path)
-        except (ValueError, OSError) as exc:
-            show_error(f"napari-aldic: {exc}")
-            return
-        if out is None:
-            show_error(tr("napari-aldic: no probe values to save yet"))
-        else:
-            show_info(tr("napari-aldic: saved {out}").format(out=out))
+            report_saved(fn or self.save_csv, path)
