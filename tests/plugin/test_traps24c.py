@@ -92,3 +92,136 @@ def test_trap07_the_probe_status_has_its_own_row_and_never_covers_the_plot(
                                      if not isinstance(status, QLabel) else
                                      (pal.ColorRole.WindowText, pal.ColorRole.Window)))
     assert abs(fg.lightnessF() - bg.lightnessF()) > 0.5
+
+
+# ------------------------------------------------------------------ 16
+def test_trap16_the_log_summary_says_u_v_in_the_chosen_unit(small_analysis):
+    import re
+
+    from napari_aldic._qt.explain import result_summary
+    from napari_aldic.engine import Units
+
+    res = small_analysis.results[-1]
+    valid = np.asarray(res.valid, bool)
+    px = result_summary(res)
+    mm = result_summary(res, Units(0.02, "mm"))
+    assert " px [" in px and " mm [" in mm and " px [" not in mm
+    u_mm = float(re.search(r"u: mean ([-+0-9.e]+) mm", mm).group(1))
+    assert u_mm == pytest.approx(0.02 * np.asarray(res.u)[valid].mean(), rel=1e-3)
+    v_min = float(re.search(r"v: mean \S+ mm \[([-+0-9.e]+),", mm).group(1))
+    assert v_min == pytest.approx(0.02 * np.asarray(res.v)[valid].min(), rel=1e-3)
+    assert "subset 21 px" in mm  # the subset and step stay in pixels
+    assert result_summary(res, Units()) == px
+
+
+def test_trap16_a_run_logs_its_summary_in_mm(make_napari_viewer_proxy, qtbot, speckle_stack):
+    from napari_aldic._qt import DICWidget
+
+    viewer = make_napari_viewer_proxy()
+    viewer.add_image(speckle_stack(3, (96, 96)), name="speckle")
+    w = DICWidget(viewer)
+    w.method.value, w.subset.value, w.step.value = "local", 21, 16
+    w.unit.value, w.pixel_size.value = "mm", 0.02
+    assert w._job().units.unit == "mm"
+    w.run()
+    qtbot.waitUntil(lambda: not w.running, timeout=120_000)
+    summary = [ln for ln in w.log.value.splitlines() if ln.startswith("u: mean")]
+    assert summary and " mm [" in summary[-1] and " px [" not in summary[-1], summary
+
+
+def _pages(pdf) -> int:
+    import re
+
+    return len(re.findall(rb"/Type\s*/Page(?!s)", pdf.read_bytes()))
+
+
+def _probes_with_load(viewer, tmp_path, qtbot):
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    dock = ProbePlotDock(viewer)
+    qtbot.addWidget(dock)
+    dock.add_probe_layers()
+    dock.shapes_layer.add_lines(np.array([[96.0, 40.0], [96.0, 150.0]]))
+    dock.points_layer.add(np.array([[80.0, 80.0]]))
+    load = tmp_path / "machine.csv"
+    load.write_text("Frame;Force\n(-);(kN)\n0;0\n1;1.2\n2;2.4\n", encoding="utf-8")
+    assert dock.load_csv(load, area_mm2=12.0)
+    dock.recompute()
+    assert "stress_MPa" in dock.table.columns
+    return dock
+
+
+def test_trap16_the_widget_pdf_report_has_a_probe_page(make_napari_viewer_proxy, qtbot,
+                                                       tmp_path, small_analysis):
+    from napari_aldic._qt import DICWidget
+
+    viewer = make_napari_viewer_proxy()
+    viewer.add_image(np.zeros((3, 192, 192), np.float32), name="speckle")
+    w = DICWidget(viewer)
+    w.show_analysis(small_analysis)
+    n = _pages(w.exports.export(tmp_path / "plain.pdf", "pdf")[0])
+    assert n >= 5 and w.exports.probe_table() is None  # no probes: no probe page
+    _probes_with_load(viewer, tmp_path, qtbot)
+    table = w.exports.probe_table()
+    assert table is not None and "stress_MPa" in table.columns  # the dock's load file too
+    with_probes = w.exports.export(tmp_path / "probes.pdf", "pdf")[0]
+    assert _pages(with_probes) == n + 1
+    # the button's way (a worker thread) too
+    w.exports.export_in_background(tmp_path / "button.pdf", "pdf")
+    qtbot.waitUntil(lambda: (tmp_path / "button.pdf").exists() and w.exports._worker is None,
+                    timeout=60_000)
+    assert _pages(tmp_path / "button.pdf") == n + 1
+
+
+def test_trap16_a_project_keeps_the_results_and_the_load_file(make_napari_viewer_proxy, qtbot,
+                                                              tmp_path, small_analysis,
+                                                              speckle_stack):
+    import shutil
+
+    import tifffile
+
+    from napari_aldic._qt import DICWidget
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    tif = tmp_path / "data" / "stack.tif"
+    tif.parent.mkdir()
+    tifffile.imwrite(tif, speckle_stack(3, (192, 192)), photometric="minisblack")
+    viewer = make_napari_viewer_proxy()
+    viewer.open(str(tif), plugin="napari-aldic")
+    w = DICWidget(viewer)
+    w.unit.value, w.pixel_size.value = "mm", 0.02
+    w.show_analysis(small_analysis)
+    _probes_with_load(viewer, tmp_path / "data", qtbot)
+    project = w.save_project(tmp_path / "work" / "analysis.json") if (
+        tmp_path / "work").mkdir() is None else None
+    assert project is not None and (tmp_path / "work" / "analysis_results").is_dir()
+    # the project and its results move together to another folder (paths are relative)
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp_path / "work", moved / "work")
+    shutil.copytree(tmp_path / "data", moved / "data")
+    shutil.rmtree(tmp_path / "work")
+    other = make_napari_viewer_proxy()
+    w2 = DICWidget(other)
+    assert w2.analysis is None and not w2.exports.export_button.enabled
+    assert w2.open_project(moved / "work" / "analysis.json")
+    a = w2.analysis
+    assert a is not None and a.frames == small_analysis.frames  # no run needed
+    for r0, r1 in zip(small_analysis.results, a.results):
+        np.testing.assert_allclose(r1.u, r0.u, atol=1e-9)
+        np.testing.assert_array_equal(r1.valid, r0.valid)
+    np.testing.assert_allclose(a.strains[-1].exx, small_analysis.strains[-1].exx, atol=1e-9)
+    assert w2.exports.export_button.enabled and w2._results.layer("|u|") is not None
+    assert "mm" in w2._results.layer("|u|").name
+    dock = ProbePlotDock(other)  # the probes dock opened again: the load file is back
+    qtbot.addWidget(dock)
+    dock.recompute()
+    assert dock.load_record is not None and "stress_MPa" in dock.table.columns
+    assert str(moved / "data") in str(dock.load_record.source)
+    # a changed result file is named and not used (the set-up still opens)
+    frame = sorted((moved / "work" / "analysis_results").glob("frame_*.npz"))[-1]
+    frame.write_bytes(frame.read_bytes()[:-10] + b"0123456789")
+    third = make_napari_viewer_proxy()
+    w3 = DICWidget(third)
+    assert w3.open_project(moved / "work" / "analysis.json")
+    assert w3.analysis is None and "results were not restored" in w3.log.value
+    assert frame.name in w3.log.value

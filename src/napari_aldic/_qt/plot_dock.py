@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from qtpy.QtCore import QTimer
 from qtpy.QtWidgets import (
@@ -39,7 +38,7 @@ from ..engine.probes import (
 from ..i18n import tr, tr_noop
 from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, translate_axes
 from .language import apply_ui_language, combo_of, plot_fonts
-from .plot_parts import StatusText, report_saved, scrolled
+from .plot_parts import PlotCanvas, StatusText, report_saved, scrolled
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -49,6 +48,7 @@ from .probes import (
     probes_from_layers,
 )
 from .project import PROBE_KEY
+from .project_results import LOAD_OPTIONS, keep_load, kept_load
 
 __all__ = ["ProbePlotDock"]
 
@@ -118,8 +118,8 @@ class ProbePlotDock(QWidget):
         load_form.addRow(tr("Gauge"), self.gauge_combo)
         load_box = QGroupBox(tr("Testing machine (stress-strain)"))
         load_box.setLayout(load_form)
-        self.figure = Figure(figsize=(4.5, 1.5), layout="constrained")  # grows with the dock
-        self.canvas = FigureCanvasQTAgg(self.figure)
+        self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
+        self.canvas = PlotCanvas(self.figure)
         self.canvas.setMinimumHeight(140)  # the DIC dock above keeps rows (1600 x 1000)
         self.status_label = StatusText()  # its own scrolling box under the plot (trap 7)
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
@@ -238,6 +238,9 @@ class ProbePlotDock(QWidget):
 
     def recompute(self) -> None:
         """Measure the probes on the analysis in the viewer and redraw."""
+        kept = kept_load(self.shapes_layer) if self.load_record is None else None
+        if kept and self.load_csv(kept["path"], **{k: kept.get(k) for k in LOAD_OPTIONS}):
+            return  # a project's load file, read again (it measured)
         self.view = find_analysis(self._viewer.layers)
         self.table, notes = None, []
         if self.view is None:
@@ -266,6 +269,9 @@ class ProbePlotDock(QWidget):
         if self.load_record is None or self.table is None:
             return
         sync = self.sync_combo.currentData()
+        keep_load(self.shapes_layer, {"path": str(self.load_record.source), "sync": sync,
+                                      "area_mm2": self.area_spin.value(), "fps":
+                                      self.fps_spin.value(), "offset": self.offset_spin.value()})
         try:
             attach_load(self.table, self.load_record, area_mm2=self.area_spin.value(),
                         sync=sync, fps=self.fps_spin.value(), offset=self.offset_spin.value())

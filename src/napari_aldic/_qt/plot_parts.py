@@ -10,12 +10,16 @@ no control is squeezed over another and the window never grows to fit the dock.
 
 from __future__ import annotations
 
-from qtpy.QtCore import Qt
+from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+from qtpy.QtCore import QSize, Qt
 from qtpy.QtWidgets import QFrame, QPlainTextEdit, QScrollArea, QSizePolicy, QWidget
 
 from ..i18n import tr
 
-__all__ = ["StatusText", "report_saved", "scrolled"]
+__all__ = ["PlotCanvas", "StatusText", "report_saved", "scrolled"]
+
+#: the plot's preferred height (it grows with the dock; a low window scrolls)
+PLOT_HINT_PX = 150
 
 #: the status box's height in text lines (more lines scroll)
 STATUS_LINES = 4
@@ -49,6 +53,14 @@ class StatusText(QPlainTextEdit):
         return bar.maximum() > bar.minimum()
 
 
+class PlotCanvas(FigureCanvasQTAgg):
+    """The plot canvas; it asks for a modest height (its figure's own size would be
+    asked for in full in the dock's scroll area, pushing the controls out of view)."""
+
+    def sizeHint(self) -> QSize:  # noqa: N802 (Qt's name)
+        return QSize(super().sizeHint().width(), PLOT_HINT_PX)
+
+
 def scrolled(content: QWidget) -> QScrollArea:
     """``content`` in a vertical scroll area that fills the dock."""
     area = QScrollArea()
@@ -72,3 +84,4 @@ def report_saved(fn, path) -> None:
         show_error(tr("napari-aldic: no probe values to save yet"))
     else:
         show_info(tr("napari-aldic: saved {out}").format(out=out))
+

@@ -27,6 +27,7 @@ from .language import LanguageSelector, apply_ui_language
 from .layout import divider, sections_area
 from .live import LivePanel
 from .model import DockModel
+from .probes import probe_table
 from .project import is_probe_layer
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
@@ -97,7 +98,8 @@ class DICWidget(Container):
         self.run_panel = RunPanel()
         self._results = ResultLayers(self._viewer)
         self.exports = ExportPanel(lambda: self._results.analysis, lambda: self.units.units,
-                                   self._current_frame, self.run_panel.write_log)
+                                   self._current_frame, self.run_panel.write_log,
+                                   lambda: probe_table(self._viewer.layers))
         self.settings = SettingsPanel(self.model, self.inputs, self.correlation, self.strain_panel,
                                       self.units, self.display, log=self.run_panel.write_log,
                                       apply_units=self._apply_units, viewer=self._viewer)
@@ -163,9 +165,8 @@ class DICWidget(Container):
         return self._results.analysis
 
     def current_settings(self) -> dict[str, Any]:
-        """The controls' settings: ``{"params", "units", "strain", "tracking"}``
-        (the fields of a :class:`~napari_aldic.engine.Settings`); ``ValueError``
-        when they make no valid settings (an even subset, a pixel size in 'px' ...)."""
+        """The controls' settings ``{"params", "units", "strain", "tracking"}`` (a Settings'
+        fields); ``ValueError`` when invalid (an even subset, a pixel size in 'px' ...)."""
         s = self.settings.current()
         return {"params": s.params, "units": s.units, "strain": s.strain,
                 "tracking": s.tracking}
@@ -180,22 +181,21 @@ class DICWidget(Container):
         return self.settings.save(path)
 
     def load_settings(self, path) -> bool:
-        """Set every control from a settings file (see :meth:`save_settings`;
-        also files of ``napari-aldic params`` / ``run --params-out``, or a plain
-        JSON object of DICParams fields). An invalid file changes nothing
-        (``False``, with an error notification); missing sections leave their
-        controls; DICParams fields the widget does not show are kept for runs;
-        the file's seed points become a Points layer when no seeds are chosen;
+        """Set every control from a settings file (see :meth:`save_settings`; also
+        those of ``napari-aldic params`` / ``run --params-out``, or a JSON object of
+        DICParams fields). An invalid file changes nothing (``False``, with an error
+        notification); missing sections leave their controls; hidden DICParams fields
+        are kept for runs; the file's seeds become a Points layer when none are chosen;
         a frame range beyond the stack is clamped to it."""
         return self.settings.load(path)
 
     def save_project(self, path) -> Path | None:
-        """Save the whole analysis set-up (image path, ROI/holes/labels/refine/seed
-        and probe layers, parameters, units, display) as a project file."""
+        """Save the analysis (image path, input and probe layers, settings, display;
+        the results beside it, the probes' load file) as a project file."""
         return self.settings.save_project(path)
 
     def open_project(self, path) -> bool:
-        """Open a project file: the image and layers are added and every control set."""
+        """Open a project file: image, layers, controls and saved results restored."""
         return self.settings.open_project(path)
 
     def restore_defaults(self) -> None:
@@ -246,7 +246,10 @@ class DICWidget(Container):
 
     def _on_project_opened(self) -> None:
         self._on_image_changed()
-        self._refresh_results()
+        if (restored := self.settings.projects.restored) is None:  # saved results (trap 16)
+            return self._refresh_results()
+        self._results.image = self.inputs.image_layer
+        self.show_analysis(restored)
 
     def _apply_units(self) -> None:
         """Apply the units to the image, its input layers and the result layers
@@ -342,8 +345,7 @@ class DICWidget(Container):
 
     # ------------------------------------------------------------ results
     def show_analysis(self, analysis: Analysis) -> None:
-        """Show ``analysis`` (e.g. of :func:`~napari_aldic._analysis.run_analysis`)
-        as result layers on the chosen image, at once."""
+        """Show ``analysis`` (e.g. of ``run_analysis``) as result layers on the image, at once."""
         for _ in self._show_steps(analysis, None):
             pass
 
