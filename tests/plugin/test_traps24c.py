@@ -225,3 +225,28 @@ def test_trap16_a_project_keeps_the_results_and_the_load_file(make_napari_viewer
     assert w3.open_project(moved / "work" / "analysis.json")
     assert w3.analysis is None and "results were not restored" in w3.log.value
     assert frame.name in w3.log.value
+
+
+# ------------------------------------------------------------------ 14
+def test_trap14_the_colour_bar_says_its_unit_beside_it(make_napari_viewer, qtbot, tmp_path,
+                                                      small_analysis, save_screenshot):
+    from napari_aldic._layers import Display
+
+    viewer = make_napari_viewer(show=True)
+    viewer.window.resize(1280, 720)
+    results = _show(viewer, small_analysis, Display(length_scale=0.01, length_unit="mm"))
+    for key, unit in (("u", "[mm]"), ("exy", "[-]"), ("|u|", "[mm]")):
+        results.show_field(key)
+        qtbot.wait(200)
+        save_screenshot(viewer, tmp_path / f"trap14_{key.replace('|', 'abs_')}_1280x720.png")
+        layer = results.layer(key)
+        bar, name = layer.colorbar, layer.name_overlay
+        assert bar.visible and name.visible and layer.name.endswith(unit)
+        assert name.position == bar.position  # the name, with its unit, beside the bar
+        lo, hi = layer.contrast_limits
+        if key == "exy":  # symmetric: -max, 0, +max ticked (the rounded limits)
+            assert lo == -hi and hi > 0
+        for other in ("u", "exy", "|u|", "exx", "von Mises"):
+            if other != key:
+                o = results.layer(other)
+                assert not o.colorbar.visible and not o.name_overlay.visible, other
