@@ -1,6 +1,7 @@
 """Traps of issue 24, third part (6, 7, 14 and 16), one test each; each failed before
-its fix (trap 6's real-run test excepted: the refit was already there, this test runs
-it through a real analysis). Screenshots at 1280 x 720 go to the test's folder."""
+its fix, except trap 6's: its clipping was not reproduced on main (nor with the earlier
+refit of the sections removed), so its test is a guard that runs a real analysis with
+nine reasons through the dock. Screenshots at 1280 x 720 go to the test's folder."""
 
 from __future__ import annotations
 
@@ -250,3 +251,64 @@ def test_trap14_the_colour_bar_says_its_unit_beside_it(make_napari_viewer, qtbot
             if other != key:
                 o = results.layer(other)
                 assert not o.colorbar.visible and not o.name_overlay.visible, other
+
+
+# ------------------------------------------------------------------ 6
+def _damaged(stack):
+    """Frames 1 and 2 with a blank patch, noise, a shifted block and a saturated band:
+    nodes untrusted for many reasons."""
+    stack = stack.copy()
+    rng = np.random.default_rng(1)
+    for k in (1, 2):
+        stack[k, 20:60, 20:60] = 128
+        stack[k, 120:170, 20:70] = rng.integers(0, 255, (50, 50))
+        stack[k, 100:160, 110:170] = np.roll(stack[0, 100:160, 110:170], 25, axis=1)
+        stack[k, 10:30, 120:180] = 255
+    return stack
+
+
+def test_trap06_after_a_run_every_reason_of_the_display_legend_is_shown(
+        make_napari_viewer, qtbot, tmp_path, speckle_stack, save_screenshot):
+    from napari_aldic._qt import DICWidget
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    viewer = make_napari_viewer(show=True)
+    viewer.window.resize(1280, 720)
+    viewer.add_image(_damaged(speckle_stack(3, (192, 192))), name="speckle")
+    viewer.add_shapes([np.array([[4, 4], [4, 188], [188, 188], [188, 4]], float)],
+                      shape_type="rectangle", name="ROI", face_color="transparent")
+    w, probes = DICWidget(viewer), ProbePlotDock(viewer)
+    viewer.window.add_dock_widget(probes, area="right", name="Probes")
+    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right", tabify=True)
+    w.method.value, w.subset.value, w.step.value = "local", 21, 8
+    w.run_button.clicked()
+    qtbot.wait(100)
+    _raise_dock(probes)  # the user watches the probes during the run: the dock is hidden
+    qtbot.waitUntil(lambda: not w.running, timeout=120_000)
+    qtbot.wait(300)
+    _raise_dock(w.native)
+    qtbot.wait(300)
+    last = w.analysis.results[-1]
+    reasons = set(np.asarray(last.reason)[~np.asarray(last.valid, bool)].tolist())
+    assert len(reasons) >= 6, reasons  # a long legend
+    legend, box = w.display.legend.native, w.sections["5. Display"]
+    assert legend.text().count("&#10006;") == len(reasons)  # one row per reason
+    w.scroll_area.ensureWidgetVisible(legend)
+    qtbot.wait(200)
+    save_screenshot(viewer, tmp_path / "trap06_display_after_run_1280x720.png")
+    content = box.content()
+    for width in (None, 560, 700):  # as laid out, and in a wider dock
+        if width:
+            window = viewer.window._qt_window
+            dock = w.native
+            while dock is not None and dock.metaObject().className() != "QtViewerDockWidget":
+                dock = dock.parentWidget()
+            from qtpy.QtCore import Qt
+
+            window.resizeDocks([dock], [width], Qt.Orientation.Horizontal)
+            qtbot.wait(300)
+        # the legend gets the height its wrapped rows need, and the open section shows it
+        assert legend.height() >= legend.heightForWidth(legend.width()), width
+        bottom = legend.mapTo(content, legend.rect().bottomLeft()).y()
+        assert bottom <= content.height() <= content.maximumHeight(), (width, bottom,
+                                                                        content.height())
