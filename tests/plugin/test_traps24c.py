@@ -121,6 +121,7 @@ def test_trap16_a_run_logs_its_summary_in_mm(make_napari_viewer_proxy, qtbot, sp
     viewer = make_napari_viewer_proxy()
     viewer.add_image(speckle_stack(3, (96, 96)), name="speckle")
     w = DICWidget(viewer)
+    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right")
     w.method.value, w.subset.value, w.step.value = "local", 21, 16
     w.unit.value, w.pixel_size.value = "mm", 0.02
     assert w._job().units.unit == "mm"
@@ -159,6 +160,7 @@ def test_trap16_the_widget_pdf_report_has_a_probe_page(make_napari_viewer_proxy,
     viewer = make_napari_viewer_proxy()
     viewer.add_image(np.zeros((3, 192, 192), np.float32), name="speckle")
     w = DICWidget(viewer)
+    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right")
     w.show_analysis(small_analysis)
     n = _pages(w.exports.export(tmp_path / "plain.pdf", "pdf")[0])
     assert n >= 5 and w.exports.probe_table() is None  # no probes: no probe page
@@ -190,11 +192,12 @@ def test_trap16_a_project_keeps_the_results_and_the_load_file(make_napari_viewer
     viewer = make_napari_viewer_proxy()
     viewer.open(str(tif), plugin="napari-aldic")
     w = DICWidget(viewer)
+    viewer.window.add_dock_widget(w, name="DIC (AL-DIC)", area="right")
     w.unit.value, w.pixel_size.value = "mm", 0.02
     w.show_analysis(small_analysis)
     _probes_with_load(viewer, tmp_path / "data", qtbot)
-    project = w.save_project(tmp_path / "work" / "analysis.json") if (
-        tmp_path / "work").mkdir() is None else None
+    (tmp_path / "work").mkdir()
+    project = w.save_project(tmp_path / "work" / "analysis.json")
     assert project is not None and (tmp_path / "work" / "analysis_results").is_dir()
     # the project and its results move together to another folder (paths are relative)
     moved = tmp_path / "moved"
@@ -203,6 +206,7 @@ def test_trap16_a_project_keeps_the_results_and_the_load_file(make_napari_viewer
     shutil.rmtree(tmp_path / "work")
     other = make_napari_viewer_proxy()
     w2 = DICWidget(other)
+    other.window.add_dock_widget(w2, name="DIC (AL-DIC)", area="right")
     assert w2.analysis is None and not w2.exports.export_button.enabled
     assert w2.open_project(moved / "work" / "analysis.json")
     a = w2.analysis
@@ -223,6 +227,7 @@ def test_trap16_a_project_keeps_the_results_and_the_load_file(make_napari_viewer
     frame.write_bytes(frame.read_bytes()[:-10] + b"0123456789")
     third = make_napari_viewer_proxy()
     w3 = DICWidget(third)
+    third.window.add_dock_widget(w3, name="DIC (AL-DIC)", area="right")
     assert w3.open_project(moved / "work" / "analysis.json")
     assert w3.analysis is None and "results were not restored" in w3.log.value
     assert frame.name in w3.log.value
