@@ -87,6 +87,13 @@ def test_trap07_the_probe_status_has_its_own_row_and_never_covers_the_plot(
         for b in parts[i + 1:]:
             assert not _rect_in(a, dock).intersects(_rect_in(b, dock)), (a, b)
         assert a.height() >= a.minimumSizeHint().height() or a is status, a
+    lab = dock.load_label  # the load file's wrapped lines get their height (both were cut
+    assert lab.text().startswith("3 load samples")  # at 1400 x 900, the dock not scrolled)
+    for size in ((1280, 720), (1400, 900)):
+        window.resize(*size)
+        qtbot.wait(300)
+        assert lab.height() >= lab.heightForWidth(lab.width()), (size, lab.height())
+    window.resize(1280, 720)
     # its own background, dark text on light or light on dark: readable
     pal = status.palette()
     fg, bg = (pal.color(r) for r in ((pal.ColorRole.Text, pal.ColorRole.Base)

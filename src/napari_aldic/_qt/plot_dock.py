@@ -19,7 +19,6 @@ from qtpy.QtWidgets import (
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
-    QLabel,
     QPushButton,
     QSizePolicy,
     QVBoxLayout,
@@ -38,7 +37,7 @@ from ..engine.probes import (
 from ..i18n import tr, tr_noop
 from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, translate_axes
 from .language import apply_ui_language, combo_of, plot_fonts
-from .plot_parts import PlotCanvas, StatusText, report_saved, scrolled
+from .plot_parts import PlotCanvas, StatusText, WrappedLabel, report_saved, scrolled
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -98,7 +97,7 @@ class ProbePlotDock(QWidget):
         form.addRow(tr("Line gauges show"), self.quantity_combo)
         form.addRow(tr("Points, areas show"), self.field_combo)
         self.load_button = QPushButton(tr("Load CSV..."))
-        self.load_label = QLabel(tr("no load data"))
+        self.load_label = WrappedLabel(tr("no load data"))
         self.load_label.setWordWrap(True)  # a long file description never widens the dock
         self.load_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         self.load_label.setMinimumWidth(40)  # not the width of its longest word (a file name)

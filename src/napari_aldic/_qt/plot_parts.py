@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from qtpy.QtCore import QSize, Qt
-from qtpy.QtWidgets import QFrame, QPlainTextEdit, QScrollArea, QSizePolicy, QWidget
+from qtpy.QtWidgets import QFrame, QLabel, QPlainTextEdit, QScrollArea, QSizePolicy, QWidget
 
 from ..i18n import tr
 
-__all__ = ["PlotCanvas", "StatusText", "report_saved", "scrolled"]
+__all__ = ["PlotCanvas", "StatusText", "WrappedLabel", "report_saved", "scrolled"]
 
 #: the plot's preferred height (it grows with the dock; a low window scrolls)
 PLOT_HINT_PX = 150
@@ -51,6 +51,24 @@ class StatusText(QPlainTextEdit):
         """Whether part of the text is out of view (it is reached by scrolling)."""
         bar = self.verticalScrollBar()
         return bar.maximum() > bar.minimum()
+
+
+class WrappedLabel(QLabel):
+    """A wrapped label that is always as tall as its lines at its width (in a form
+    row, Qt gave the load file's two lines the height of one: both cut)."""
+
+    def _fit(self) -> None:
+        need = self.heightForWidth(self.width())
+        if need > 0 and need != self.minimumHeight():
+            self.setMinimumHeight(need)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        super().resizeEvent(event)
+        self._fit()
+
+    def setText(self, text: str) -> None:  # noqa: N802 (Qt's name)
+        super().setText(text)
+        self._fit()
 
 
 class PlotCanvas(FigureCanvasQTAgg):
