@@ -240,6 +240,8 @@ class Job:
     summary: str = ""
     #: ``correlate_sem`` options (issue 27), or None for a plain run
     sem: dict | None = None
+    #: the dock's units: the log's result summary says lengths in them (issue 24, trap 16)
+    units: Any = None
 
     @property
     def n_deformed(self) -> int:

@@ -88,20 +88,28 @@ def with_explanation(exc: BaseException) -> str:
     return f"{message} ({hint})"
 
 
-def result_summary(result) -> str:
+def result_summary(result, units=None) -> str:
     """The log's summary of a frame's DICResult, translated (the engine's own
-    ``DICResult.summary()`` stays English); the AL-DIC line is the engine's."""
+    ``DICResult.summary()`` stays English); the AL-DIC line is the engine's.
+    With ``units`` (a :class:`~napari_aldic.engine.Units` with a pixel size), u
+    and v are said in its length unit, the subset and step in pixels."""
     p, valid = result.params, np.asarray(result.valid, bool)
     lines = [tr("{n} nodes ({valid} valid), subset {subset} px, step {step} px, method "
                 "{method}").format(n=len(result), valid=result.n_valid, subset=p.subset,
                                    step=p.step, method=p.method)]
     if valid.any():
-        u, v = np.asarray(result.u)[valid], np.asarray(result.v)[valid]
+        scale, unit = ((1.0, "px") if units is None or units.unit == "px" else
+                       (float(units.pixel_size), units.unit))
+        u, v = scale * np.asarray(result.u)[valid], scale * np.asarray(result.v)[valid]
+        values = dict(u_mean=u.mean(), u_min=u.min(), u_max=u.max(), v_mean=v.mean(),
+                      v_min=v.min(), v_max=v.max(),
+                      zncc=float(np.median(np.asarray(result.zncc)[valid])))
         lines.append(tr("u: mean {u_mean:+.4f} px [{u_min:+.3f}, {u_max:+.3f}]; v: mean "
                         "{v_mean:+.4f} px [{v_min:+.3f}, {v_max:+.3f}]; median ZNCC "
-                        "{zncc:.4f}").format(
-            u_mean=u.mean(), u_min=u.min(), u_max=u.max(), v_mean=v.mean(), v_min=v.min(),
-            v_max=v.max(), zncc=float(np.median(np.asarray(result.zncc)[valid]))))
+                        "{zncc:.4f}").format(**values) if unit == "px" else
+                     tr("u: mean {u_mean:+.4g} {unit} [{u_min:+.4g}, {u_max:+.4g}]; v: mean "
+                        "{v_mean:+.4g} {unit} [{v_min:+.4g}, {v_max:+.4g}]; median ZNCC "
+                        "{zncc:.4f}").format(unit=unit, **values))
     aldic = result.aldic_summary()
     if aldic:
         lines.append(aldic)

@@ -58,6 +58,8 @@ class ExportPanel(Panel):
     current_frame : callable() -> int or None
         The stack frame the viewer shows.
     log : callable(str)
+    probes : callable() -> ProbeTable or None, optional
+        The probes measured on the analysis: the PDF report gets their page.
 
     Signals
     -------
@@ -68,8 +70,9 @@ class ExportPanel(Panel):
     exported = Signal(list)
 
     def __init__(self, analysis: Callable[[], Any], units: Callable[[], Any],
-                 current_frame: Callable[[], int | None], log: Callable[[str], None]):
-        self._analysis, self._units = analysis, units
+                 current_frame: Callable[[], int | None], log: Callable[[str], None],
+                 probes: Callable[[], Any] | None = None):
+        self._analysis, self._units, self._probes = analysis, units, probes
         self._current_frame, self._log = current_frame, log
         self._worker = None
         self._folder: Path | None = None
@@ -141,10 +144,11 @@ class ExportPanel(Panel):
 
     # ------------------------------------------------------------ exporting
     def export(self, path, fmt: str | None = None, field: str | None = None,
-               frames: str | None = None) -> list[Path]:
+               frames: str | None = None, probes: Any = None) -> list[Path]:
         """Write the results shown to ``path`` in format ``fmt`` (default: the
         panel's); returns the paths written. Raises ``ValueError`` without
-        results or with invalid units, and the engine's errors."""
+        results or with invalid units, and the engine's errors. A PDF report has
+        a page of the probes (``probes``, a ProbeTable; default: those measured now)."""
         analysis = self._analysis()
         if analysis is None:
             raise ValueError(tr("there are no results to export: run an analysis first"))
@@ -167,8 +171,20 @@ class ExportPanel(Panel):
             options["field"] = field or self.field.value
         if fmt in ("gif", "mp4"):
             options["fps"] = float(self.fps.value)
+        if fmt == "pdf":
+            probes = probes if probes is not None else self.probe_table()
+            if probes is not None:
+                options["probes"] = probes
         out = export_result(results, path, to=fmt, **options)
         return [Path(p) for p in out] if isinstance(out, (list, tuple)) else [Path(out)]
+
+    def probe_table(self):
+        """The probes measured on the analysis now (None: none, or they cannot be)."""
+        try:
+            return self._probes() if self._probes is not None else None
+        except (ValueError, TypeError) as exc:
+            self._log(tr("the report has no probe page: {exc}").format(exc=exc))
+            return None
 
     def _frame_choice(self, frames: str | None) -> list[int] | None:
         """The frame numbers to export (``None``: all)."""
@@ -206,7 +222,8 @@ class ExportPanel(Panel):
         self._folder = Path(path).parent
         self._log(tr("exporting {what} to {path} ...").format(what=tr(FORMATS[fmt][0]),
                                                                     path=path))
-        worker = create_worker(self.export, path, fmt, field, frames,
+        probes = self.probe_table() if fmt == "pdf" else None  # read here, not in the worker
+        worker = create_worker(self.export, path, fmt, field, frames, probes,
                                _worker_class=FunctionWorker, _ignore_errors=True)
         worker.returned.connect(self._on_exported)
         worker.errored.connect(self._on_failed)

@@ -8,7 +8,7 @@ line, Run, Cancel and the progress stay in view.
 
 from __future__ import annotations
 
-from qtpy.QtCore import QEvent, QObject, QSize, Qt
+from qtpy.QtCore import QEvent, QObject, QSize, Qt, QTimer
 from qtpy.QtWidgets import QComboBox, QFrame, QScrollArea, QVBoxLayout, QWidget
 from superqt import QCollapsible
 
@@ -53,17 +53,38 @@ class _Scroll(QScrollArea):
 
 class _Refit(QObject):
     """Keeps an open section as tall as its panel needs: superqt fixes the height
-    of an open section when it opens, so a panel that grows later (the Display
-    legend after a run) was clipped until folded and unfolded again."""
+    of an open section when it opens (its content's size hint), so a panel that grows
+    later (the Display legend after a run) was clipped until folded and unfolded
+    again. The height is that of the panel's wrapped text at the section's width
+    (a narrower dock wraps more lines than the size hint counts), set after
+    superqt's own refit of a resize (one turn of the event loop later)."""
 
     def __init__(self, box: QCollapsible):
         super().__init__(box)
         self._box = box
+        self._timer = QTimer(self)
+        self._timer.setSingleShot(True)
+        self._timer.setInterval(0)
+        self._timer.timeout.connect(self.refit)
 
     def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
-        if event.type() == QEvent.Type.LayoutRequest and self._box.isExpanded():
-            self._box.expand(animate=False)
+        if event.type() in (QEvent.Type.LayoutRequest, QEvent.Type.Resize) and \
+                self._box.isExpanded():
+            self._timer.start()
         return False
+
+    def refit(self) -> None:
+        """Open the section to the height its content needs at its width."""
+        box = self._box
+        if not box.isExpanded():
+            return
+        content = box.content()
+        need = content.sizeHint().height()
+        layout = content.layout()
+        if layout is not None and layout.hasHeightForWidth():
+            need = max(need, layout.totalHeightForWidth(content.width()))
+        if content.maximumHeight() != need + 10:  # superqt's margin
+            content.setMaximumHeight(need + 10)
 
 
 def sections_area(sections: list[Section]) -> tuple[QScrollArea, dict[str, QCollapsible]]:

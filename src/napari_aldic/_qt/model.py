@@ -102,7 +102,8 @@ class DockModel:
                   reference=t["reference"], start=int(t["start"]),
                   stop=None if t["stop"] is None else int(t["stop"]), stride=int(t["stride"]),
                   brush=brush, strain=self.strain, source=source,
-                  sem=self.sem.options() if self.sem and self.sem.active else None)
+                  sem=self.sem.options() if self.sem and self.sem.active else None,
+                  units=self.units)
         job.summary = job.describe(notes or [], self.hidden_params())
         if job.sem is not None:  # issue 27: refused before the run starts, and logged
             if job.n_deformed != 1 or (brush is not None and brush.any()):

@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from qtpy.QtCore import QTimer
 from qtpy.QtWidgets import (
@@ -20,7 +19,6 @@ from qtpy.QtWidgets import (
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
-    QLabel,
     QPushButton,
     QSizePolicy,
     QVBoxLayout,
@@ -39,6 +37,7 @@ from ..engine.probes import (
 from ..i18n import tr, tr_noop
 from .gauges import chosen_gauge, deformed_hint, fill_gauges, probe_messages, said, translate_axes
 from .language import apply_ui_language, combo_of, follow_language, plot_fonts, retranslate_tree
+from .plot_parts import PlotCanvas, StatusText, WrappedLabel, report_saved, scrolled
 from .probes import (
     PROBE_POINTS,
     PROBE_SHAPES,
@@ -48,6 +47,7 @@ from .probes import (
     probes_from_layers,
 )
 from .project import PROBE_KEY
+from .project_results import LOAD_OPTIONS, keep_load, kept_load
 
 __all__ = ["ProbePlotDock"]
 
@@ -97,7 +97,7 @@ class ProbePlotDock(QWidget):
         form.addRow(tr("Line gauges show"), self.quantity_combo)
         form.addRow(tr("Points, areas show"), self.field_combo)
         self.load_button = QPushButton(tr("Load CSV..."))
-        self.load_label = QLabel(tr("no load data"))
+        self.load_label = WrappedLabel(tr("no load data"))
         self.load_label.setWordWrap(True)  # a long file description never widens the dock
         self.load_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         self.load_label.setMinimumWidth(40)  # not the width of its longest word (a file name)
@@ -118,20 +118,23 @@ class ProbePlotDock(QWidget):
         load_box = QGroupBox(tr("Testing machine (stress-strain)"))
         load_box.setLayout(load_form)
         self.figure = Figure(figsize=(4.5, 4.0), layout="constrained")
-        self.canvas = FigureCanvasQTAgg(self.figure)
+        self.canvas = PlotCanvas(self.figure)
         self.canvas.setMinimumHeight(140)  # the DIC dock above keeps rows (1600 x 1000)
-        self.status_label = QLabel("")
-        self.status_label.setWordWrap(True)
+        self.status_label = StatusText()  # its own scrolling box under the plot (trap 7)
         self.save_csv_button, self.save_plot_button = QPushButton(tr("Save CSV...")), \
             QPushButton(tr("Save plot..."))
         buttons = QHBoxLayout()
         _ = [buttons.addWidget(b) for b in (self.save_csv_button, self.save_plot_button)]
-        lay = QVBoxLayout(self)
+        inner = QWidget()
+        lay = QVBoxLayout(inner)
         lay.addLayout(form)
         lay.addWidget(load_box)
         lay.addWidget(self.canvas, 1)
         lay.addWidget(self.status_label)
         lay.addLayout(buttons)
+        outer = QVBoxLayout(self)  # a low window scrolls the dock: nothing drawn over another
+        outer.setContentsMargins(0, 0, 0, 0)
+        outer.addWidget(scrolled(inner))
         for combo in (self.shapes_combo, self.points_combo):
             combo.currentTextChanged.connect(self._on_probe_layers_chosen)
         for combo in (self.quantity_combo, self.field_combo, self.gauge_combo):
@@ -234,6 +237,9 @@ class ProbePlotDock(QWidget):
 
     def recompute(self) -> None:
         """Measure the probes on the analysis in the viewer and redraw."""
+        kept = kept_load(self.shapes_layer) if self.load_record is None else None
+        if kept and self.load_csv(kept["path"], **{k: kept.get(k) for k in LOAD_OPTIONS}):
+            return  # a project's load file, read again (it measured)
         self.view = find_analysis(self._viewer.layers)
         self.table, notes = None, []
         if self.view is None:
@@ -262,6 +268,9 @@ class ProbePlotDock(QWidget):
         if self.load_record is None or self.table is None:
             return
         sync = self.sync_combo.currentData()
+        keep_load(self.shapes_layer, {"path": str(self.load_record.source), "sync": sync,
+                                      "area_mm2": self.area_spin.value(), "fps":
+                                      self.fps_spin.value(), "offset": self.offset_spin.value()})
         try:
             attach_load(self.table, self.load_record, area_mm2=self.area_spin.value(),
                         sync=sync, fps=self.fps_spin.value(), offset=self.offset_spin.value())
@@ -384,17 +393,4 @@ class ProbePlotDock(QWidget):
 
     def _ask_save(self, title: str, filt: str, fn=None) -> None:
         if path := self._ask(title, filt):
-            self._report(fn or self.save_csv, path)
-
-    def _report(self, fn, path) -> None:
-        from napari.utils.notifications import show_error, show_info
-
-        try:
-            out = fn(path)
-        except (ValueError, OSError) as exc:
-            show_error(f"napari-aldic: {exc}")
-            return
-        if out is None:
-            show_error(tr("napari-aldic: no probe values to save yet"))
-        else:
-            show_info(tr("napari-aldic: saved {out}").format(out=out))
+            report_saved(fn or self.save_csv, path)

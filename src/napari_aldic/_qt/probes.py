@@ -18,11 +18,21 @@ import numpy as np
 
 from ..engine import Units
 from ..engine.io import Frame, FrameSet
-from ..engine.probes import AreaProbe, LineProbe, PointProbe, ProbeSet, measure_probes
+from ..engine.probes import (
+    AreaProbe,
+    LineProbe,
+    PointProbe,
+    ProbeSet,
+    attach_load,
+    measure_probes,
+    read_load_csv,
+)
 from ..i18n import tr
+from .project import is_probe_layer
+from .project_results import kept_load
 
 __all__ = ["image_view", "ResultView", "find_analysis", "probes_from_layers", "measure_analysis",
-           "is_probe_candidate", "PROBE_SHAPES", "PROBE_POINTS"]
+           "is_probe_candidate", "probe_table", "PROBE_SHAPES", "PROBE_POINTS"]
 
 ANALYSIS_KEY = "napari_aldic_analysis"
 #: names of the layers that "Add probe layers" makes
@@ -185,3 +195,31 @@ def measure_analysis(view: ResultView, probes: ProbeSet, fields=("u", "v", "exx"
                              "measure": settings.measure}
     return measure_probes(data, probes, fields=fields, strain=strain or False,
                           units=view.units)
+
+
+def probe_table(layers):
+    """The probe table of the viewer's probe layers (the first marked Shapes and
+    Points layers) on the analysis shown, with the load file kept with the probe
+    Shapes layer (the probe dock's CSV): the widget's PDF report gets its probe
+    page from it. None without an analysis or probes."""
+    view = find_analysis(layers)
+    if view is None or view.analysis is None:
+        return None
+    kinds = {"Shapes": None, "Points": None}
+    for lay in layers:
+        kind = lay.__class__.__name__
+        if is_probe_layer(lay) and kinds.get(kind, 0) is None:
+            kinds[kind] = lay
+    probes, _ = probes_from_layers(kinds["Shapes"], kinds["Points"], view)
+    if not len(probes):
+        return None
+    table = measure_analysis(view, probes)
+    load = kept_load(kinds["Shapes"])
+    if load and load.get("area_mm2"):
+        try:
+            attach_load(table, read_load_csv(load["path"]), area_mm2=float(load["area_mm2"]),
+                        sync=load.get("sync"), fps=load.get("fps"),
+                        offset=float(load.get("offset") or 0.0))
+        except (ValueError, OSError):  # the probe dock says why; the page has no stress
+            pass
+    return table

@@ -18,6 +18,7 @@ from ..engine import Settings
 from ..i18n import tr, tr_noop
 from .explain import message
 from .model import DockModel
+from .probes import find_analysis
 from .project import (
     image_changed,
     image_record,
@@ -27,6 +28,7 @@ from .project import (
     read_project,
     write_project,
 )
+from .project_results import LOAD_KEY, load_record, restore_load, restore_results, results_record
 from .sem_choice import SEMChoice
 
 __all__ = ["ProjectActions", "PROJECT_FILTER"]
@@ -58,6 +60,8 @@ class ProjectActions:
                  parent):
         self._model, self._panel, self._viewer, self._log = model, parent, viewer, log
         self._inputs = inputs
+        #: the analysis of the project opened last (its saved results), or None
+        self.restored = None
 
     # ------------------------------------------------------------ saving
     def document(self) -> dict:
@@ -88,7 +92,11 @@ class ProjectActions:
         from napari.utils.notifications import show_error
 
         try:
-            written = write_project(path, self.document())
+            path = Path(os.fspath(path)).expanduser()
+            path = path if path.suffix else path.with_suffix(".json")
+            doc = self.document()
+            doc.update(self._kept_with(path))
+            written = write_project(path, doc)
         except Exception as exc:  # nothing to refer to, unwritable file: explain
             self._log(tr("ERROR saving the analysis to {path}: {exc}").format(
                              path=path, exc=message(exc)))
@@ -97,6 +105,42 @@ class ProjectActions:
             return None
         self._log(tr("analysis saved to {written}").format(written=written))
         return written
+
+    def _kept_with(self, path: Path) -> dict:
+        """The results (written beside the project) and the probe dock's load file."""
+        kept: dict = {}
+        view = find_analysis(self._viewer.layers)
+        if view is not None and view.analysis is not None:
+            kept["results"] = results_record(view.analysis, path, self._model.units)
+        for lay in self._viewer.layers:
+            load = (getattr(lay, "metadata", None) or {}).get(LOAD_KEY)
+            if is_probe_layer(lay) and isinstance(load, dict):
+                rec = load_record(load, path)
+                if rec is not None:
+                    kept["load"] = rec
+                    break
+        return kept
+
+    def _restore_kept(self, doc: dict, path, image) -> None:
+        """The saved results (``self.restored``) and the load file on the probes."""
+        self.restored = None
+        if isinstance(doc.get("results"), dict):
+            try:
+                self.restored = restore_results(doc["results"], path, image.name)
+            except (ValueError, OSError) as exc:
+                self._log(tr("the saved results were not restored: {exc}; run the analysis "
+                             "again").format(exc=message(exc)))
+        if isinstance(doc.get("load"), dict):
+            try:
+                load = restore_load(doc["load"], path)
+            except ValueError as exc:
+                self._log(tr("the load file was not restored: {exc}").format(
+                    exc=message(exc)))
+                return
+            probes = [lay for lay in self._viewer.layers
+                      if is_probe_layer(lay) and lay.__class__.__name__ == "Shapes"]
+            if probes:
+                probes[0].metadata = {**probes[0].metadata, LOAD_KEY: load}
 
     # ------------------------------------------------------------ opening
     def open(self, path) -> bool:
@@ -127,6 +171,7 @@ class ProjectActions:
             self._panel.set_init("seeds")
         self._panel.set_display(doc.get("display") or {})
         self._model.update("sem", sem)
+        self._restore_kept(doc, path, image)
         self._viewer.reset_view()  # the project's image in view (not a speck of the old view)
         self._log(tr("analysis opened from {path}: image '{image_name}', {n_get} "
                      "layer(s)").format(

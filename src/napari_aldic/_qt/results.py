@@ -76,11 +76,16 @@ def _keep_colours(layer, kw: dict) -> None:
 
 
 def show_bar(layer, visible: bool) -> None:
-    """Show or hide the canvas colour bar of a field image. Its unit is in the
-    layer's name (napari's bar has no label); napari's name overlay beside the
-    bar would show it on the canvas, but its first text rendering held the
-    event loop 0.3 s during a run (test_viewer_never_stalls_during_a_run)."""
+    """Show or hide the canvas colour bar of a field image with, beside it, the
+    layer's name, which carries the field's unit (napari 0.9's bar has no label;
+    issue 24, trap 14). The name's first drawing compiles its text shader (0.1-0.3 s
+    of the canvas' drawing under Mesa's software renderer, measured): drawing time,
+    which test_viewer_never_stalls_during_a_run holds apart (1 s); setting it takes
+    the event loop about 0.01 s."""
     layer.colorbar.visible = visible
+    if visible:
+        layer.name_overlay.position = layer.colorbar.position
+    layer.name_overlay.visible = visible
 
 
 def update_layer(layer, data, kw: dict, kind: str) -> bool:

@@ -90,7 +90,7 @@ class RunPanel(Panel):
         self._t0 = 0.0
         self._frac = 0.0
         self._eta: tuple | None = None  # (seconds left, when the engine said so)
-        self._n_deformed = 0
+        self._n_deformed, self._units = 0, None  # the running job's frame count and units
         self._problems: tuple[list, list] = ([], [])
         #: each step of showing the last run's results: (start, end) in
         #: ``time.perf_counter`` seconds and the main thread's CPU seconds in it
@@ -197,7 +197,7 @@ class RunPanel(Panel):
         if after is not None:
             after = _frozen_gc(after)
         self._cancel.clear()
-        self._n_deformed = job.n_deformed
+        self._n_deformed, self._units = job.n_deformed, job.units
         self.write_log(tr("Run {time}: {summary}").format(time=time.strftime('%H:%M:%S'),
                                                          summary=job.summary))
         # superqt's plain worker: errors reach _on_errored only (one notification)
@@ -298,7 +298,7 @@ class RunPanel(Panel):
                 done=done, total=total, time=took)
         last = next((r for r in reversed(analysis.results) if r is not None), None)
         if last is not None and done > 0:
-            self.write_log(result_summary(last))
+            self.write_log(result_summary(last, self._units))
         self.eta.value = tr("{status}; showing the results ...").format(status=final)
         try:
             steps = self.show_results(analysis, prepared) if self.show_results else None

@@ -27,6 +27,7 @@ from .language import LanguageSelector, apply_ui_language, follow_language, retr
 from .layout import divider, sections_area
 from .live import LivePanel
 from .model import DockModel
+from .probes import probe_table
 from .project import is_probe_layer
 from .results import ResultLayers, geometry_of, prepare
 from .run import RunPanel
@@ -100,7 +101,8 @@ class DICWidget(Container):
         self.run_panel = RunPanel()
         self._results = ResultLayers(self._viewer)
         self.exports = ExportPanel(lambda: self._results.analysis, lambda: self.units.units,
-                                   self._current_frame, self.run_panel.write_log)
+                                   self._current_frame, self.run_panel.write_log,
+                                   lambda: probe_table(self._viewer.layers))
         self.settings = SettingsPanel(self.model, self.inputs, self.correlation, self.strain_panel,
                                       self.units, self.display, log=self.run_panel.write_log,
                                       apply_units=self._apply_units, viewer=self._viewer)
@@ -168,8 +170,7 @@ class DICWidget(Container):
         """The controls' settings: the fields of a :class:`~napari_aldic.engine.Settings`;
         ``ValueError`` when they make none (an even subset, a pixel size in 'px' ...)."""
         s = self.settings.current()
-        return {"params": s.params, "units": s.units, "strain": s.strain,
-                "tracking": s.tracking}
+        return {"params": s.params, "units": s.units, "strain": s.strain, "tracking": s.tracking}
 
     def _current_params(self) -> DICParams:
         return self.settings.current_params()
@@ -180,18 +181,16 @@ class DICWidget(Container):
         return self.settings.save(path)
 
     def load_settings(self, path) -> bool:
-        """Set every control from a settings file (also of ``napari-aldic params``, or
-        a JSON object of DICParams fields); an invalid one changes nothing (``False``).
-        Hidden DICParams fields are kept; seeds become a layer; frame ranges clamped."""
+        """Set every control from a settings file (also ``napari-aldic params``' or a JSON
+        object of DICParams fields); an invalid one changes nothing (``False``)."""
         return self.settings.load(path)
 
     def save_project(self, path) -> Path | None:
-        """Save the whole analysis set-up (image path, ROI/holes/labels/refine/seed
-        and probe layers, parameters, units, display) as a project file."""
+        """Save the analysis (image, layers, settings; results and load file beside it)."""
         return self.settings.save_project(path)
 
     def open_project(self, path) -> bool:
-        """Open a project file: the image and layers are added and every control set."""
+        """Open a project file: image, layers, controls and saved results restored."""
         return self.settings.open_project(path)
 
     def restore_defaults(self) -> None:
@@ -199,8 +198,7 @@ class DICWidget(Container):
         self.settings.restore_defaults()
 
     def retranslate(self, rt) -> None:
-        """Say the dock in the language just chosen, keeping every value and the
-        analysis (issue 24, trap 5): texts, label column, status, export note."""
+        """Say the dock in the language just chosen; values and analysis kept (trap 5)."""
         retranslate_tree(self.native, rt)
         align_labels([getattr(self, name) for name in ALIGNED])  # their new widths
         self._validate()
@@ -249,7 +247,10 @@ class DICWidget(Container):
 
     def _on_project_opened(self) -> None:
         self._on_image_changed()
-        self._refresh_results()
+        if (restored := self.settings.projects.restored) is None:  # saved results (trap 16)
+            return self._refresh_results()
+        self._results.image = self.inputs.image_layer
+        self.show_analysis(restored)
 
     def _apply_units(self) -> None:
         """Apply the units to the image, its input, probe and result layers."""
@@ -344,8 +345,7 @@ class DICWidget(Container):
 
     # ------------------------------------------------------------ results
     def show_analysis(self, analysis: Analysis) -> None:
-        """Show ``analysis`` (e.g. of :func:`~napari_aldic._analysis.run_analysis`)
-        as result layers on the chosen image, at once."""
+        """Show ``analysis`` (e.g. of ``run_analysis``) as result layers on the image, at once."""
         for _ in self._show_steps(analysis, None):
             pass
 
