@@ -86,10 +86,14 @@ def test_guide_analysis_of_the_shipped_crack_sequence(make_napari_viewer, qtbot,
     def at(x, y):
         return last[int(round((y - ty) / sy)), int(round((x - tx) / sx))]
 
+    def jump(x0):  # v across the crack line, median over a 24 px run of columns (a node
+        # there may be flagged untrusted: its predicted uncertainty is close to the limit)
+        return np.nanmedian([at(x, 248) - at(x, 208) for x in range(x0 - 12, x0 + 13, 4)])
+
     # the crack opens: v jumps across it near the notch (~7 px), not far from it
-    opening = at(70, 248) - at(70, 208)
+    opening = jump(70)
     assert opening > 3.0, opening
-    assert abs(at(330, 248) - at(330, 208)) < 0.2 * opening
+    assert abs(jump(330)) < 0.2 * opening
     assert np.nanmedian(last) < -50  # the specimen moved ~57 px up
 
     # rigid-body motion removed, fields on the deformed specimen: the opening stands out
