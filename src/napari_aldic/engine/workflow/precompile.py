@@ -141,10 +141,10 @@ def _worker_count(workers: int | None, todo: list[str]) -> int:
     if workers is None:
         env = os.environ.get(_ENV, "").strip()
         workers = int(env) if env.isdigit() else _usable_cpus()
+        if sum(sigs.COST.get(k, 1.0) for k in todo) < 2 * _START_COST:
+            workers = 1  # a few small kernels: not worth starting a process
     if getattr(sys, "frozen", False):
         workers = 1  # a frozen app's executable is not a Python interpreter
-    if sum(sigs.COST.get(k, 1.0) for k in todo) < 2 * _START_COST:
-        return 1  # a few small kernels: not worth starting a process
     return max(1, min(workers, len(todo)))
 
 
@@ -155,7 +155,8 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
     ``$NAPARI_ALDIC_PRECOMPILE_WORKERS``; 1 = in this process only).
 
     ``groups``: ``"local"`` (every 2-D analysis), ``"aldic"`` (AL-DIC's
-    global steps), ``"synthetic"`` (the synthetic speckle images).
+    global steps), ``"strain"`` (the strain's plane fit), ``"synthetic"`` (the
+    synthetic speckle images), or kernels by name (``"lattice.plane_fit"``).
     ``on_start(n_kernels, n_processes)`` is called before compiling starts
     (not when everything is cached). Returns at once (a
     :class:`PrecompileReport` with ``processes == 0``) when nothing is to
