@@ -22,14 +22,15 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from ..kernels import signatures as sigs
 
 __all__ = ["precompile_kernels", "kernels_to_compile", "PrecompileReport"]
 
-#: seconds a worker process needs to start and import the engine before it
-#: compiles anything (measured ~3 s on a 2-core machine): its share is that much smaller
-_START_COST = 3.0
+#: seconds a worker process needs to start before it compiles anything (~1 s
+#: CPU: numpy, numba and the kernel modules): its share is that much smaller
+_START_COST = 1.5
 _ENV = "NAPARI_ALDIC_PRECOMPILE_WORKERS"
 
 
@@ -43,6 +44,9 @@ class PrecompileReport:
     processes: int = 0
     #: wall-clock seconds
     seconds: float = 0.0
+    #: CPU seconds of each process that compiled, this one first (its
+    #: compiling thread; a worker: all of it, start-up included)
+    cpu_seconds: list[float] = field(default_factory=list)
     #: ``"kernel: error"`` of kernels that failed to compile ahead (they
     #: compile at their first call instead, as without precompiling)
     errors: list[str] = field(default_factory=list)
@@ -94,27 +98,41 @@ def _compile(names: list[str]) -> list[tuple[str, str]]:
 def _spawn(names: list[str]) -> subprocess.Popen:
     """A fresh interpreter compiling ``names`` (a new process rather than a
     ``multiprocessing`` one: nothing of this process is re-imported or forked,
-    so it works from a script without a main guard, Jupyter and a Qt GUI)."""
+    so it works from a script without a main guard, Jupyter and a Qt GUI).
+
+    It imports the kernel modules only (numpy and numba): the package's and
+    the engine's ``__init__`` (SciPy, the readers, ...; ~2 s) are replaced by
+    empty packages with the same paths, so the kernels' cache files and keys
+    are the ones this process reads."""
+    here = Path(__file__).resolve()
+    top, engine = __name__.split(".")[:2]
+    stubs = [(top, str(here.parents[2])), (f"{top}.{engine}", str(here.parents[1]))]
+    code = ("import sys, types\n"
+            f"for name, path in {stubs!r}:\n"
+            "    sys.modules.setdefault(name, types.ModuleType(name)).__path__ = [path]\n"
+            f"from {__name__} import _worker_main\n_worker_main()\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
-    code = f"from {__name__} import _worker_main; _worker_main()"
     return subprocess.Popen([sys.executable, "-c", code, *names], env=env,
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
-def _collect(proc: subprocess.Popen, names: list[str]) -> list[tuple[str, str]]:
+def _collect(proc: subprocess.Popen, names: list[str]) -> tuple[list, float]:
+    """The failures and the CPU seconds a worker reported (NaN if it died)."""
     out, err = proc.communicate()
     try:
-        return [tuple(x) for x in json.loads(out.strip().splitlines()[-1])]
-    except (ValueError, IndexError):  # the worker died: compiled at the first call
+        got = json.loads(out.strip().splitlines()[-1])
+        return [tuple(x) for x in got["failed"]], float(got["cpu_s"])
+    except (ValueError, IndexError, KeyError, TypeError):  # died: compiled at the call
         why = f"worker exit {proc.returncode}: {err.strip()[-300:]}"
-        return [(k, why) for k in names]
+        return [(k, why) for k in names], float("nan")
 
 
 def _worker_main() -> None:
     """Entry of a worker process: compile the kernels named in ``sys.argv``,
-    print the failures as one JSON line."""
-    print(json.dumps(_compile(sys.argv[1:])), flush=True)
+    print the failures and its CPU seconds as one JSON line."""
+    failed = _compile(sys.argv[1:])
+    print(json.dumps({"failed": failed, "cpu_s": time.process_time()}), flush=True)
 
 
 def _usable_cpus() -> int:
@@ -180,9 +198,13 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
             procs.append((_spawn(share), share))
         except OSError:  # no interpreter to start: this process compiles it
             own += share
+    c0 = time.thread_time()
     failed = _compile(own)
+    cpu = [time.thread_time() - c0]
     for proc, share in procs:
-        failed += _collect(proc, share)
+        more, secs = _collect(proc, share)
+        failed += more
+        cpu.append(secs)
     return PrecompileReport(compiled=todo, processes=len(shares),
-                            seconds=time.perf_counter() - t0,
+                            seconds=time.perf_counter() - t0, cpu_seconds=cpu,
                             errors=[f"{k}: {e}" for k, e in failed])
