@@ -20,6 +20,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,20 +113,25 @@ def _spawn(names: list[str]) -> subprocess.Popen:
             "    sys.modules.setdefault(name, types.ModuleType(name)).__path__ = [path]\n"
             f"from {__name__} import _worker_main\n_worker_main()\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
-    return subprocess.Popen([sys.executable, "-c", code, *names], env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    err = tempfile.TemporaryFile(mode="w+")  # Numba's warnings: a full pipe would stall it
+    proc = subprocess.Popen([sys.executable, "-c", code, *names], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err,
+                            text=True)
+    proc.err_file = err
+    return proc
 
 
 def _collect(proc: subprocess.Popen, names: list[str]) -> tuple[list, float]:
     """The failures and the CPU seconds a worker reported (NaN if it died)."""
-    out, err = proc.communicate()
-    try:
-        got = json.loads(out.strip().splitlines()[-1])
-        return [tuple(x) for x in got["failed"]], float(got["cpu_s"])
-    except (ValueError, IndexError, KeyError, TypeError):  # died: compiled at the call
-        why = f"worker exit {proc.returncode}: {err.strip()[-300:]}"
-        return [(k, why) for k in names], float("nan")
+    out, _ = proc.communicate()
+    with proc.err_file as err:
+        try:
+            got = json.loads(out.strip().splitlines()[-1])
+            return [tuple(x) for x in got["failed"]], float(got["cpu_s"])
+        except (ValueError, IndexError, KeyError, TypeError):  # died: compiled at the call
+            err.seek(0)
+            why = f"worker exit {proc.returncode}: {err.read().strip()[-300:]}"
+            return [(k, why) for k in names], float("nan")
 
 
 def _worker_main() -> None:
