@@ -15,7 +15,12 @@ repeat, no warm-up) Local and AL-DIC on the same pair, cold.
 Usage::
 
     python benchmarks/bench_cold_start.py --pyaldic /work/pyaldic-venv/bin/python \\
-        [--cases demo local aldic py-local py-aldic] [--json OUT.json]
+        [--cases demo local aldic local-serial py-local py-aldic] [--json OUT.json]
+
+``local-serial`` (``aldic-serial``, ``demo-serial``): the same command with
+``NAPARI_ALDIC_PRECOMPILE_WORKERS=1`` (the kernels compiled in the process
+itself, no worker processes). CPU seconds (``*_cpu_s``, worker processes
+included) are printed beside the wall-clock ones, for a loaded machine.
 
 Prints one JSON line per case and the targets: ours cold <= 0.5 x pyALDIC
 cold, and ours cold <= 1.5 x ours warm + 20 s.
@@ -26,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -39,11 +45,19 @@ if not DATA.is_dir():
 PAIR = [str(DATA / "oht_cfrp_00.tiff"), str(DATA / "oht_cfrp_11.tiff")]
 
 
-def _timed(cmd: list[str], cache: Path, cwd: Path) -> tuple[float, str]:
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+_CPU = {"cpu_s": 0.0}
+
+
+def _timed(cmd: list[str], cache: Path, cwd: Path, env_extra=None) -> tuple[float, str]:
+    """Wall seconds of ``cmd``; its CPU seconds (its worker processes
+    included) are left in ``_CPU["cpu_s"]``."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), **(env_extra or {}))
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     out = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
     secs = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    _CPU["cpu_s"] = round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 2)
     if out.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{out.stderr[-2000:]}")
     return secs, out.stdout + out.stderr
@@ -79,14 +93,18 @@ def main() -> None:
             if case.startswith("py-"):
                 cmd = _pyaldic(args.pyaldic, case[3:], work)
                 cold, _ = _timed(cmd, cache, work)
-                row = {"case": case, "cold_s": round(cold, 2)}
-            else:
-                cmd = _ours(case, work)
-                cold, text = _timed(cmd, cache, work)
-                warm, _ = _timed(cmd, cache, work)
-                row = {"case": case, "cold_s": round(cold, 2), "warm_s": round(warm, 2),
+                row = {"case": case, "cold_s": round(cold, 2), "cold_cpu_s": _CPU["cpu_s"]}
+            else:  # "local-serial": precompiling in the process itself (1 worker)
+                serial = case.endswith("-serial")
+                cmd = _ours(case.removesuffix("-serial"), work)
+                extra = {"NAPARI_ALDIC_PRECOMPILE_WORKERS": "1"} if serial else None
+                cold, text = _timed(cmd, cache, work, extra)
+                cold_cpu = _CPU["cpu_s"]
+                warm, _ = _timed(cmd, cache, work, extra)
+                row = {"case": case, "cold_s": round(cold, 2), "cold_cpu_s": cold_cpu,
+                       "warm_s": round(warm, 2), "warm_cpu_s": _CPU["cpu_s"],
                        "compile_lines": [ln.strip() for ln in text.splitlines()
-                                         if "compil" in ln.lower()][:3]}
+                                         if "compil" in ln.lower()][:4]}
             rows[case] = row
             print(json.dumps(row), flush=True)
     for ours, ref in (("local", "py-local"), ("aldic", "py-aldic")):

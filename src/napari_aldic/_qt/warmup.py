@@ -47,8 +47,11 @@ def warm_up() -> None:
 
 def _run_tiny_analyses() -> None:
     """Every kernel of a typical analysis, once, on a tiny synthetic pair."""
-    from ..engine import compute_strain, correlate, synthetic
+    from ..engine import compute_strain, correlate, precompile_kernels, synthetic
 
+    # a first run: the kernels listed ahead compile in parallel processes (the
+    # tiny analyses below then load them from Numba's cache and compile the rest)
+    precompile_kernels(("local", "aldic", "strain", "synthetic"))
     size = 96
     field = synthetic.Affine.strain_rotation(exx=0.002, eyy=-0.001,
                                              center=(size / 2, size / 2), t=(0.4, -0.3))

@@ -211,6 +211,32 @@ def counts_line(res) -> str:
     return line
 
 
+def kernel_groups(method: str, *extra: str) -> tuple[str, ...]:
+    """The kernel groups (``engine.precompile_kernels``) an analysis by ``method`` needs."""
+    return ("local", "aldic", *extra) if method == "aldic" else ("local", *extra)
+
+
+def precompile(groups) -> None:
+    """Compile the kernels ``groups`` need ahead, in parallel processes, when
+    Numba's cache lacks them (a first run); says so, silent otherwise."""
+    from ..engine import precompile_kernels
+
+    def started(n_kernels: int, n_procs: int) -> None:
+        print("  " + tr("compiling {n_kernels} kernels in {n_procs} processes (first run "
+                        "only; later runs load them from Numba's cache) ...").format(
+                            n_kernels=n_kernels, n_procs=n_procs), flush=True)
+
+    rep = precompile_kernels(groups, on_start=started)
+    if rep.processes:
+        print("  " + tr("kernels compiled: {seconds:.1f} s").format(seconds=rep.seconds),
+              flush=True)
+        logging.getLogger("napari_aldic.cli").info(
+            "precompile kernels=%d processes=%d seconds=%.3f failed=%d", len(rep.compiled),
+            rep.processes, rep.seconds, len(rep.errors))
+    for err in rep.errors:  # they compile at their first call instead
+        logging.getLogger("napari_aldic.cli").debug("precompile failed: %s", err)
+
+
 def log_frame(log, res, label: str, path) -> None:
     """One greppable info line of a finished frame: frame, seconds, compile
     seconds, trusted fraction, nodes, warnings, file (not translated)."""

@@ -12,12 +12,13 @@ from ..engine import correlate
 from ..engine.synthetic import make_case
 from ..engine.viz import plot_displacement
 from ..i18n import tr
-from .console import PROG, CLIError, counts_line, progress_bar
+from .console import PROG, CLIError, counts_line, kernel_groups, precompile, progress_bar
 
 
 def demo_command(args) -> None:
     """``napari-aldic demo``: synthetic pair, analysis, error report, files."""
     out = args.out.expanduser().resolve()
+    precompile(kernel_groups(args.method, "synthetic"))  # a first run: in parallel processes
     case = make_case(args.field, (args.size, args.size), noise=args.noise, seed=args.seed)
     print(tr("{prog} demo: {size} x {size} synthetic speckle pair, 8-bit, "
              "noise {noise:g} grey levels").format(

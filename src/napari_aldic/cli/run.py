@@ -21,7 +21,9 @@ from .console import (
     clear_bar,
     close_bar,
     frame_summary,
+    kernel_groups,
     log_frame,
+    precompile,
     progress_display,
 )
 from .masks import read_mask
@@ -75,6 +77,7 @@ def _run(args) -> None:
                      prog=PROG, frame_name=src.frame_name(0), n_deformed=n - 1,
                      subset=params.subset, step=params.step, method=params.method,
                      reference=args.reference))
+        precompile(kernel_groups(params.method))
         if folder is None:
             out = Path("aldic_result.npz") if args.output is None else args.output.expanduser()
             res = correlate(src[0], src[1], roi=roi, params=params,

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..engine import LiveProbes, compute_strain, watch
 from ..i18n import tr
-from .console import PROG, CLIError
+from .console import PROG, CLIError, kernel_groups, precompile
 from .masks import read_mask
 from .probe import probe_set
 from .settings import STRAIN_OPTIONS, settings_from_args
@@ -42,6 +42,7 @@ def watch_command(args) -> int:
              "{method}, reference {reference} (Ctrl+C stops)").format(
                  prog=PROG, folder=args.folder, out=args.output, subset=params.subset,
                  step=params.step, method=params.method, reference=args.reference), flush=True)
+    precompile(kernel_groups(params.method, "strain"))  # first run: before the frames arrive
     show = _FrameLines(strain, probes)
     with _stop_signals() as stop:
         if probes is not None:

@@ -46,6 +46,7 @@ from .sem import correct_distortion, correlate_sem
 from .viz.report import export_report
 from .volume import VolumeStrain, compute_strain_volume, correlate_volume, export_volume
 from .workflow.export import export_result
+from .workflow.precompile import precompile_kernels
 from .workflow.sequence import TrackError, track
 from .workflow.tiled import correlate_tiled, needs_tiling
 from .workflow.watch import watch
@@ -56,7 +57,7 @@ __all__ = [
     "correlate", "correlate_tiled", "needs_tiling", "track", "compute_strain", "DICParams",
     "Settings", "Refinement", "StrainParams",
     "resolve_refinement", "Cancelled", "ProgressEvent",
-    "compile_seconds", "is_compiling",
+    "compile_seconds", "is_compiling", "precompile_kernels",
     # measurement quality
     "advise_subset", "SubsetAdvice", "noise_floor",
     # results

@@ -1,0 +1,216 @@
+"""Compile the engine's Numba kernels ahead of a first analysis, in parallel
+processes (issue 25: the first run).
+
+A fresh environment compiles every kernel on its first call, one after the
+other: Numba holds one global compiler lock per process, so threads do not
+help. Processes do: each compiles a share of the kernels listed in
+``kernels.signatures`` and writes them to Numba's disk cache (every kernel is
+``cache=True``), and this process, which compiles its own share meanwhile,
+then loads the others from that cache at their first call, in milliseconds.
+
+:func:`precompile_kernels` returns at once when everything is cached already
+(it reads the cache index files only), so the CLI, the widget and the demo
+call it before every analysis.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..kernels import signatures as sigs
+
+__all__ = ["precompile_kernels", "kernels_to_compile", "PrecompileReport"]
+
+#: seconds a worker process needs to start before it compiles anything (~1 s
+#: CPU: numpy, numba and the kernel modules): its share is that much smaller
+_START_COST = 1.5
+_ENV = "NAPARI_ALDIC_PRECOMPILE_WORKERS"
+
+
+@dataclass
+class PrecompileReport:
+    """What :func:`precompile_kernels` did."""
+
+    #: kernels (``"module.function"``) compiled now, in this process or another
+    compiled: list[str] = field(default_factory=list)
+    #: processes that compiled (this one included); 0: nothing was to compile
+    processes: int = 0
+    #: wall-clock seconds
+    seconds: float = 0.0
+    #: CPU seconds of each process that compiled, this one first (its
+    #: compiling thread; a worker: all of it, start-up included)
+    cpu_seconds: list[float] = field(default_factory=list)
+    #: ``"kernel: error"`` of kernels that failed to compile ahead (they
+    #: compile at their first call instead, as without precompiling)
+    errors: list[str] = field(default_factory=list)
+
+
+def _dispatcher(name: str):
+    module, func = name.split(".")
+    return getattr(importlib.import_module(f"{__package__.rsplit('.', 1)[0]}.kernels.{module}"),
+                   func)
+
+
+def _is_cached(disp, argtypes: tuple) -> bool:
+    """Whether Numba's disk cache holds ``disp`` for ``argtypes`` (index only;
+    Numba's own cache key, so a True here is a cache hit at the call)."""
+    if tuple(argtypes) in disp.overloads:
+        return True
+    try:
+        cache = disp._cache
+        key = cache._index_key(argtypes, disp.targetctx.codegen())
+        return key in cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 - another Numba version: assume not cached
+        return False
+
+
+def kernels_to_compile(groups=("local", "aldic")) -> list[str]:
+    """The kernels of ``groups`` (see ``kernels.signatures.GROUPS``) that
+    neither this process nor the disk cache holds for some listed signature."""
+    todo = []
+    for name, spelled in sigs.entries(groups):
+        disp = _dispatcher(name)
+        if not all(_is_cached(disp, sigs.parse(s)) for s in spelled):
+            todo.append(name)
+    return todo
+
+
+def _compile(names: list[str]) -> list[tuple[str, str]]:
+    """Compile every listed signature of ``names``; ``(name, error)`` of failures."""
+    failed = []
+    for name in names:
+        try:
+            disp = _dispatcher(name)
+            for s in sigs.KERNELS[name]:
+                disp.compile(sigs.parse(s))
+        except Exception as exc:  # noqa: BLE001 - reported; compiled at the call instead
+            failed.append((name, f"{type(exc).__name__}: {exc}"[:300]))
+    return failed
+
+
+def _spawn(names: list[str]) -> subprocess.Popen:
+    """A fresh interpreter compiling ``names`` (a new process rather than a
+    ``multiprocessing`` one: nothing of this process is re-imported or forked,
+    so it works from a script without a main guard, Jupyter and a Qt GUI).
+
+    It imports the kernel modules only (numpy and numba): the package's and
+    the engine's ``__init__`` (SciPy, the readers, ...; ~2 s) are replaced by
+    empty packages with the same paths, so the kernels' cache files and keys
+    are the ones this process reads."""
+    here = Path(__file__).resolve()
+    top, engine = __name__.split(".")[:2]
+    stubs = [(top, str(here.parents[2])), (f"{top}.{engine}", str(here.parents[1]))]
+    code = ("import sys, types\n"
+            f"for name, path in {stubs!r}:\n"
+            "    sys.modules.setdefault(name, types.ModuleType(name)).__path__ = [path]\n"
+            f"from {__name__} import _worker_main\n_worker_main()\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    err = tempfile.TemporaryFile(mode="w+")  # Numba's warnings: a full pipe would stall it
+    proc = subprocess.Popen([sys.executable, "-c", code, *names], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=err,
+                            text=True)
+    proc.err_file = err
+    return proc
+
+
+def _collect(proc: subprocess.Popen, names: list[str]) -> tuple[list, float]:
+    """The failures and the CPU seconds a worker reported (NaN if it died)."""
+    out, _ = proc.communicate()
+    with proc.err_file as err:
+        try:
+            got = json.loads(out.strip().splitlines()[-1])
+            return [tuple(x) for x in got["failed"]], float(got["cpu_s"])
+        except (ValueError, IndexError, KeyError, TypeError):  # died: compiled at the call
+            err.seek(0)
+            why = f"worker exit {proc.returncode}: {err.read().strip()[-300:]}"
+            return [(k, why) for k in names], float("nan")
+
+
+def _worker_main() -> None:
+    """Entry of a worker process: compile the kernels named in ``sys.argv``,
+    print the failures and its CPU seconds as one JSON line."""
+    failed = _compile(sys.argv[1:])
+    print(json.dumps({"failed": failed, "cpu_s": time.process_time()}), flush=True)
+
+
+def _usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def _shares(names: list[str], n: int) -> list[list[str]]:
+    """``names`` split into ``n`` shares of similar compile time (longest
+    first, each to the least loaded share); share 0 is this process's, the
+    others start late by a worker's start-up."""
+    load = [0.0] + [_START_COST] * (n - 1)
+    out: list[list[str]] = [[] for _ in range(n)]
+    for name in sorted(names, key=lambda k: -sigs.COST.get(k, 1.0)):
+        i = min(range(n), key=load.__getitem__)
+        out[i].append(name)
+        load[i] += sigs.COST.get(name, 1.0)
+    return [s for s in out if s]  # share 0 holds the costliest kernel
+
+
+def _worker_count(workers: int | None, todo: list[str]) -> int:
+    if workers is None:
+        env = os.environ.get(_ENV, "").strip()
+        workers = int(env) if env.isdigit() else _usable_cpus()
+        if sum(sigs.COST.get(k, 1.0) for k in todo) < 2 * _START_COST:
+            workers = 1  # a few small kernels: not worth starting a process
+    if getattr(sys, "frozen", False):
+        workers = 1  # a frozen app's executable is not a Python interpreter
+    return max(1, min(workers, len(todo)))
+
+
+def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
+                       on_start=None) -> PrecompileReport:
+    """Compile the kernels that ``groups`` of analyses need and the cache
+    lacks, in up to ``workers`` processes (default: the usable CPUs, or
+    ``$NAPARI_ALDIC_PRECOMPILE_WORKERS``; 1 = in this process only).
+
+    ``groups``: ``"local"`` (every 2-D analysis), ``"aldic"`` (AL-DIC's
+    global steps), ``"strain"`` (the strain's plane fit), ``"synthetic"`` (the
+    synthetic speckle images), or kernels by name (``"lattice.plane_fit"``).
+    ``on_start(n_kernels, n_processes)`` is called before compiling starts
+    (not when everything is cached). Returns at once (a
+    :class:`PrecompileReport` with ``processes == 0``) when nothing is to
+    compile, or under ``NUMBA_DISABLE_JIT``. Kernels that fail to compile
+    here are reported and compile at their first call, as without this.
+    """
+    from numba.core import config
+
+    t0 = time.perf_counter()
+    if config.DISABLE_JIT:
+        return PrecompileReport()
+    todo = kernels_to_compile(groups)
+    if not todo:
+        return PrecompileReport(seconds=time.perf_counter() - t0)
+    shares = _shares(todo, _worker_count(workers, todo))
+    if on_start is not None:
+        on_start(len(todo), len(shares))
+    own, procs = list(shares[0]), []
+    for share in shares[1:]:
+        try:
+            procs.append((_spawn(share), share))
+        except OSError:  # no interpreter to start: this process compiles it
+            own += share
+    c0 = time.thread_time()
+    failed = _compile(own)
+    cpu = [time.thread_time() - c0]
+    for proc, share in procs:
+        more, secs = _collect(proc, share)
+        failed += more
+        cpu.append(secs)
+    return PrecompileReport(compiled=todo, processes=len(shares),
+                            seconds=time.perf_counter() - t0, cpu_seconds=cpu,
+                            errors=[f"{k}: {e}" for k, e in failed])

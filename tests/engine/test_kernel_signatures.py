@@ -1,0 +1,110 @@
+"""The kernels' argument types listed ahead (kernels.signatures) and the
+precompiling in parallel processes (workflow.precompile, issue 25).
+
+The list cannot go stale unnoticed: a fresh process runs a Local, an AL-DIC,
+a tracked and a strain analysis, records every kernel Python calls with the
+argument types, and each must be listed (the failure prints what to add).
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import json
+import os
+import subprocess
+import sys
+
+from napari_aldic.engine import precompile_kernels
+from napari_aldic.engine.kernels import signatures as sigs
+from napari_aldic.engine.workflow.precompile import kernels_to_compile
+
+#: run in a fresh interpreter: every (kernel, argument types) called from
+#: Python, as ``kernels.signatures`` spells them, one JSON line
+_PROBE = r"""
+import json
+import numba.core.dispatcher as D
+import numpy as np
+from napari_aldic.engine.kernels.signatures import spell
+
+calls = {}
+_orig = D.Dispatcher._compile_for_args
+
+def _record(self, *args, **kws):  # a Python call with new argument types
+    out = _orig(self, *args, **kws)
+    mod = self.py_func.__module__
+    if mod.startswith("napari_aldic.engine.kernels."):
+        name = mod.rsplit(".", 1)[1] + "." + self.py_func.__name__
+        calls.setdefault(name, set()).update(spell(s) for s in self.signatures)
+    return out
+
+D.Dispatcher._compile_for_args = _record
+from napari_aldic.engine import compute_strain, correlate, synthetic, track
+
+size = 112
+field = synthetic.Affine.strain_rotation(exx=0.003, eyy=-0.001, center=(56, 56), t=(0.4, -0.3))
+ref, dfm = synthetic.speckle_pair((size, size), field, seed=3)
+roi = np.ones((size, size), bool)
+roi[48:64, 48:64] = False  # a hole
+for method in ("local", "aldic"):
+    res = correlate(ref, dfm, roi=roi, subset=21, step=8, method=method)
+compute_strain(res, window=3, method="plane_fit")
+track(np.stack([ref, dfm, dfm]), subset=21, step=8, method="local")
+print(json.dumps({k: sorted(v) for k, v in calls.items()}))
+"""
+
+
+def _python(code: str, env=None) -> str:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=1200)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_every_listed_signature_parses_and_fits_its_kernel():
+    grouped = [n for names in sigs.GROUPS.values() for n in names]
+    assert sorted(grouped) == sorted(sigs.KERNELS)  # each kernel in exactly one group
+    for name, spelled in sigs.KERNELS.items():
+        module, func = name.split(".")
+        disp = getattr(importlib.import_module(f"napari_aldic.engine.kernels.{module}"), func)
+        n_params = len(inspect.signature(disp.py_func).parameters)
+        for s in spelled:
+            args = sigs.parse(s)
+            assert sigs.spell(args) == s  # one spelling, so the list compares as text
+            assert len(args) == n_params, f"{name}: {s} has {len(args)} of {n_params}"
+
+
+def test_every_kernel_call_of_an_analysis_is_listed():
+    calls = json.loads(_python(_PROBE))
+    assert {"icgn.icgn_affine", "icgn.icgn_translation", "moments.moments_kernel",
+            "lattice.plane_fit"} <= set(calls)  # the probe sees the analyses' kernels
+    missing = {name: [s for s in spelled if s not in sigs.KERNELS.get(name, ())]
+               for name, spelled in calls.items()}
+    missing = {k: v for k, v in missing.items() if v}
+    assert not missing, ("add these to KERNELS in engine/kernels/signatures.py (and the "
+                         "kernel to a GROUPS entry):\n" + "\n".join(
+                             f'    "{k}": {tuple(v)!r},' for k, v in missing.items()))
+
+
+def test_precompiled_kernels_load_from_the_cache_in_a_new_process(tmp_path):
+    """Worker processes write the cache under the key this process looks up."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    groups = ("static.lag_peaks", "covariance.mean_noise_factor", "lattice.plane_fit",
+              "speckle.speckle_intensity")  # enough work to share between two processes
+    code = ("from napari_aldic.engine import precompile_kernels as p; import json; "
+            f"r = p({groups!r}, workers=2); "
+            "print(json.dumps([r.processes, sorted(r.compiled), r.errors]))")
+    processes, compiled, errors = json.loads(_python(code, env))
+    assert processes == 2 and errors == []
+    assert compiled == sorted(groups)
+    left = ("from napari_aldic.engine.workflow.precompile import kernels_to_compile as k; "
+            f"print(k({groups!r}))")
+    assert _python(left, env) == "[]"
+
+
+def test_precompile_returns_at_once_when_cached():
+    first = precompile_kernels(("strain",), workers=1)  # compiles or finds it cached
+    assert first.errors == []
+    assert kernels_to_compile(("strain",)) == []
+    again = precompile_kernels(("strain",))
+    assert again.processes == 0 and again.compiled == [] and again.seconds < 1.0
