@@ -120,29 +120,80 @@ def _gather(f, fg, mask, p, cx, cy, cz, h, d, fv, gr):
     return m
 
 
+# moment index of d_i d_j (d_0 = 1, d_1..3 = dx, dy, dz), i, j in 0..3
+_MOM = np.array([[0, 1, 2, 3], [1, 4, 5, 6], [2, 5, 7, 8], [3, 6, 8, 9]], np.int64)
+
+
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _jac(gr, d, q, J):
-    for a in range(3):
-        J[4 * a] = gr[q, a]
-        J[4 * a + 1] = gr[q, a] * d[q, 0]
-        J[4 * a + 2] = gr[q, a] * d[q, 1]
-        J[4 * a + 3] = gr[q, a] * d[q, 2]
+def _flush_row(R, M, dy, dz):
+    """Add one row's sums ``R[0..2, k] = sum gg_k (1, dx, dx^2)`` (``k`` over
+    the six gradient products) to the moments ``M[k, 0..9]`` of ``_MOM``."""
+    for k in range(6):
+        r0 = R[0, k]
+        r1 = R[1, k]
+        M[k, 0] += r0
+        M[k, 1] += r1
+        M[k, 2] += dy * r0
+        M[k, 3] += dz * r0
+        M[k, 4] += R[2, k]
+        M[k, 5] += dy * r1
+        M[k, 6] += dz * r1
+        M[k, 7] += dy * dy * r0
+        M[k, 8] += dy * dz * r0
+        M[k, 9] += dz * dz * r0
+        R[0, k] = 0.0
+        R[1, k] = 0.0
+        R[2, k] = 0.0
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _row_add(R, k, v, dx):
+    R[0, k] += v
+    R[1, k] += v * dx
+    R[2, k] += v * dx * dx
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def _hessian(gr, d, m, H):
-    J = np.empty(NPAR3)
-    for i in range(NPAR3):
-        for j in range(NPAR3):
-            H[i, j] = 0.0
-    for q in range(m):
-        _jac(gr, d, q, J)
+    """``H = sum J J^T`` with ``J = g (x) (1, dx, dy, dz)``: every entry is a
+    moment ``sum g_a g_b d_i d_j``. Along a row of the cube (``dy``, ``dz``
+    fixed) only ``1, dx, dx^2`` vary, so a voxel adds 6 products and 18
+    row sums, and each row end spreads them over the 10 moments (instead of
+    78 products a voxel)."""
+    R = np.zeros((3, 6))
+    M = np.zeros((6, 10))
+    if m == 0:
         for i in range(NPAR3):
-            for j in range(i + 1):
-                H[i, j] += J[i] * J[j]
-    for i in range(NPAR3):
-        for j in range(i):
-            H[j, i] = H[i, j]
+            for j in range(NPAR3):
+                H[i, j] = 0.0
+        return
+    ry = d[0, 1]
+    rz = d[0, 2]
+    for q in range(m):
+        if d[q, 1] != ry or d[q, 2] != rz:
+            _flush_row(R, M, float(ry), float(rz))
+            ry = d[q, 1]
+            rz = d[q, 2]
+        gx = float(gr[q, 0])
+        gy = float(gr[q, 1])
+        gz = float(gr[q, 2])
+        dx = float(d[q, 0])
+        _row_add(R, 0, gx * gx, dx)
+        _row_add(R, 1, gx * gy, dx)
+        _row_add(R, 2, gx * gz, dx)
+        _row_add(R, 3, gy * gy, dx)
+        _row_add(R, 4, gy * gz, dx)
+        _row_add(R, 5, gz * gz, dx)
+    _flush_row(R, M, float(ry), float(rz))
+    k = 0
+    for a in range(3):
+        for b in range(a, 3):
+            for i in range(4):
+                for j in range(4):
+                    v = M[k, _MOM[i, j]]
+                    H[4 * a + i, 4 * b + j] = v
+                    H[4 * b + j, 4 * a + i] = v
+            k += 1
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -159,17 +210,38 @@ def _stats(v, m):
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
 def _rhs(fv, g, gr, d, m, fm, gm, ratio, b):
-    """``b = sum J e`` with ``e = (f - fm) - ratio (g - gm)``; returns sum e^2."""
-    J = np.empty(NPAR3)
+    """``b = sum J e`` with ``e = (f - fm) - ratio (g - gm)``; returns sum e^2.
+    Summed by rows of the cube, as :func:`_hessian`: ``sum e g_a (1, dx)``
+    per row, times ``dy``, ``dz`` at its end."""
     for i in range(NPAR3):
         b[i] = 0.0
+    s0 = np.zeros(3)
+    s1 = np.zeros(3)
     e2 = 0.0
-    for q in range(m):
+    if m == 0:
+        return e2
+    ry = d[0, 1]
+    rz = d[0, 2]
+    for q in range(m + 1):
+        if q == m or d[q, 1] != ry or d[q, 2] != rz:
+            for a in range(3):
+                b[4 * a] += s0[a]
+                b[4 * a + 1] += s1[a]
+                b[4 * a + 2] += ry * s0[a]
+                b[4 * a + 3] += rz * s0[a]
+                s0[a] = 0.0
+                s1[a] = 0.0
+            if q == m:
+                break
+            ry = d[q, 1]
+            rz = d[q, 2]
         e = (fv[q] - fm) - ratio * (g[q] - gm)
         e2 += e * e
-        _jac(gr, d, q, J)
-        for i in range(NPAR3):
-            b[i] += J[i] * e
+        dx = d[q, 0]
+        for a in range(3):
+            v = e * gr[q, a]
+            s0[a] += v
+            s1[a] += v * dx
     return e2
 
 

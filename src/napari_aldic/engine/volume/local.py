@@ -114,8 +114,10 @@ def _anchors(st: LocalState, shift0) -> np.ndarray:
     """Search and solve the anchor nodes in two waves; returns their indices.
 
     The anchors near the volume centre are searched around the rigid shift;
-    the outer ones around the motion their nearest inner anchor's affine
-    map predicts (rotation and strain grow the motion with the distance)."""
+    the outer ones start from the warp their nearest inner anchor's affine
+    map predicts (rotation and strain grow the motion with the distance),
+    and only those IC-GN cannot solve from it are searched, around that
+    prediction."""
     pr = st.params
     spacing = pr.init_spacing or max(3 * pr.subset // 2, 24)
     anchors = np.flatnonzero(_anchor_mask(st.grid, spacing))
@@ -128,9 +130,17 @@ def _anchors(st: LocalState, shift0) -> np.ndarray:
     good = first[st.good()[first]]
     outer = anchors[~inner]
     if good.size and outer.size:
+        # IC-GN straight from the predicted warp; FFT search only where that fails
         _, j = cKDTree(st.nodes[good]).query(st.nodes[outer])
         pred = extrapolate(st.p[good[j]], st.nodes[good[j]], st.nodes[outer])
-        _search(st, outer, np.rint(pred[:, [0, 4, 8]]).astype(int), max(near // 2, 3))
+        st.p[outer] = pred
+        active = np.zeros(st.grid.n, bool)
+        active[outer] = True
+        run_icgn(st, active)
+        lost = ~st.good()[outer]
+        if lost.any():
+            _search(st, outer[lost], np.rint(pred[lost][:, [0, 4, 8]]).astype(int),
+                    max(near // 2, 3))
     elif outer.size:
         _search(st, outer, np.tile(np.asarray(shift0), (outer.size, 1)), near)
     return anchors
