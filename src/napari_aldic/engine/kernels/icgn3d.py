@@ -383,9 +383,9 @@ def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu,
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
+def icgn3d(f, fg, gc, mask, nodes, p, todo, h, max_iter, tol, min_frac,
            status, iters, zncc, ustd, nvox, mu, target):
-    """Solve every active node (parallel over nodes).
+    """Solve the nodes ``todo`` (parallel over them).
 
     Parameters
     ----------
@@ -402,9 +402,10 @@ def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     nodes : (n, 3) int64
         Node voxels (x, y, z).
     p : (n, 12) float64
-        Initial warp in, solution out (active nodes only).
-    active : (n,) bool
-        Nodes to solve.
+        Initial warp in, solution out (the nodes of ``todo`` only).
+    todo : (t,) int64
+        Indices of the nodes to solve (a contiguous batch of them is shared
+        evenly by the threads).
     h, max_iter, tol, min_frac : int, int, float, float
         Half-width, iteration cap, tolerance (voxels at the subset edge)
         and the smallest usable fraction of the cube.
@@ -421,9 +422,8 @@ def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     """
     nz, ny, nx = f.shape
     lim = np.array([nx + 2.0, ny + 2.0, nz + 2.0])  # PAD3 - 2 beyond the last voxel
-    for k in nb.prange(nodes.shape[0]):
-        if not active[k]:
-            continue
+    for t in nb.prange(todo.shape[0]):
+        k = todo[t]
         pk = p[k].copy()
         hinv = np.zeros(3)
         st, it, zn, s2, m = _solve_node(f, fg, gc, mask, nodes[k], pk, h, max_iter, tol,

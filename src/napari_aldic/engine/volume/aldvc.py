@@ -78,9 +78,11 @@ def _fill_untrusted(st: LocalState, good: np.ndarray, p: np.ndarray) -> np.ndarr
     return out
 
 
-def solve_aldvc(st: LocalState):
+def solve_aldvc(st: LocalState, start: float = 0.5, end: float = 0.95):
     """ADMM from the converged local state ``st`` (updated: its last local
-    step). Returns ``(p (n, 12) of the global field, info)``."""
+    step). Returns ``(p (n, 12) of the global field, info)``. With
+    ``st.report`` set, every ADMM iteration (and batch of local nodes) is a
+    progress point, the fraction running from ``start`` to ``end``."""
     pr = st.params
     t0 = time.perf_counter()
     ops = hex_operators(st.grid, float(pr.step))
@@ -98,7 +100,11 @@ def solve_aldvc(st: LocalState):
     uh = np.stack([glob.step(u[:, a] - v[:, a], F[:, a] - W[:, a]) for a in range(3)], 1)
     history = []
     scratch = np.full((st.grid.n, 3), np.nan)
-    for _ in range(pr.admm_max_iter):
+    share = (end - start) / max(pr.admm_max_iter, 1)
+    for it in range(pr.admm_max_iter):
+        a0 = start + it * share
+        if st.report is not None:
+            st.report("aldic", a0, f"ADMM iteration {it + 1}")
         Fh = np.stack([nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
         target = np.zeros_like(st.p)
         for a, c in enumerate(comps):
@@ -106,7 +112,7 @@ def solve_aldvc(st: LocalState):
             target[:, c + 1:c + 4] = Fh[:, a]
         st.p[:] = target
         active = st.status != Reason.SMALL_COMPONENT
-        run_icgn(st, active, pr.mu, target, ustd=scratch)
+        run_icgn(st, active, pr.mu, target, ustd=scratch, span=("aldic", a0, a0 + share))
         good = st.good()
         p = _fill_untrusted(st, good, st.p)
         u = p[:, comps]

@@ -8,6 +8,7 @@ import numba
 import numpy as np
 
 from ..core.params import DICParams
+from ..core.progress import ProgressEvent, check_cancel, event_callback
 from ..core.reasons import Reason
 from ..core.version import __version__
 from ..core.volresults import VolumeResult
@@ -59,9 +60,26 @@ def _result(st: LocalState, reason, params, shape, roi, meta, p=None) -> VolumeR
         roi=None if roi is None else np.asarray(roi, bool))
 
 
+def _reporter(progress, cancel):
+    """``report(stage, fraction, message)``: a :class:`ProgressEvent` to the
+    caller and a cancellation point (``cancel``: a callable returning True
+    to stop, or a ``threading.Event``)."""
+    user = event_callback(progress, "correlate", stacklevel=4)
+    poll = getattr(cancel, "is_set", cancel)
+    if poll is not None and not callable(poll):
+        raise TypeError(f"cancel must be a callable or a threading.Event, not "
+                        f"{type(cancel).__name__}")
+
+    def report(stage: str, frac: float, msg: str = "") -> None:
+        check_cancel(poll)
+        user(ProgressEvent(stage, float(frac), message=msg))
+
+    return report
+
+
 def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
                      method: str = "local", *, params: DICParams | None = None,
-                     **options) -> VolumeResult:
+                     progress=None, cancel=None, **options) -> VolumeResult:
     """Displacement of a deformed volume against a reference (DVC).
 
     Parameters
@@ -82,6 +100,13 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     **options
         Other :class:`~..core.params.DICParams` fields (``max_iter``,
         ``tol``, ``zncc_min``, ``search``, ``mu``, ``beta``, ``n_threads``...).
+    progress : callable(ProgressEvent), optional
+        Called between the stages (``"setup"``, ``"prefilter"``,
+        ``"initial_guess"``, ``"icgn"``, ``"repair"``, ``"aldic"``, ``"done"``,
+        as ``correlate``) and after every batch of ~1000 nodes.
+    cancel : callable() -> bool or threading.Event, optional
+        Polled at every progress point; when it is set the call raises
+        :class:`~napari_aldic.engine.Cancelled` (within one batch of nodes).
 
     Returns
     -------
@@ -90,22 +115,25 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
         w`` Lagrangian displacement (voxels), ``valid`` and ``reason``.
     """
     t0 = time.perf_counter()
+    report = _reporter(progress, cancel)
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **options)
+    report("setup", 0.0, "checking the volumes")
     f, g, mask = _check_inputs(ref, dfm, roi)
     grid = make_volume_grid(f.shape, params.subset, params.step, roi)
     threads = numba.get_num_threads()
     if params.n_threads:
         numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
     try:
-        st = solve_local_volume(f, g, mask, grid, params)
+        aldic = params.method == "aldic"
+        st = solve_local_volume(f, g, mask, grid, params, report, 0.5 if aldic else 0.95)
         meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
                              "numba": numba.__version__},
                 "timing": dict(st.timing), "n_nodes": grid.n, "kind": "volume"}
         p = None
-        if params.method == "aldic":
+        if aldic:
             from .aldvc import solve_aldvc  # the ADMM needs scipy.sparse only here
-            p, admm = solve_aldvc(st)
+            p, admm = solve_aldvc(st, 0.5, 0.95)
             meta["admm_history"] = admm["history"]
             meta["timing"].update(admm["timing"])
         reason = final_reasons(st, p)
@@ -116,4 +144,5 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     res = _result(st, reason, params, f.shape, roi, meta, p)
     if p is not None:
         res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
+    report("done", 1.0, f"{meta['n_valid']}/{grid.n} valid")
     return res
