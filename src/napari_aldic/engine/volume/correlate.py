@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numba
@@ -77,9 +78,38 @@ def _reporter(progress, cancel):
     return report
 
 
+def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
+    """``correlate_volume(..., block=N)``: Local DVC read block by block."""
+    from ..io.volumes import open_volume
+    from .blocked import correlate_blocks
+
+    if params.method != "local":
+        raise ValueError("method='aldic' needs the whole volume at once (its global step "
+                         "couples every node); block= runs Local DVC only")
+    ref, dfm = (open_volume(v) if isinstance(v, (str, os.PathLike)) else v for v in (ref, dfm))
+    roi = open_volume(roi) if isinstance(roi, (str, os.PathLike)) else roi
+    report("setup", 0.0, "reading the volumes block by block")
+    threads = numba.get_num_threads()
+    if params.n_threads:
+        numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
+    try:
+        st, reason, info = correlate_blocks(ref, dfm, roi, params, int(block), report)
+    finally:
+        numba.set_num_threads(threads)
+    meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
+                         "numba": numba.__version__},
+            "timing": {"total": time.perf_counter() - t0}, "n_nodes": st.grid.n,
+            "kind": "volume", "blocked": info,
+            "n_valid": int(np.count_nonzero(reason == Reason.OK))}
+    res = _result(st, reason, params, tuple(ref.shape), None, meta)
+    report("done", 1.0, f"{meta['n_valid']}/{st.grid.n} valid")
+    return res
+
+
 def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
                      method: str = "local", *, params: DICParams | None = None,
-                     progress=None, cancel=None, **options) -> VolumeResult:
+                     progress=None, cancel=None, block: int | None = None,
+                     **options) -> VolumeResult:
     """Displacement of a deformed volume against a reference (DVC).
 
     Parameters
@@ -107,6 +137,12 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     cancel : callable() -> bool or threading.Event, optional
         Polled at every progress point; when it is set the call raises
         :class:`~napari_aldic.engine.Cancelled` (within one batch of nodes).
+    block : int, optional
+        Read and solve the volumes in blocks of about ``block`` voxels a side
+        (Local DVC; :mod:`.blocked`): ``ref``, ``dfm`` (and ``roi``) may then be
+        zarr arrays, memory-mapped arrays or paths of zarr folders, tiled
+        TIFFs or ``.npy`` files, never loaded whole. The result's ``roi`` is
+        not kept.
 
     Returns
     -------
@@ -118,6 +154,8 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     report = _reporter(progress, cancel)
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **options)
+    if block:
+        return _blocked(ref, dfm, roi, params, block, report, t0)
     report("setup", 0.0, "checking the volumes")
     f, g, mask = _check_inputs(ref, dfm, roi)
     grid = make_volume_grid(f.shape, params.subset, params.step, roi)
