@@ -30,9 +30,11 @@ def _check_inputs(ref, dfm, roi):
     if ref.shape != dfm.shape:
         raise ValueError(f"the reference {ref.shape} and deformed {dfm.shape} volumes differ "
                          "in shape (z, y, x)")
-    f = ref.astype(np.float32)
-    g = dfm.astype(np.float32)
-    if not (np.isfinite(f).all() and np.isfinite(g).all()):
+    f = np.asarray(ref, np.float32)  # read only: no copy of float32 volumes
+    g = np.asarray(dfm, np.float32)
+    # a float64 sum of float32 values cannot overflow: it is finite iff every value is
+    if ref.dtype.kind == "f" and not np.isfinite(f.sum(dtype=np.float64)) \
+            or dfm.dtype.kind == "f" and not np.isfinite(g.sum(dtype=np.float64)):
         raise ValueError("a volume holds NaN or infinite grey levels")
     if roi is None:
         mask = np.ones(ref.shape, np.uint8)
