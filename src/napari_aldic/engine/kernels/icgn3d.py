@@ -332,9 +332,10 @@ def _translation_system(gr, m, mu, H, pen):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q):
+def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q, hr):
     """One node: returns ``(status, iterations, zncc, e2/(m - 12), m)``;
-    ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w.
+    ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w,
+    and (Local, ``mu == 0``) ``hr`` (3, 12) the rows of ``H`` at u, v, w.
 
     The usable voxels are chosen with the starting warp; if the converged
     warp takes some of them near a face of the volume, they are chosen
@@ -379,12 +380,15 @@ def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu,
             b[i] = 1.0 if i == 4 * a else 0.0
         lu_solve(LU, piv, b, dp)
         out[a] = dp[4 * a]
+        if mu == 0.0:
+            for i in range(NPAR3):
+                hr[a, i] = H[4 * a, i]
     return status, its, zn, e2 / max(m - NPAR3, 1), m
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def icgn3d(f, fg, gc, mask, nodes, p, todo, h, max_iter, tol, min_frac,
-           status, iters, zncc, ustd, nvox, mu, target):
+           status, iters, zncc, ustd, nvox, mu, target, hrow):
     """Solve the nodes ``todo`` (parallel over them).
 
     Parameters
@@ -413,6 +417,9 @@ def icgn3d(f, fg, gc, mask, nodes, p, todo, h, max_iter, tol, min_frac,
         AL-DVC penalty (dimensionless, 0 for Local DVC; :func:`_translation_system`).
     target : (n, 12) float64
         The warps the penalty pulls towards (unused when ``mu == 0``).
+    hrow : (n, 3, 12) float64
+        Local (``mu == 0``): the rows of the Gauss-Newton matrix at u, v, w
+        (AL-DVC's quadratic model of each subset, :mod:`~..volume.aldvc`).
     status, iters, zncc, ustd, nvox : outputs per node
         ``status`` (int8, gauss_newton codes, SMALL_SUBSET), iterations,
         final ZNCC, standard uncertainty of (u, v, w) in voxels (n, 3) and
@@ -427,7 +434,7 @@ def icgn3d(f, fg, gc, mask, nodes, p, todo, h, max_iter, tol, min_frac,
         pk = p[k].copy()
         hinv = np.zeros(3)
         st, it, zn, s2, m = _solve_node(f, fg, gc, mask, nodes[k], pk, h, max_iter, tol,
-                                        min_frac, lim, hinv, mu, target[k])
+                                        min_frac, lim, hinv, mu, target[k], hrow[k])
         p[k] = pk
         status[k] = st
         iters[k] = it

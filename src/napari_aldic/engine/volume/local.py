@@ -58,6 +58,7 @@ class LocalState:
         self.zncc = np.full(n, np.nan)
         self.ustd = np.full((n, 3), np.nan)
         self.nvox = np.zeros(n, np.int64)
+        self.hrow = np.zeros((n, 3, NPAR3))  # rows u, v, w of each Local H
 
     def good(self) -> np.ndarray:
         return (self.status == Reason.OK) & (self.zncc >= self.params.zncc_min)
@@ -83,7 +84,7 @@ def run_icgn(st: LocalState, active: np.ndarray, mu: float = 0.0, target=None,
     for batch in batches:
         icgn3d(st.f, st.fg, st.gc, st.mask, st.nodes, st.p, batch, pr.subset // 2,
                pr.max_iter, pr.tol, pr.min_component, st.status, st.iters, st.zncc,
-               st.ustd if ustd is None else ustd, st.nvox, float(mu), target)
+               st.ustd if ustd is None else ustd, st.nvox, float(mu), target, st.hrow)
         done += batch.size
         if span is not None and st.report is not None:
             stage, a, b = span
