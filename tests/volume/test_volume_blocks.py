@@ -13,8 +13,8 @@ import tifffile
 import zarr
 
 from napari_aldic.engine import correlate_volume
-from napari_aldic.engine.io.volumes import open_volume
 from napari_aldic.engine.synthetic.volume import VolumeMotion, speckle_volume_pair
+from napari_aldic.engine.volume import open_volume
 
 SHAPE = (40, 48, 192)  # long in x: a block's window is under half of it
 MOTION = VolumeMotion.make(shift=(1.2, -0.7, 0.5), strain=(0.01, 0.0, -0.005), angle_deg=1.0,

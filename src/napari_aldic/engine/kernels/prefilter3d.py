@@ -18,7 +18,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .flags import PARALLEL
+from .flags import CACHED, INLINE, PARALLEL
 
 __all__ = ["prefilter_inplace", "knot_gradients"]
 
@@ -27,7 +27,7 @@ _GAIN = 6.0
 _HORIZON = int(math.ceil(math.log(1e-16) / math.log(abs(_POLE))))
 
 
-@nb.njit(inline="always", cache=True)
+@nb.njit(**INLINE)
 def _causal_start(line, n):
     """``c+[0]`` of one line (mirror boundary)."""
     z = _POLE
@@ -51,7 +51,7 @@ def _causal_start(line, n):
     return s / (1.0 - zn * zn)
 
 
-@nb.njit(inline="always", cache=True)
+@nb.njit(**INLINE)
 def _filter_line(line, n):
     z = _POLE
     for k in range(n):
@@ -74,7 +74,7 @@ def _along_x(c):
             _filter_line(c[iz, iy], nx)
 
 
-@nb.njit(cache=True)
+@nb.njit(**CACHED)
 def _filter_cols(a):
     """Filter the 2-D array ``a`` (n, m) along axis 0, its m columns side by side."""
     n, m = a.shape

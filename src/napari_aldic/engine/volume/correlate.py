@@ -82,8 +82,8 @@ def _reporter(progress, cancel):
 
 def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
     """``correlate_volume(..., block=N)``: Local DVC read block by block."""
-    from ..io.volumes import open_volume
     from .blocked import correlate_blocks
+    from .lazy import open_volume
 
     if params.method != "local":
         raise ValueError("method='aldic' needs the whole volume at once (its global step "
