@@ -64,7 +64,8 @@ def _compose(p, dp):
 def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
     """Sample the deformed spline at the warped voxels. Returns 2 if one
     leaves the padded volume (``lim``: largest coordinate per axis + margin),
-    1 if one comes closer than :data:`EDGE3` to a face, else 0."""
+    1 if one comes over half a voxel closer to a face than the :data:`EDGE3`
+    band of :func:`_gather`, else 0."""
     near = 0
     for q in range(m):
         dx = d[q, 0]
@@ -75,8 +76,10 @@ def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
         z = cz + dz + p[8] + p[9] * dx + p[10] * dy + p[11] * dz
         if not (-3.0 < x < lim[0] and -3.0 < y < lim[1] and -3.0 < z < lim[2]):
             return 2
-        if not (EDGE3 - 0.5 <= x <= lim[0] - 3.5 - EDGE3 and EDGE3 - 0.5 <= y <= lim[1] - 3.5
-                - EDGE3 and EDGE3 - 0.5 <= z <= lim[2] - 3.5 - EDGE3):
+        # half a voxel beyond the band :func:`_gather` keeps (``lim - 3`` is the
+        # last voxel): the voxels it chose never trigger a second pass by themselves
+        if not (EDGE3 - 0.5 <= x <= lim[0] - 2.5 - EDGE3 and EDGE3 - 0.5 <= y <= lim[1] - 2.5
+                - EDGE3 and EDGE3 - 0.5 <= z <= lim[2] - 2.5 - EDGE3):
             near = 1
         g[q] = tricubic(gc, x, y, z)
     return near
