@@ -110,6 +110,7 @@ def test_volume_section_runs_in_a_worker(make_napari_viewer, qtbot, pair, tmp_pa
     worker = panel._worker
     panel.cancel()
     assert not panel.running and panel.run_button.enabled and "Cancelled" in panel.state.value
+    assert panel._stop.is_set()  # the engine is asked to stop, not only ignored
     qtbot.waitUntil(lambda: not worker.is_running, timeout=60000)
     qtbot.wait(100)
     assert len(viewer.layers) == n_layers

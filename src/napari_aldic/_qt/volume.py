@@ -5,13 +5,14 @@ it into the engine's inputs: a volume is a 3-D image layer, or one volume of a
 4-D (t, z, y, x) layer chosen by index; the optional ROI is a 3-D Labels layer
 (non-zero voxels are material). :class:`VolumePanel` runs the correlation in
 a napari generator worker, so the viewer never waits, and adds the result as
-the layers of :func:`~napari_aldic._volume_layers.volume_layers`. The engine's
-volume correlation takes no stop request, so Cancel drops the result and frees
-the panel at once; the computation itself ends in the background.
+the layers of :func:`~napari_aldic._volume_layers.volume_layers`. Cancel frees
+the panel at once, drops the result and sets the engine's stop request: the
+computation ends in the background at its next batch of nodes.
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,11 +99,13 @@ def placed(kwargs: dict, scale, translate) -> dict:
             "axis_labels": ("z", "y", "x")}
 
 
-def _correlate(ref, dfm, roi, params):
-    """Worker thread: the correlation, then the layers' data (the viewer only adds them)."""
+def _correlate(ref, dfm, roi, params, stop=None):
+    """Worker thread: the correlation, then the layers' data (the viewer only adds them).
+    ``stop`` (a threading.Event) set by Cancel ends the correlation at its next
+    batch of nodes (it raises ``Cancelled``, which nobody listens to by then)."""
     warmup.wait()  # the dock's engine warm-up first: parallel kernels one thread at a time
     yield  # a cancellation point before the long call
-    res = correlate_volume(ref, dfm, roi, params=params)
+    res = correlate_volume(ref, dfm, roi, params=params, cancel=stop)
     yield
     try:
         strain = compute_strain_volume(res)
@@ -117,6 +120,7 @@ class VolumePanel(Panel):
     def __init__(self, viewer):
         self._viewer = viewer
         self._worker = None
+        self._stop = threading.Event()
         self._placement = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
         #: the last result shown (a :class:`~napari_aldic.engine.VolumeResult`)
         self.result = None
@@ -200,7 +204,8 @@ class VolumePanel(Panel):
         except ValueError as exc:
             self.state.value = str(exc)
             return
-        worker = create_worker(_correlate, ref, dfm, roi, params,
+        self._stop = threading.Event()
+        worker = create_worker(_correlate, ref, dfm, roi, params, self._stop,
                                _worker_class=GeneratorWorker, _ignore_errors=True)
         worker.returned.connect(self._on_returned)
         worker.errored.connect(self._on_errored)
@@ -214,7 +219,8 @@ class VolumePanel(Panel):
         worker.start()
 
     def cancel(self, *_) -> None:
-        """Drop the running correlation's result (it ends in the background)."""
+        """Stop the running correlation (at its next batch of nodes, in the
+        background) and drop its result."""
         if self._worker is None:
             return
         self._forget()
@@ -230,6 +236,7 @@ class VolumePanel(Panel):
         worker, self._worker = self._worker, None
         if worker is None:
             return
+        self._stop.set()  # the engine stops at its next batch of nodes
         worker.quit()
         for signal, slot in ((worker.returned, self._on_returned),
                              (worker.errored, self._on_errored)):

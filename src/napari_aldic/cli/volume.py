@@ -14,7 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import compute_strain_volume, correlate_volume, export_volume, load_result
+from ..engine import (
+    compute_strain_volume,
+    correlate_volume,
+    export_volume,
+    load_result,
+    track_volumes,
+)
 from ..engine.io import read_volumes
 from ..i18n import tr
 from .console import PROG, CLIError
@@ -68,38 +74,11 @@ def run_volume(args, params) -> None:
         return
     folder = Path("aldic_volume") if out is None else out.expanduser().with_suffix("")
     folder.mkdir(parents=True, exist_ok=True)
-    prev = None
-    for k in range(1, len(vols)):
-        path = folder / f"frame_{k:05d}.npz"
-        if path.exists():
-            prev = load_result(path)
-            continue
-        if args.reference == "incremental" and prev is not None:
-            res = _incremental(vols[k - 1], vols[k], roi, params, prev)
-        else:
-            res = correlate_volume(vols[0], vols[k], roi=roi, params=params)
-        res.meta["inputs"] = {"frame": k, "reference": args.reference}
-        _report(res, res.save(path))
-        prev = res
-
-
-def _incremental(a, b, roi, params, prev):
-    """Volume ``b`` against ``a``, composed onto ``prev`` at its nodes: the
-    increment is sampled at the material points' current positions (trilinear
-    on the increment's node lattice)."""
-    from scipy.interpolate import RegularGridInterpolator
-    inc = correlate_volume(a, b, roi=roi, params=params)
-    pts = np.stack([prev.z + prev.w, prev.y + prev.v, prev.x + prev.u], 1)
-    res = prev
-    for name in ("u", "v", "w"):
-        grid = inc.to_grid(name, invalid=None)
-        f = RegularGridInterpolator((inc.grid_zs, inc.grid_ys, inc.grid_xs), grid,
-                                    bounds_error=False, fill_value=None)
-        setattr(res, name, getattr(prev, name) + f(pts))
-    ok = np.isfinite(res.u) & np.isfinite(res.v) & np.isfinite(res.w)
-    res.valid = prev.valid & ok & inc.valid  # same lattice: a node must hold in both
-    res.reason = np.where(res.valid, 0, np.maximum(prev.reason, inc.reason)).astype(np.int8)
-    return res
+    paths = {k: folder / f"frame_{k:05d}.npz" for k in range(1, len(vols))}
+    done = {k: load_result(p) for k, p in paths.items() if p.exists()}
+    for k, res in track_volumes(vols, roi, args.reference, params=params, done=done):
+        if k not in done:
+            _report(res, res.save(paths[k]))
 
 
 def _report(res, path: Path) -> None:

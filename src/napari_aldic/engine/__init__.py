@@ -44,7 +44,13 @@ from .io.settings_file import read_settings, write_settings
 from .io.stack import open_stack
 from .sem import correct_distortion, correlate_sem
 from .viz.report import export_report
-from .volume import VolumeStrain, compute_strain_volume, correlate_volume, export_volume
+from .volume import (
+    VolumeStrain,
+    compute_strain_volume,
+    correlate_volume,
+    export_volume,
+    track_volumes,
+)
 from .workflow.export import export_result
 from .workflow.precompile import precompile_kernels
 from .workflow.sequence import TrackError, track
@@ -75,4 +81,5 @@ __all__ = [
     "watch", "LiveProbes",
     # volumes (DVC, issue 28)
     "correlate_volume", "VolumeResult", "compute_strain_volume", "VolumeStrain", "export_volume",
+    "track_volumes",
 ]

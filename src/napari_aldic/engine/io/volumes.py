@@ -49,3 +49,4 @@ def read_volumes(inputs) -> list[np.ndarray]:
             raise ValueError(f"{p}: a volume must be a 3-D array (z, y, x) or a 4-D sequence "
                              f"(t, z, y, x); this file holds shape {a.shape}")
     return out
+

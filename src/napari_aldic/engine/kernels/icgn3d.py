@@ -64,7 +64,8 @@ def _compose(p, dp):
 def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
     """Sample the deformed spline at the warped voxels. Returns 2 if one
     leaves the padded volume (``lim``: largest coordinate per axis + margin),
-    1 if one comes closer than :data:`EDGE3` to a face, else 0."""
+    1 if one comes over half a voxel closer to a face than the :data:`EDGE3`
+    band of :func:`_gather`, else 0."""
     near = 0
     for q in range(m):
         dx = d[q, 0]
@@ -75,8 +76,10 @@ def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
         z = cz + dz + p[8] + p[9] * dx + p[10] * dy + p[11] * dz
         if not (-3.0 < x < lim[0] and -3.0 < y < lim[1] and -3.0 < z < lim[2]):
             return 2
-        if not (EDGE3 - 0.5 <= x <= lim[0] - 3.5 - EDGE3 and EDGE3 - 0.5 <= y <= lim[1] - 3.5
-                - EDGE3 and EDGE3 - 0.5 <= z <= lim[2] - 3.5 - EDGE3):
+        # half a voxel beyond the band :func:`_gather` keeps (``lim - 3`` is the
+        # last voxel): the voxels it chose never trigger a second pass by themselves
+        if not (EDGE3 - 0.5 <= x <= lim[0] - 2.5 - EDGE3 and EDGE3 - 0.5 <= y <= lim[1] - 2.5
+                - EDGE3 and EDGE3 - 0.5 <= z <= lim[2] - 2.5 - EDGE3):
             near = 1
         g[q] = tricubic(gc, x, y, z)
     return near
@@ -120,29 +123,80 @@ def _gather(f, fg, mask, p, cx, cy, cz, h, d, fv, gr):
     return m
 
 
+# moment index of d_i d_j (d_0 = 1, d_1..3 = dx, dy, dz), i, j in 0..3
+_MOM = np.array([[0, 1, 2, 3], [1, 4, 5, 6], [2, 5, 7, 8], [3, 6, 8, 9]], np.int64)
+
+
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _jac(gr, d, q, J):
-    for a in range(3):
-        J[4 * a] = gr[q, a]
-        J[4 * a + 1] = gr[q, a] * d[q, 0]
-        J[4 * a + 2] = gr[q, a] * d[q, 1]
-        J[4 * a + 3] = gr[q, a] * d[q, 2]
+def _flush_row(R, M, dy, dz):
+    """Add one row's sums ``R[0..2, k] = sum gg_k (1, dx, dx^2)`` (``k`` over
+    the six gradient products) to the moments ``M[k, 0..9]`` of ``_MOM``."""
+    for k in range(6):
+        r0 = R[0, k]
+        r1 = R[1, k]
+        M[k, 0] += r0
+        M[k, 1] += r1
+        M[k, 2] += dy * r0
+        M[k, 3] += dz * r0
+        M[k, 4] += R[2, k]
+        M[k, 5] += dy * r1
+        M[k, 6] += dz * r1
+        M[k, 7] += dy * dy * r0
+        M[k, 8] += dy * dz * r0
+        M[k, 9] += dz * dz * r0
+        R[0, k] = 0.0
+        R[1, k] = 0.0
+        R[2, k] = 0.0
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _row_add(R, k, v, dx):
+    R[0, k] += v
+    R[1, k] += v * dx
+    R[2, k] += v * dx * dx
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def _hessian(gr, d, m, H):
-    J = np.empty(NPAR3)
-    for i in range(NPAR3):
-        for j in range(NPAR3):
-            H[i, j] = 0.0
-    for q in range(m):
-        _jac(gr, d, q, J)
+    """``H = sum J J^T`` with ``J = g (x) (1, dx, dy, dz)``: every entry is a
+    moment ``sum g_a g_b d_i d_j``. Along a row of the cube (``dy``, ``dz``
+    fixed) only ``1, dx, dx^2`` vary, so a voxel adds 6 products and 18
+    row sums, and each row end spreads them over the 10 moments (instead of
+    78 products a voxel)."""
+    R = np.zeros((3, 6))
+    M = np.zeros((6, 10))
+    if m == 0:
         for i in range(NPAR3):
-            for j in range(i + 1):
-                H[i, j] += J[i] * J[j]
-    for i in range(NPAR3):
-        for j in range(i):
-            H[j, i] = H[i, j]
+            for j in range(NPAR3):
+                H[i, j] = 0.0
+        return
+    ry = d[0, 1]
+    rz = d[0, 2]
+    for q in range(m):
+        if d[q, 1] != ry or d[q, 2] != rz:
+            _flush_row(R, M, float(ry), float(rz))
+            ry = d[q, 1]
+            rz = d[q, 2]
+        gx = float(gr[q, 0])
+        gy = float(gr[q, 1])
+        gz = float(gr[q, 2])
+        dx = float(d[q, 0])
+        _row_add(R, 0, gx * gx, dx)
+        _row_add(R, 1, gx * gy, dx)
+        _row_add(R, 2, gx * gz, dx)
+        _row_add(R, 3, gy * gy, dx)
+        _row_add(R, 4, gy * gz, dx)
+        _row_add(R, 5, gz * gz, dx)
+    _flush_row(R, M, float(ry), float(rz))
+    k = 0
+    for a in range(3):
+        for b in range(a, 3):
+            for i in range(4):
+                for j in range(4):
+                    v = M[k, _MOM[i, j]]
+                    H[4 * a + i, 4 * b + j] = v
+                    H[4 * b + j, 4 * a + i] = v
+            k += 1
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -159,17 +213,38 @@ def _stats(v, m):
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
 def _rhs(fv, g, gr, d, m, fm, gm, ratio, b):
-    """``b = sum J e`` with ``e = (f - fm) - ratio (g - gm)``; returns sum e^2."""
-    J = np.empty(NPAR3)
+    """``b = sum J e`` with ``e = (f - fm) - ratio (g - gm)``; returns sum e^2.
+    Summed by rows of the cube, as :func:`_hessian`: ``sum e g_a (1, dx)``
+    per row, times ``dy``, ``dz`` at its end."""
     for i in range(NPAR3):
         b[i] = 0.0
+    s0 = np.zeros(3)
+    s1 = np.zeros(3)
     e2 = 0.0
-    for q in range(m):
+    if m == 0:
+        return e2
+    ry = d[0, 1]
+    rz = d[0, 2]
+    for q in range(m + 1):
+        if q == m or d[q, 1] != ry or d[q, 2] != rz:
+            for a in range(3):
+                b[4 * a] += s0[a]
+                b[4 * a + 1] += s1[a]
+                b[4 * a + 2] += ry * s0[a]
+                b[4 * a + 3] += rz * s0[a]
+                s0[a] = 0.0
+                s1[a] = 0.0
+            if q == m:
+                break
+            ry = d[q, 1]
+            rz = d[q, 2]
         e = (fv[q] - fm) - ratio * (g[q] - gm)
         e2 += e * e
-        _jac(gr, d, q, J)
-        for i in range(NPAR3):
-            b[i] += J[i] * e
+        dx = d[q, 0]
+        for a in range(3):
+            v = e * gr[q, a]
+            s0[a] += v
+            s1[a] += v * dx
     return e2
 
 
@@ -260,9 +335,10 @@ def _translation_system(gr, m, mu, H, pen):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q):
+def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q, hr):
     """One node: returns ``(status, iterations, zncc, e2/(m - 12), m)``;
-    ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w.
+    ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w,
+    and (Local, ``mu == 0``) ``hr`` (3, 12) the rows of ``H`` at u, v, w.
 
     The usable voxels are chosen with the starting warp; if the converged
     warp takes some of them near a face of the volume, they are chosen
@@ -307,13 +383,16 @@ def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu,
             b[i] = 1.0 if i == 4 * a else 0.0
         lu_solve(LU, piv, b, dp)
         out[a] = dp[4 * a]
+        if mu == 0.0:
+            for i in range(NPAR3):
+                hr[a, i] = H[4 * a, i]
     return status, its, zn, e2 / max(m - NPAR3, 1), m
 
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
-           status, iters, zncc, ustd, nvox, mu, target):
-    """Solve every active node (parallel over nodes).
+def icgn3d(f, fg, gc, mask, nodes, p, todo, h, max_iter, tol, min_frac,
+           status, iters, zncc, ustd, nvox, mu, target, hrow):
+    """Solve the nodes ``todo`` (parallel over them).
 
     Parameters
     ----------
@@ -330,9 +409,10 @@ def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     nodes : (n, 3) int64
         Node voxels (x, y, z).
     p : (n, 12) float64
-        Initial warp in, solution out (active nodes only).
-    active : (n,) bool
-        Nodes to solve.
+        Initial warp in, solution out (the nodes of ``todo`` only).
+    todo : (t,) int64
+        Indices of the nodes to solve (a contiguous batch of them is shared
+        evenly by the threads).
     h, max_iter, tol, min_frac : int, int, float, float
         Half-width, iteration cap, tolerance (voxels at the subset edge)
         and the smallest usable fraction of the cube.
@@ -340,6 +420,9 @@ def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
         AL-DVC penalty (dimensionless, 0 for Local DVC; :func:`_translation_system`).
     target : (n, 12) float64
         The warps the penalty pulls towards (unused when ``mu == 0``).
+    hrow : (n, 3, 12) float64
+        Local (``mu == 0``): the rows of the Gauss-Newton matrix at u, v, w
+        (AL-DVC's quadratic model of each subset, :mod:`~..volume.aldvc`).
     status, iters, zncc, ustd, nvox : outputs per node
         ``status`` (int8, gauss_newton codes, SMALL_SUBSET), iterations,
         final ZNCC, standard uncertainty of (u, v, w) in voxels (n, 3) and
@@ -349,13 +432,12 @@ def icgn3d(f, fg, gc, mask, nodes, p, active, h, max_iter, tol, min_frac,
     """
     nz, ny, nx = f.shape
     lim = np.array([nx + 2.0, ny + 2.0, nz + 2.0])  # PAD3 - 2 beyond the last voxel
-    for k in nb.prange(nodes.shape[0]):
-        if not active[k]:
-            continue
+    for t in nb.prange(todo.shape[0]):
+        k = todo[t]
         pk = p[k].copy()
         hinv = np.zeros(3)
         st, it, zn, s2, m = _solve_node(f, fg, gc, mask, nodes[k], pk, h, max_iter, tol,
-                                        min_frac, lim, hinv, mu, target[k])
+                                        min_frac, lim, hinv, mu, target[k], hrow[k])
         p[k] = pk
         status[k] = st
         iters[k] = it

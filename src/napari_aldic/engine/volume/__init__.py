@@ -9,7 +9,10 @@ machinery) with its own 3-D kernels (``kernels/icgn3d.py``,
 
 from .correlate import correlate_volume
 from .export import export_volume
+from .lazy import open_volume
 from .strain import MEASURES3, VolumeStrain, compute_strain_volume
+from .track import compose_increment, track_volumes
 
 __all__ = ["correlate_volume", "compute_strain_volume", "VolumeStrain", "MEASURES3",
-           "export_volume"]
+           "export_volume", "track_volumes", "compose_increment",
+           "open_volume"]

@@ -6,9 +6,11 @@ the 2-D :mod:`~..dic.admm` (scaled duals ``W`` on gradients, ``v`` on
 displacements), per displacement component ``c``:
 
 1. ``F^{k+1} = G û^k`` (nodal gradients of the global field);
-2. local step, per node: 3-D IC-GN of the displacement with the gradient
-   held at ``F^{k+1}`` and the penalty ``mu/2 |û^k - u + v^k|^2``
-   (``mu`` times the subset's mean displacement stiffness);
+2. local step, per node: the displacement minimising the subset's matching
+   cost with the gradient held at ``F^{k+1}`` and the penalty
+   ``mu/2 |û^k - u + v^k|^2`` (``mu`` times the subset's mean displacement
+   stiffness), on the cost's Gauss-Newton model about the converged Local
+   warp (:func:`_model_step`: the Local solve's matrix, no resampling);
 3. global step on the hexahedra (2 x 2 x 2 Gauss points, ``β/μ = beta step^2``
    as in 2-D): ``(β/μ GᵀG + I) û = β/μ Gᵀ N (F - W) + (u - v)``;
 4. ``W += G û - F``, ``v += û - u``; until ``rms(û^{k+1} - û^k) < admm_tol``.
@@ -28,9 +30,8 @@ from scipy import sparse
 from scipy.sparse import linalg as spla
 from scipy.spatial import cKDTree
 
-from ..core.reasons import Reason
 from .hexmesh import hex_operators, nodal_gradient
-from .local import LocalState, extrapolate, run_icgn
+from .local import LocalState, extrapolate
 
 __all__ = ["solve_aldvc"]
 
@@ -78,15 +79,46 @@ def _fill_untrusted(st: LocalState, good: np.ndarray, p: np.ndarray) -> np.ndarr
     return out
 
 
-def solve_aldvc(st: LocalState):
+_T = [0, 4, 8]  # u, v, w in the warp
+_F = [1, 2, 3, 5, 6, 7, 9, 10, 11]  # their gradients
+
+
+def _model_step(st: LocalState, p_loc: np.ndarray, target: np.ndarray, good: np.ndarray,
+                mu: float) -> np.ndarray:
+    """The local step on each subset's Gauss-Newton model about its Local optimum.
+
+    The matching cost near the converged Local warp ``p_loc`` is
+    ``(p - p_loc)ᵀ H (p - p_loc)`` (``H`` the subset's Gauss-Newton matrix, the
+    same linearisation ``p o dp^-1 ~ p - dp`` as the sampled step); with the
+    gradient held at the global field's and the penalty ``mu`` times the mean
+    displacement stiffness, the displacement is
+    ``(H_tt + pen) t = H_tt t_loc - H_tF (F - F_loc) + pen q``: no
+    resampling of the volume. Untrusted nodes take the target."""
+    Htt = st.hrow[:, :, _T]
+    HtF = st.hrow[:, :, _F]
+    pen = mu * np.trace(Htt, axis1=1, axis2=2) / 3.0
+    rhs = (np.einsum("nij,nj->ni", Htt, p_loc[:, _T])
+           - np.einsum("nij,nj->ni", HtF, target[:, _F] - p_loc[:, _F])
+           + pen[:, None] * target[:, _T])
+    out = target.copy()
+    A = Htt + pen[:, None, None] * np.eye(3)
+    ok = good & np.isfinite(A).all((1, 2)) & (pen > 0)
+    out[np.ix_(ok, _T)] = np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
+    return out
+
+
+def solve_aldvc(st: LocalState, start: float = 0.5, end: float = 0.95):
     """ADMM from the converged local state ``st`` (updated: its last local
-    step). Returns ``(p (n, 12) of the global field, info)``."""
+    step). Returns ``(p (n, 12) of the global field, info)``. With
+    ``st.report`` set, every ADMM iteration (and batch of local nodes) is a
+    progress point, the fraction running from ``start`` to ``end``."""
     pr = st.params
     t0 = time.perf_counter()
     ops = hex_operators(st.grid, float(pr.step))
     if len(ops.elements) == 0:
         return st.p.copy(), {"history": [], "timing": {"admm": 0.0}}
     good = st.good()
+    p_loc = st.p.copy()
     # β/μ = beta step^2 (G carries the 1/step): gradients weighed as displacements
     glob = _Global(ops, np.where(good, 1.0, _WEAK), pr.beta * pr.step ** 2)
     p = _fill_untrusted(st, good, st.p)
@@ -97,17 +129,17 @@ def solve_aldvc(st: LocalState):
     F = np.stack([p[:, c + 1:c + 4] for c in comps], 1)
     uh = np.stack([glob.step(u[:, a] - v[:, a], F[:, a] - W[:, a]) for a in range(3)], 1)
     history = []
-    scratch = np.full((st.grid.n, 3), np.nan)
-    for _ in range(pr.admm_max_iter):
+    share = (end - start) / max(pr.admm_max_iter, 1)
+    for it in range(pr.admm_max_iter):
+        a0 = start + it * share
+        if st.report is not None:
+            st.report("aldic", a0, f"ADMM iteration {it + 1}")
         Fh = np.stack([nodal_gradient(ops, uh[:, a]) for a in range(3)], 1)
         target = np.zeros_like(st.p)
         for a, c in enumerate(comps):
             target[:, c] = uh[:, a] - v[:, a]
             target[:, c + 1:c + 4] = Fh[:, a]
-        st.p[:] = target
-        active = st.status != Reason.SMALL_COMPONENT
-        run_icgn(st, active, pr.mu, target, ustd=scratch)
-        good = st.good()
+        st.p[:] = _model_step(st, p_loc, target, good, pr.mu)
         p = _fill_untrusted(st, good, st.p)
         u = p[:, comps]
         uh_new = np.stack([glob.step(u[:, a] - v[:, a], Fh[:, a] - W[:, a])

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numba
 import numpy as np
 
 from ..core.params import DICParams
+from ..core.progress import ProgressEvent, check_cancel, event_callback
 from ..core.reasons import Reason
 from ..core.version import __version__
 from ..core.volresults import VolumeResult
@@ -28,9 +30,11 @@ def _check_inputs(ref, dfm, roi):
     if ref.shape != dfm.shape:
         raise ValueError(f"the reference {ref.shape} and deformed {dfm.shape} volumes differ "
                          "in shape (z, y, x)")
-    f = ref.astype(np.float32)
-    g = dfm.astype(np.float32)
-    if not (np.isfinite(f).all() and np.isfinite(g).all()):
+    f = np.asarray(ref, np.float32)  # read only: no copy of float32 volumes
+    g = np.asarray(dfm, np.float32)
+    # a float64 sum of float32 values cannot overflow: it is finite iff every value is
+    if ref.dtype.kind == "f" and not np.isfinite(f.sum(dtype=np.float64)) \
+            or dfm.dtype.kind == "f" and not np.isfinite(g.sum(dtype=np.float64)):
         raise ValueError("a volume holds NaN or infinite grey levels")
     if roi is None:
         mask = np.ones(ref.shape, np.uint8)
@@ -59,8 +63,54 @@ def _result(st: LocalState, reason, params, shape, roi, meta, p=None) -> VolumeR
         roi=None if roi is None else np.asarray(roi, bool))
 
 
+def _reporter(progress, cancel):
+    """``report(stage, fraction, message)``: a :class:`ProgressEvent` to the
+    caller and a cancellation point (``cancel``: a callable returning True
+    to stop, or a ``threading.Event``)."""
+    user = event_callback(progress, "correlate", stacklevel=4)
+    poll = getattr(cancel, "is_set", cancel)
+    if poll is not None and not callable(poll):
+        raise TypeError(f"cancel must be a callable or a threading.Event, not "
+                        f"{type(cancel).__name__}")
+
+    def report(stage: str, frac: float, msg: str = "") -> None:
+        check_cancel(poll)
+        user(ProgressEvent(stage, float(frac), message=msg))
+
+    return report
+
+
+def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
+    """``correlate_volume(..., block=N)``: Local DVC read block by block."""
+    from .blocked import correlate_blocks
+    from .lazy import open_volume
+
+    if params.method != "local":
+        raise ValueError("method='aldic' needs the whole volume at once (its global step "
+                         "couples every node); block= runs Local DVC only")
+    ref, dfm = (open_volume(v) if isinstance(v, (str, os.PathLike)) else v for v in (ref, dfm))
+    roi = open_volume(roi) if isinstance(roi, (str, os.PathLike)) else roi
+    report("setup", 0.0, "reading the volumes block by block")
+    threads = numba.get_num_threads()
+    if params.n_threads:
+        numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
+    try:
+        st, reason, info = correlate_blocks(ref, dfm, roi, params, int(block), report)
+    finally:
+        numba.set_num_threads(threads)
+    meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
+                         "numba": numba.__version__},
+            "timing": {"total": time.perf_counter() - t0}, "n_nodes": st.grid.n,
+            "kind": "volume", "blocked": info,
+            "n_valid": int(np.count_nonzero(reason == Reason.OK))}
+    res = _result(st, reason, params, tuple(ref.shape), None, meta)
+    report("done", 1.0, f"{meta['n_valid']}/{st.grid.n} valid")
+    return res
+
+
 def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
                      method: str = "local", *, params: DICParams | None = None,
+                     progress=None, cancel=None, block: int | None = None,
                      **options) -> VolumeResult:
     """Displacement of a deformed volume against a reference (DVC).
 
@@ -82,6 +132,19 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     **options
         Other :class:`~..core.params.DICParams` fields (``max_iter``,
         ``tol``, ``zncc_min``, ``search``, ``mu``, ``beta``, ``n_threads``...).
+    progress : callable(ProgressEvent), optional
+        Called between the stages (``"setup"``, ``"prefilter"``,
+        ``"initial_guess"``, ``"icgn"``, ``"repair"``, ``"aldic"``, ``"done"``,
+        as ``correlate``) and after every batch of ~1000 nodes.
+    cancel : callable() -> bool or threading.Event, optional
+        Polled at every progress point; when it is set the call raises
+        :class:`~napari_aldic.engine.Cancelled` (within one batch of nodes).
+    block : int, optional
+        Read and solve the volumes in blocks of about ``block`` voxels a side
+        (Local DVC; :mod:`.blocked`): ``ref``, ``dfm`` (and ``roi``) may then be
+        zarr arrays, memory-mapped arrays or paths of zarr folders, tiled
+        TIFFs or ``.npy`` files, never loaded whole. The result's ``roi`` is
+        not kept.
 
     Returns
     -------
@@ -90,22 +153,27 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
         w`` Lagrangian displacement (voxels), ``valid`` and ``reason``.
     """
     t0 = time.perf_counter()
+    report = _reporter(progress, cancel)
     if params is None:
         params = DICParams(subset=subset, step=step, method=method, **options)
+    if block:
+        return _blocked(ref, dfm, roi, params, block, report, t0)
+    report("setup", 0.0, "checking the volumes")
     f, g, mask = _check_inputs(ref, dfm, roi)
     grid = make_volume_grid(f.shape, params.subset, params.step, roi)
     threads = numba.get_num_threads()
     if params.n_threads:
         numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
     try:
-        st = solve_local_volume(f, g, mask, grid, params)
+        aldic = params.method == "aldic"
+        st = solve_local_volume(f, g, mask, grid, params, report, 0.5 if aldic else 0.95)
         meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
                              "numba": numba.__version__},
                 "timing": dict(st.timing), "n_nodes": grid.n, "kind": "volume"}
         p = None
-        if params.method == "aldic":
+        if aldic:
             from .aldvc import solve_aldvc  # the ADMM needs scipy.sparse only here
-            p, admm = solve_aldvc(st)
+            p, admm = solve_aldvc(st, 0.5, 0.95)
             meta["admm_history"] = admm["history"]
             meta["timing"].update(admm["timing"])
         reason = final_reasons(st, p)
@@ -116,4 +184,5 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     res = _result(st, reason, params, f.shape, roi, meta, p)
     if p is not None:
         res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
+    report("done", 1.0, f"{meta['n_valid']}/{grid.n} valid")
     return res

@@ -9,6 +9,7 @@ node (exact for uniform strain and rotation).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy import fft
 
@@ -45,7 +46,9 @@ def ncc_search(ref, dfm, centre, half: int, search: int, shift0=(0, 0, 0)):
     W = np.asarray(dfm[lo_w[0]:hi_w[0], lo_w[1]:hi_w[1], lo_w[2]:hi_w[2]], np.float64)
     size = W.shape
     fast = [fft.next_fast_len(s, real=True) for s in size]  # 37 is prime: pad to 40
-    corr = fft.irfftn(fft.rfftn(W, fast) * np.conj(fft.rfftn(T, fast)), fast)
+    workers = numba.get_num_threads()  # the run's threads (n_threads)
+    corr = fft.irfftn(fft.rfftn(W, fast, workers=workers)
+                      * np.conj(fft.rfftn(T, fast, workers=workers)), fast, workers=workers)
     valid = tuple(slice(0, s - n + 1) for s in size)
     corr = corr[valid]
     s1 = _box_sums(W, n)

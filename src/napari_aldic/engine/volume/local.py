@@ -24,6 +24,8 @@ from .spline import coefficients, gradients
 
 __all__ = ["LocalState", "solve_local_volume", "run_icgn", "extrapolate"]
 
+_BATCH = 1024  # nodes between two progress (and cancellation) points
+
 
 @dataclass
 class LocalState:
@@ -44,6 +46,8 @@ class LocalState:
     ustd: np.ndarray = None
     nvox: np.ndarray = None
     timing: dict = field(default_factory=dict)
+    #: ``report(stage, fraction, message)`` or None: progress and cancellation
+    report: object = None
 
     def __post_init__(self):
         n = self.grid.n
@@ -54,21 +58,38 @@ class LocalState:
         self.zncc = np.full(n, np.nan)
         self.ustd = np.full((n, 3), np.nan)
         self.nvox = np.zeros(n, np.int64)
+        self.hrow = np.zeros((n, 3, NPAR3))  # rows u, v, w of each Local H
 
     def good(self) -> np.ndarray:
         return (self.status == Reason.OK) & (self.zncc >= self.params.zncc_min)
 
 
 def run_icgn(st: LocalState, active: np.ndarray, mu: float = 0.0, target=None,
-             ustd=None) -> None:
+             ustd=None, span=None) -> None:
     """Solve the ``active`` nodes from their current ``st.p`` (with AL-DVC's
     penalty ``mu`` towards ``target`` when given; ``ustd`` receives the
-    uncertainty instead of ``st.ustd``)."""
+    uncertainty instead of ``st.ustd``).
+
+    With ``span = (stage, start, end)`` and ``st.report`` set, the nodes go in
+    batches, each followed by ``st.report(stage, fraction, message)`` (its
+    progress and cancellation point), the fraction running from ``start`` to
+    ``end``."""
     pr = st.params
     target = st.p if target is None else np.ascontiguousarray(target)
-    icgn3d(st.f, st.fg, st.gc, st.mask, st.nodes, st.p, np.ascontiguousarray(active),
-           pr.subset // 2, pr.max_iter, pr.tol, pr.min_component, st.status, st.iters,
-           st.zncc, st.ustd if ustd is None else ustd, st.nvox, float(mu), target)
+    todo = np.flatnonzero(active).astype(np.int64)
+    batches = [todo]
+    if span is not None and st.report is not None and todo.size > 2 * _BATCH:
+        batches = np.array_split(todo, -(-todo.size // _BATCH))
+    done = 0
+    for batch in batches:
+        icgn3d(st.f, st.fg, st.gc, st.mask, st.nodes, st.p, batch, pr.subset // 2,
+               pr.max_iter, pr.tol, pr.min_component, st.status, st.iters, st.zncc,
+               st.ustd if ustd is None else ustd, st.nvox, float(mu), target, st.hrow)
+        done += batch.size
+        if span is not None and st.report is not None:
+            stage, a, b = span
+            st.report(stage, a + (b - a) * done / max(todo.size, 1),
+                      f"{done}/{todo.size} nodes")
 
 
 def extrapolate(p_src: np.ndarray, x_src: np.ndarray, x_dst: np.ndarray) -> np.ndarray:
@@ -114,8 +135,10 @@ def _anchors(st: LocalState, shift0) -> np.ndarray:
     """Search and solve the anchor nodes in two waves; returns their indices.
 
     The anchors near the volume centre are searched around the rigid shift;
-    the outer ones around the motion their nearest inner anchor's affine
-    map predicts (rotation and strain grow the motion with the distance)."""
+    the outer ones start from the warp their nearest inner anchor's affine
+    map predicts (rotation and strain grow the motion with the distance),
+    and only those IC-GN cannot solve from it are searched, around that
+    prediction."""
     pr = st.params
     spacing = pr.init_spacing or max(3 * pr.subset // 2, 24)
     anchors = np.flatnonzero(_anchor_mask(st.grid, spacing))
@@ -128,9 +151,17 @@ def _anchors(st: LocalState, shift0) -> np.ndarray:
     good = first[st.good()[first]]
     outer = anchors[~inner]
     if good.size and outer.size:
+        # IC-GN straight from the predicted warp; FFT search only where that fails
         _, j = cKDTree(st.nodes[good]).query(st.nodes[outer])
         pred = extrapolate(st.p[good[j]], st.nodes[good[j]], st.nodes[outer])
-        _search(st, outer, np.rint(pred[:, [0, 4, 8]]).astype(int), max(near // 2, 3))
+        st.p[outer] = pred
+        active = np.zeros(st.grid.n, bool)
+        active[outer] = True
+        run_icgn(st, active)
+        lost = ~st.good()[outer]
+        if lost.any():
+            _search(st, outer[lost], np.rint(pred[lost][:, [0, 4, 8]]).astype(int),
+                    max(near // 2, 3))
     elif outer.size:
         _search(st, outer, np.tile(np.asarray(shift0), (outer.size, 1)), near)
     return anchors
@@ -160,16 +191,24 @@ def _retry(st: LocalState, rounds: int = 2) -> None:
             return
 
 
-def solve_local_volume(ref, dfm, mask, grid: VolumeGrid, params: DICParams) -> LocalState:
+def solve_local_volume(ref, dfm, mask, grid: VolumeGrid, params: DICParams, report=None,
+                       end: float = 0.95) -> LocalState:
     """Local IC-GN at every node of ``grid``; returns the state with per-node
-    warps, status codes (gauss-newton codes; not yet the final reasons)."""
+    warps, status codes (gauss-newton codes; not yet the final reasons).
+
+    ``report(stage, fraction, message)`` (optional) is called between the
+    stages and the batches of nodes, the fraction reaching ``end`` at the
+    repair; it may raise to cancel."""
+    say = report or (lambda *a: None)
     t0 = time.perf_counter()
+    say("prefilter", 0.01, "prefiltering the volumes")
     f = np.ascontiguousarray(ref, np.float32)
     g = np.ascontiguousarray(dfm, np.float32)
     search_max = params.search_max or max(max(f.shape) // 4, 4 * params.search)
     st = LocalState(f, g, gradients(coefficients(f)), coefficients(g), mask, grid, params,
-                    search_max)
+                    search_max, report=report)
     t1 = time.perf_counter()
+    say("initial_guess", 0.05 * end, "initial guess")
     shift0, _ = global_shift(f, g, params.search, search_max)
     anchors = _anchors(st, shift0)
     t2 = time.perf_counter()
@@ -181,7 +220,9 @@ def solve_local_volume(ref, dfm, mask, grid: VolumeGrid, params: DICParams) -> L
     _propagate(st, good, rest)
     active = np.zeros(grid.n, bool)
     active[rest] = True
-    run_icgn(st, active)
+    say("icgn", 0.1 * end, f"{grid.n} nodes")
+    run_icgn(st, active, span=("icgn", 0.1 * end, 0.97 * end))
+    say("repair", 0.97 * end, "restarting failed nodes")
     _retry(st)
     st.timing.update(prefilter=t1 - t0, init_guess=t2 - t1,
                      icgn=time.perf_counter() - t2)
