@@ -264,7 +264,8 @@ def _window_var(a: np.ndarray, tile: int = 120) -> np.ndarray:
                  mode="symmetric")
     side = tile + FLAT_WINDOW - 1
     tiles = np.lib.stride_tricks.sliding_window_view(pad, (side, side))[::tile, ::tile]
-    s1, s2 = window_sums(np.ascontiguousarray(tiles.reshape(-1, side, side)), FLAT_WINDOW)
+    # a writable copy: a read-only view (one tile) would compile a second specialisation
+    s1, s2 = window_sums(np.array(tiles.reshape(-1, side, side), order="C"), FLAT_WINDOW)
     s1 *= 1.0 / FLAT_WINDOW ** 2
     s2 *= 1.0 / FLAT_WINDOW ** 2
     s1 *= s1

@@ -45,7 +45,7 @@ KERNELS: dict[str, tuple[str, ...]] = {
     "icgn.icgn_affine": (_sig(
         _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1, _I64_1, _F64_2,
         "boolean[::1]", _I32_1, "uint8[:, :, ::1]", "int64", "int64", "float64", _F64_2,
-        _F64_1, _I32_1, "int8[::1]", _F64_2, _F32_2, "UniTuple(float64, 2)", _F64_2),),
+        _F64_1, _I32_1, "int8[::1]", _F64_2, _F32_2, "UniTuple(float64, 3)", _F64_2),),
     "lattice.median_flags": (_sig(
         _F64_1, _F64_1, "boolean[::1]", "int64[:, ::1]", "float64", "float64", "int64",
         "boolean[::1]"),),
