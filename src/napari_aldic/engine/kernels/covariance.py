@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, PARALLEL
+from .flags import FASTMATH, INLINE, PARALLEL, SERIAL
 from .icgn_node import lu_factor, lu_solve
 
 __all__ = ["CHUNK", "MIN_SPECKLE_FRACTION", "gather_matrices", "mean_noise_factor",
@@ -103,7 +103,7 @@ def _interp(x, t, rho):
 
 
 # serial (issue 25): as fast as with threads (measured), compiles ~2x faster
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def mean_noise_factor(u, v, grad, half, offsets, t, rho):
     """Mean over a grid of subset offsets of the interpolated-noise factor.
 
@@ -219,7 +219,7 @@ def _node_covariance(mats, var, lu, piv, z, w):
 
 
 # serial (issue 25): ~0.03 s more per 1024² run on 2 cores, 3.7 s less compiling
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def covariance_diag(m0, m1, src, col, scale, var_e, m):
     """Variances of the u and v parameters of each node's subset match.
 

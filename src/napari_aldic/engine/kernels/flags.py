@@ -12,7 +12,7 @@ module inlines, delete the ``__pycache__/*.nbi``/``*.nbc`` files of
 
 from __future__ import annotations
 
-__all__ = ["FASTMATH", "FASTMATH_ALL", "CACHED", "PARALLEL", "INLINE"]
+__all__ = ["FASTMATH", "FASTMATH_ALL", "CACHED", "SERIAL", "PARALLEL", "INLINE"]
 
 #: fast-math without the no-NaN/no-inf assumptions, so NaN checks survive:
 #: no signed zeros, reciprocals, FMA contraction, approximate functions and
@@ -26,6 +26,11 @@ FASTMATH_ALL = True
 
 #: a serial top-level kernel: compiled once, cached on disk, GIL released
 CACHED = {"cache": True, "nogil": True}
+
+#: a serial top-level kernel that was parallel: NumPy's division semantics
+#: (x / 0 gives inf or NaN, as in a ``prange`` loop) rather than Python's
+#: ZeroDivisionError, which the callers of such kernels do not expect
+SERIAL = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 #: a top-level kernel whose outer loop is a ``prange`` over threads
 PARALLEL = {"cache": True, "nogil": True, "parallel": True}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED
+from .flags import CACHED, SERIAL
 
 __all__ = ["integral_image", "window_sums"]
 
@@ -45,7 +45,7 @@ def integral_image(mask):
 
 # serial (issue 25): threads cost more than they gain here (measured, 2 cores),
 # and a parallel kernel compiles ~3x longer
-@nb.njit(**CACHED)
+@nb.njit(**SERIAL)
 def window_sums(a, S):
     """Sums of ``a`` and ``a**2`` over every ``S x S`` window of a batch.
 
