@@ -30,7 +30,7 @@ from ..engine.io import available_memory, file_sha256, read_json_file
 from ..i18n import tr
 
 __all__ = ["PROJECT_FORMAT", "PROBE_KEY", "ROLES", "is_probe_layer", "image_record",
-           "layer_record",
+           "layer_record", "file_identity", "relative_path",
            "layer_data", "read_project", "write_project", "encode_array", "decode_array"]
 
 PROJECT_FORMAT = "napari-aldic-project"
@@ -125,17 +125,22 @@ def _identities(path) -> list[dict] | None:
     paths = path if isinstance(path, list) else [path]
     if not all(os.path.isfile(p) for p in paths):
         return None
-    return [{"size": os.path.getsize(p), "sha256": file_sha256(p, "image file")} for p in paths]
+    return [file_identity(p, "image file") for p in paths]
 
 
-def _relative(path, folder: Path):
+def file_identity(path, what: str) -> dict:
+    """Size and SHA-256 of a file a project refers to (``what`` names it in errors)."""
+    return {"size": os.path.getsize(path), "sha256": file_sha256(path, what)}
+
+
+def relative_path(path, folder: Path):
     """``path`` (or each of a list) relative to ``folder`` where it can be."""
     if isinstance(path, list):
-        return [_relative(p, folder) for p in path]
+        return [relative_path(p, folder) for p in path]
     try:
         return os.path.relpath(path, folder)
     except ValueError:  # another drive (Windows): keep it absolute
-        return path
+        return os.fspath(path)
 
 
 def _resolved(path, folder: Path):
@@ -353,7 +358,7 @@ def write_project(path, doc: dict) -> Path:
     body = {"format": PROJECT_FORMAT, "format_version": PROJECT_VERSION, **doc}
     image = body.get("image")
     if isinstance(image, dict) and image.get("path"):
-        body["image"] = {**image, "path": _relative(image["path"], path.absolute().parent)}
+        body["image"] = {**image, "path": relative_path(image["path"], path.absolute().parent)}
     _check(json.loads(json.dumps(body)))  # what is written reads back
     path.write_text(json.dumps(body, indent=1, ensure_ascii=False), encoding="utf-8")
     return path

@@ -20,6 +20,7 @@ from .._analysis import Analysis, StrainSettings
 from ..engine import compute_strain, load_result
 from ..engine.io import file_sha256
 from ..i18n import tr
+from .project import file_identity, relative_path
 
 __all__ = ["LOAD_KEY", "LOAD_OPTIONS", "results_record", "restore_results", "load_record",
            "restore_load", "keep_load", "kept_load"]
@@ -29,10 +30,6 @@ LOAD_KEY = "napari_aldic_load"
 LOAD_OPTIONS = ("area_mm2", "sync", "fps", "offset")
 
 
-def _identity(path: Path) -> dict:
-    return {"size": path.stat().st_size, "sha256": file_sha256(path, "result file")}
-
-
 def _changed(path: Path, rec: dict) -> str | None:
     """Why the file at ``path`` is not the one recorded (``None``: it is)."""
     if not path.is_file():
@@ -40,13 +37,6 @@ def _changed(path: Path, rec: dict) -> str | None:
     if path.stat().st_size != rec.get("size") or file_sha256(path, "file") != rec.get("sha256"):
         return tr("{path} has changed since the project was saved").format(path=path)
     return None
-
-
-def _relative(path: Path, folder: Path) -> str:
-    try:
-        return os.path.relpath(path, folder)
-    except ValueError:  # another drive (Windows)
-        return str(path)
 
 
 # ------------------------------------------------------------------ results
@@ -65,8 +55,9 @@ def results_record(analysis: Analysis, project: Path, units) -> dict:
         if units is not None:
             r.meta["units"] = units.to_dict()  # the result file says its units too
         written = Path(r.save(folder / f"frame_{int(k):05d}.npz"))
-        files.append({"frame": int(k), "name": written.name, **_identity(written)})
-    return {"folder": _relative(folder, project.parent), "files": files,
+        files.append({"frame": int(k), "name": written.name,
+                      **file_identity(written, "result file")})
+    return {"folder": relative_path(folder, project.parent), "files": files,
             "frames": [int(k) for k in analysis.frames], "n_frames": analysis.n_frames,
             "reference": analysis.reference, "strain": analysis.strain.to_dict(),
             "cancelled": bool(analysis.cancelled), "seconds": float(analysis.seconds)}
@@ -116,7 +107,8 @@ def load_record(options: dict, project: Path) -> dict | None:
     if not path or not Path(path).is_file():
         return None
     path = Path(path).absolute()
-    rec = {"path": _relative(path, Path(project).absolute().parent), **_identity(path)}
+    rec = {"path": relative_path(path, Path(project).absolute().parent),
+           **file_identity(path, "load file")}
     rec.update({k: options[k] for k in LOAD_OPTIONS if options.get(k) is not None})
     return rec
 
