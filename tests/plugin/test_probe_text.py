@@ -190,7 +190,11 @@ def test_trap13_the_german_export_section_fits(make_napari_viewer, qtbot, tmp_pa
             for i in range(combo.count()):
                 if combo.fontMetrics().horizontalAdvance(combo.itemText(i)) > room:
                     bad.append(combo.itemText(i))
-        assert w.exports.format.native.count() == len(FORMATS)
+        formats = w.exports.format.native
+        assert formats.count() == len(FORMATS)
+        for i in range(formats.count()):  # the whole text also on hover
+            formats.setCurrentIndex(i)
+            assert formats.toolTip().startswith(formats.currentText())
         shot = tmp_path / "export_de_1280x720.png"
         save_screenshot(viewer, shot)
         assert not bad, f"cut off in German (see {shot}): {bad}"
