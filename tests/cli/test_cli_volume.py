@@ -41,6 +41,30 @@ def test_cli_volume_gives_the_api_result(run_cli, pair, tmp_path):
         assert np.array_equal(getattr(res, k), getattr(api, k)), k
 
 
+@pytest.mark.parametrize("method", ["local", "aldic"])
+def test_cli_block_reads_tiled_volumes_and_gives_the_api_blocked_result(run_cli, pair,
+                                                                          tmp_path, method):
+    d, ref, dfm = pair
+    for name, vol in (("ref", ref), ("def", dfm)):
+        tifffile.imwrite(tmp_path / f"{name}.tif", vol, tile=(16, 16))
+    rc, out, err = run_cli(["run", tmp_path / "ref.tif", tmp_path / "def.tif", "--volume",
+                            "--block", "16", "--method", method, "-o", tmp_path / "out.npz"])
+    assert rc == 0, err
+    res = load_result(tmp_path / "out.npz")
+    api = correlate_volume(ref, dfm, subset=21, step=8, method=method, block=16)
+    assert res.meta["blocked"]["blocks"] == api.meta["blocked"]["blocks"] == 8
+    for k in ("x", "y", "z", "u", "v", "w", "valid", "reason"):
+        assert np.array_equal(getattr(res, k), getattr(api, k)), k
+
+
+def test_cli_block_needs_volume_and_a_block_of_a_node_spacing(run_cli, pair):
+    d, _, _ = pair
+    rc, out, err = run_cli(["run", d / "ref.tif", d / "def.tif", "--block", "32"])
+    assert rc != 0 and "--volume" in err
+    rc, out, err = run_cli(["run", d / "ref.tif", d / "def.tif", "--volume", "--block", "4"])
+    assert rc != 0 and "--block 4" in err and "8" in err
+
+
 def test_cli_without_volume_keeps_3d_tiff_as_2d_frames(run_cli, tmp_path):
     ref, _ = speckle_volume_pair((3, 64, 64), VolumeMotion.make(shift=(0.5, 0, 0)), seed=1)
     tifffile.imwrite(tmp_path / "stack.tif", ref, photometric="minisblack")

@@ -214,6 +214,10 @@ def add_run(sub) -> None:
                      help=tr("the inputs are volumes: a 3-D TIFF is one volume (z, y, x), a "
                              "4-D TIFF or a folder a sequence of volumes (digital volume "
                              "correlation; without it a 3-D TIFF is a stack of 2-D frames)"))
+    run.add_argument("--block", type=int, metavar="N",
+                     help=tr("with --volume: read and solve the volumes in blocks of about N "
+                             "voxels a side, never loading them whole (tiled TIFFs, zarr "
+                             "folders or .npy files, one volume each)"))
 
 
 def add_params(sub) -> None:

@@ -48,6 +48,9 @@ def _run(args) -> None:
     params, units = settings.params, settings.units
     if getattr(args, "volume", False):
         return run_volume(args, params)
+    if getattr(args, "block", None):
+        raise CLIError(tr("--block reads volumes by blocks: it needs --volume (2-D images "
+                          "larger than memory use --tile-size)"))
     if args.params_out is not None:
         used = settings.replace(tracking={"reference": args.reference})
         print(tr("parameters written to {resolve}").format(

@@ -21,7 +21,8 @@ from ..engine import (
     load_result,
     track_volumes,
 )
-from ..engine.io import read_volumes
+from ..engine.io import natural_key, read_volumes
+from ..engine.volume import open_volume
 from ..i18n import tr
 from .console import PROG, CLIError
 
@@ -42,19 +43,49 @@ def _roi(args):
     if args.roi is None:
         return None
     try:
+        if args.block:
+            return open_volume(args.roi)  # read by windows too, nonzero = material
         (m,) = read_volumes([args.roi])
-    except ValueError as exc:
+    except (ValueError, FileNotFoundError) as exc:
         raise CLIError(str(exc)) from None
     return np.asarray(m) != 0
+
+
+def _is_zarr(p: Path) -> bool:
+    return p.is_dir() and any((p / n).exists() for n in (".zarray", "zarr.json"))
+
+
+def _lazy_volumes(inputs) -> list:
+    """``--block``: every input opened without reading it (a folder of files
+    is a sequence, one volume a file; a zarr folder is one volume)."""
+    out = []
+    for p in map(Path, inputs):
+        if p.is_dir() and not _is_zarr(p):
+            files = sorted((f for f in p.iterdir() if f.suffix.lower() in (".tif", ".tiff",
+                                                                           ".npy")
+                            or _is_zarr(f)), key=lambda f: natural_key(f.name))
+            out.extend(open_volume(f) for f in files)
+        else:
+            out.append(open_volume(p))
+    return out
+
+
+def _volumes(args, step: int) -> list:
+    try:
+        if args.block:
+            if args.block < step:
+                raise ValueError(tr("--block {n} is smaller than the node spacing; give at "
+                                    "least {step} voxels").format(n=args.block, step=step))
+            return _lazy_volumes(args.inputs)
+        return read_volumes(args.inputs)
+    except (ValueError, FileNotFoundError) as exc:
+        raise CLIError(str(exc)) from None
 
 
 def run_volume(args, params) -> None:
     """Correlate the volumes of ``args.inputs`` (see the module docstring)."""
     params = _params(args, params)
-    try:
-        vols = read_volumes(args.inputs)
-    except (ValueError, FileNotFoundError) as exc:
-        raise CLIError(str(exc)) from None
+    vols = _volumes(args, params.step)
     if len(vols) < 2:
         raise CLIError(tr("--volume needs a reference and at least one deformed volume; "
                           "{n} given").format(n=len(vols)))
@@ -67,7 +98,7 @@ def run_volume(args, params) -> None:
     if len(vols) == 2 and (out is None or out.suffix.lower() in (".npz", *_EXPORTS)):
         path = Path("aldic_volume.npz") if out is None else out.expanduser()
         path.parent.mkdir(parents=True, exist_ok=True)
-        res = correlate_volume(vols[0], vols[1], roi=roi, params=params)
+        res = correlate_volume(vols[0], vols[1], roi=roi, params=params, block=args.block)
         _report(res, res.save(path.with_suffix(".npz")))
         if path.suffix.lower() in _EXPORTS:  # the result file, and the export beside it
             print(f"  -> {export_volume(res, path, compute_strain_volume(res)).resolve()}")
@@ -76,7 +107,8 @@ def run_volume(args, params) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     paths = {k: folder / f"frame_{k:05d}.npz" for k in range(1, len(vols))}
     done = {k: load_result(p) for k, p in paths.items() if p.exists()}
-    for k, res in track_volumes(vols, roi, args.reference, params=params, done=done):
+    for k, res in track_volumes(vols, roi, args.reference, params=params, done=done,
+                                block=args.block):
         if k not in done:
             _report(res, res.save(paths[k]))
 

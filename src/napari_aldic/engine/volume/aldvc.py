@@ -15,10 +15,12 @@ displacements), per displacement component ``c``:
    as in 2-D): ``(β/μ GᵀG + I) û = β/μ Gᵀ N (F - W) + (u - v)``;
 4. ``W += G û - F``, ``v += û - u``; until ``rms(û^{k+1} - û^k) < admm_tol``.
 
-Untrusted nodes enter the global step with a small weight and their
-neighbours' extrapolated motion, so the system stays well posed. Not (yet)
-in 3-D: 2-D's thin-plate smoothing chosen by the risk estimate, and the
-second-order warp.
+The global step also carries 2-D's thin-plate term ``Σ κ_r (K û)_r²``
+(zero for affine fields), its length ``ℓ`` (``κ = ℓ⁴``) chosen per node by
+the risk estimate of :mod:`.smoothing` (``smooth="auto"``) or fixed by the
+user (``smooth=ℓ`` voxels; 0: none). Untrusted nodes enter the global step
+with a small weight and their neighbours' extrapolated motion, so the system
+stays well posed. Not (yet) in 3-D: the second-order warp.
 """
 
 from __future__ import annotations
@@ -27,37 +29,29 @@ import time
 
 import numpy as np
 from scipy import sparse
-from scipy.sparse import linalg as spla
 from scipy.spatial import cKDTree
 
 from .hexmesh import hex_operators, nodal_gradient
-from .local import LocalState, extrapolate
+from .local import NodeState, extrapolate
+from .smoothing import choose_volume_smoothing, curvature_rows, spd_solver
 
 __all__ = ["solve_aldvc"]
 
 _WEAK = 1e-2  # data weight of an untrusted node in the global step
-_DIRECT_MAX = 60_000  # nodes: sparse LU below, AMG-preconditioned CG above
 
 
 class _Global:
-    """The factorised global matrix of one mesh and weights."""
+    """The factorised global matrix of one mesh, weights and thin-plate term."""
 
-    def __init__(self, ops, weight: np.ndarray, ratio: float):
+    def __init__(self, ops, weight: np.ndarray, ratio: float, curvature=None):
         self.ops = ops
         self.ratio = ratio
         # Gauss-point weights: each point stands for 1/8 of a cell (cell volume 1)
-        self.A = (ratio / 8.0) * (ops.G.T @ ops.G) + sparse.diags(weight)
+        A = (ratio / 8.0) * (ops.G.T @ ops.G) + sparse.diags(weight)
+        if curvature is not None:
+            A = A + curvature
         self.weight = weight
-        self.A = self.A.tocsc()
-        n = self.A.shape[0]
-        if n <= _DIRECT_MAX:
-            self._lu = spla.splu(self.A)
-            self.solve = self._lu.solve
-        else:
-            import pyamg
-            ml = pyamg.smoothed_aggregation_solver(self.A.tocsr())
-            M = ml.aspreconditioner()
-            self.solve = lambda b: spla.cg(self.A, b, M=M, rtol=1e-10, maxiter=500)[0]
+        self.solve = spd_solver(A)
 
     def step(self, target_u: np.ndarray, target_F: np.ndarray) -> np.ndarray:
         """``û`` (n,) of one component from nodal targets (n,) and (n, 3)."""
@@ -67,7 +61,7 @@ class _Global:
         return self.solve(rhs)
 
 
-def _fill_untrusted(st: LocalState, good: np.ndarray, p: np.ndarray) -> np.ndarray:
+def _fill_untrusted(st: NodeState, good: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Warps with untrusted nodes replaced by their nearest trusted one's
     extrapolated affine map."""
     out = p.copy()
@@ -83,7 +77,7 @@ _T = [0, 4, 8]  # u, v, w in the warp
 _F = [1, 2, 3, 5, 6, 7, 9, 10, 11]  # their gradients
 
 
-def _model_step(st: LocalState, p_loc: np.ndarray, target: np.ndarray, good: np.ndarray,
+def _model_step(st: NodeState, p_loc: np.ndarray, target: np.ndarray, good: np.ndarray,
                 mu: float) -> np.ndarray:
     """The local step on each subset's Gauss-Newton model about its Local optimum.
 
@@ -107,7 +101,7 @@ def _model_step(st: LocalState, p_loc: np.ndarray, target: np.ndarray, good: np.
     return out
 
 
-def solve_aldvc(st: LocalState, start: float = 0.5, end: float = 0.95):
+def solve_aldvc(st: NodeState, start: float = 0.5, end: float = 0.95):
     """ADMM from the converged local state ``st`` (updated: its last local
     step). Returns ``(p (n, 12) of the global field, info)``. With
     ``st.report`` set, every ADMM iteration (and batch of local nodes) is a
@@ -120,7 +114,8 @@ def solve_aldvc(st: LocalState, start: float = 0.5, end: float = 0.95):
     good = st.good()
     p_loc = st.p.copy()
     # β/μ = beta step^2 (G carries the 1/step): gradients weighed as displacements
-    glob = _Global(ops, np.where(good, 1.0, _WEAK), pr.beta * pr.step ** 2)
+    curvature, regularisation = _thin_plate(st, good)
+    glob = _Global(ops, np.where(good, 1.0, _WEAK), pr.beta * pr.step ** 2, curvature)
     p = _fill_untrusted(st, good, st.p)
     comps = (0, 4, 8)
     v = np.zeros((st.grid.n, 3))
@@ -158,4 +153,31 @@ def solve_aldvc(st: LocalState, start: float = 0.5, end: float = 0.95):
         out[:, c] = uh[:, a]
         out[:, c + 1:c + 4] = Fh[:, a]
     return out, {"history": history, "timing": {"admm": time.perf_counter() - t0},
-                 "elements": ops.elements}
+                 "elements": ops.elements, "regularisation": regularisation}
+
+
+def _thin_plate(st: NodeState, good: np.ndarray):
+    """``(Kᵀ diag(κ) K or None, record for meta)``: the user's smoothing length
+    or the per-node lengths of least estimated risk (:mod:`.smoothing`)."""
+    pr = st.params
+    t = time.perf_counter()
+    if pr.smooth != "auto":
+        ell = float(pr.smooth)
+        record = {"mode": "fixed", "smooth_px": ell}
+        nodes = np.full(st.grid.n, ell)
+    else:
+        var = np.nansum(st.ustd**2, axis=1)
+        var[~np.isfinite(st.ustd).all(1)] = np.nan
+        choice = choose_volume_smoothing(st.grid, st.p[:, list(_T)], good, var,
+                                         float(pr.step), int(pr.subset))
+        nodes = (np.full(st.grid.n, choice.smooth_px) if choice.node_smooth_px is None
+                 else choice.node_smooth_px)
+        record = {"mode": "auto", "smooth_px_global": choice.smooth_px,
+                  "smooth_px_median": float(np.median(nodes)),
+                  "predicted_local_noise_px": choice.predicted_local_noise,
+                  "risk": choice.table}
+    record["seconds"] = time.perf_counter() - t
+    if not np.any(nodes > 0):
+        return None, record
+    K, P = curvature_rows(st.grid, float(pr.step))
+    return (K.T @ sparse.diags(P @ nodes**4) @ K), record

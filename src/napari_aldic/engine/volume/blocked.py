@@ -20,21 +20,24 @@ Why the blocks give the whole volume's result (to the IC-GN tolerance):
   test of the nodes at a block's border has all its neighbours.
 
 Each block finds its own initial guess (rigid shift of its centre, anchors):
-motion over ``search`` voxels needs a larger ``search`` (and halo). AL-DVC's
-global step couples every node of the volume and is not done by blocks.
+motion over ``search`` voxels needs a larger ``search`` (and halo).
+
+AL-DVC by blocks: the merged per-node state (warps, uncertainties and each
+subset's Gauss-Newton rows) is all its ADMM needs, because its local step
+works on each subset's Gauss-Newton model about the Local optimum
+(:func:`~.aldvc.solve_aldvc`), never on the voxels: the global step then
+couples every node of the volume in memory proportional to the nodes.
 """
 
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
-
 import numpy as np
 
 from ..core.params import DICParams
 from ..core.reasons import Reason
 from .grid import VolumeGrid, make_volume_grid
-from .local import solve_local_volume
+from .local import NodeState, solve_local_volume
 from .validity import final_reasons
 
 __all__ = ["correlate_blocks", "block_halo"]
@@ -90,8 +93,8 @@ def _block(ref, dfm, roi, whole: VolumeGrid, lat, params, halo, shape):
 
 def correlate_blocks(ref, dfm, roi, params: DICParams, block: int, report):
     """The Local solve of the whole lattice by blocks; returns ``(state,
-    reason, meta)`` with ``state`` carrying ``grid, p, zncc, iters, ustd``
-    over the whole lattice (as :class:`~.local.LocalState`)."""
+    reason, meta)``: the merged :class:`~.local.NodeState` of the solved
+    nodes and their Local reasons."""
     t0 = time.perf_counter()
     shape = tuple(int(s) for s in ref.shape)
     if tuple(dfm.shape) != shape or len(shape) != 3:
@@ -102,8 +105,7 @@ def correlate_blocks(ref, dfm, roi, params: DICParams, block: int, report):
     whole = make_volume_grid(shape, params.subset, params.step, None)
     index = np.full(whole.shape, -1, np.int64)
     n = whole.n
-    st = SimpleNamespace(grid=None, p=np.zeros((n, 12)), zncc=np.full(n, np.nan),
-                         iters=np.zeros(n, np.int32), ustd=np.full((n, 3), np.nan))
+    st = NodeState(whole, params, report=report)
     reason = np.full(n, Reason.NO_INITIAL_GUESS, np.int8)
     solved = np.zeros(n, bool)
     per = max(int(block) // params.step, 1)
@@ -111,23 +113,20 @@ def correlate_blocks(ref, dfm, roi, params: DICParams, block: int, report):
               for b in _ranges(whole.shape[1], per) for c in _ranges(whole.shape[2], per)]
     halo = block_halo(params)
     index[whole.iz, whole.iy, whole.ix] = np.arange(n)
+    end = 0.5 if params.method == "aldic" else 0.95
     for k, lat in enumerate(blocks):
-        report("icgn", 0.05 + 0.9 * k / len(blocks), f"block {k + 1}/{len(blocks)}")
+        report("icgn", 0.05 + (end - 0.05) * k / len(blocks), f"block {k + 1}/{len(blocks)}")
         out = _block(ref, dfm, roi, whole, lat, params, halo, shape)
         if out is None:
             continue
         (gz, gy, gx), bst, own, r = out
         j = index[gz, gy, gx]
-        st.p[j], st.zncc[j], st.iters[j] = bst.p[own], bst.zncc[own], bst.iters[own]
-        st.ustd[j], reason[j] = bst.ustd[own], r
+        for name in ("p", "status", "iters", "zncc", "ustd", "nvox", "hrow"):
+            getattr(st, name)[j] = getattr(bst, name)[own]
+        reason[j] = r
         solved[j] = True
-    keep = solved
-    grid = VolumeGrid(whole.xs, whole.ys, whole.zs, whole.ix[keep], whole.iy[keep],
-                      whole.iz[keep])
-    for name in ("p", "zncc", "iters", "ustd"):
-        setattr(st, name, getattr(st, name)[keep])
-    st.grid = grid
+    grid = VolumeGrid(whole.xs, whole.ys, whole.zs, whole.ix[solved], whole.iy[solved],
+                      whole.iz[solved])
     meta = {"blocks": len(blocks), "block": int(block), "halo": halo,
             "seconds": time.perf_counter() - t0}
-    return st, reason[keep], meta
-
+    return st.take(solved, grid), reason[solved], meta

@@ -14,7 +14,7 @@ from ..core.reasons import Reason
 from ..core.version import __version__
 from ..core.volresults import VolumeResult
 from .grid import make_volume_grid
-from .local import LocalState, solve_local_volume
+from .local import NodeState, solve_local_volume
 from .validity import final_reasons
 
 __all__ = ["correlate_volume"]
@@ -46,7 +46,7 @@ def _check_inputs(ref, dfm, roi):
     return f, g, mask
 
 
-def _result(st: LocalState, reason, params, shape, roi, meta, p=None) -> VolumeResult:
+def _result(st: NodeState, reason, params, shape, roi, meta, p=None) -> VolumeResult:
     g = st.grid
     p = st.p if p is None else p
     xyz = g.xyz.astype(np.float64)
@@ -81,13 +81,11 @@ def _reporter(progress, cancel):
 
 
 def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
-    """``correlate_volume(..., block=N)``: Local DVC read block by block."""
+    """``correlate_volume(..., block=N)``: Local DVC read block by block, then
+    (``method="aldic"``) the ADMM on the merged nodes."""
     from .blocked import correlate_blocks
     from .lazy import open_volume
 
-    if params.method != "local":
-        raise ValueError("method='aldic' needs the whole volume at once (its global step "
-                         "couples every node); block= runs Local DVC only")
     ref, dfm = (open_volume(v) if isinstance(v, (str, os.PathLike)) else v for v in (ref, dfm))
     roi = open_volume(roi) if isinstance(roi, (str, os.PathLike)) else roi
     report("setup", 0.0, "reading the volumes block by block")
@@ -96,14 +94,25 @@ def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
         numba.set_num_threads(min(int(params.n_threads), numba.config.NUMBA_NUM_THREADS))
     try:
         st, reason, info = correlate_blocks(ref, dfm, roi, params, int(block), report)
+        p, admm = None, None
+        if params.method == "aldic":
+            from .aldvc import solve_aldvc
+            p, admm = solve_aldvc(st, 0.5, 0.95)
+            reason = final_reasons(st, p)
     finally:
         numba.set_num_threads(threads)
     meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
                          "numba": numba.__version__},
-            "timing": {"total": time.perf_counter() - t0}, "n_nodes": st.grid.n,
-            "kind": "volume", "blocked": info,
-            "n_valid": int(np.count_nonzero(reason == Reason.OK))}
-    res = _result(st, reason, params, tuple(ref.shape), None, meta)
+            "timing": {"blocks": info["seconds"]}, "n_nodes": st.grid.n,
+            "kind": "volume", "blocked": info}
+    if admm is not None:
+        meta.update(admm_history=admm["history"], regularisation=admm["regularisation"])
+        meta["timing"].update(admm["timing"])
+    meta["timing"]["total"] = time.perf_counter() - t0
+    meta["n_valid"] = int(np.count_nonzero(reason == Reason.OK))
+    res = _result(st, reason, params, tuple(ref.shape), None, meta, p)
+    if p is not None:
+        res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
     report("done", 1.0, f"{meta['n_valid']}/{st.grid.n} valid")
     return res
 
@@ -141,7 +150,8 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
         :class:`~napari_aldic.engine.Cancelled` (within one batch of nodes).
     block : int, optional
         Read and solve the volumes in blocks of about ``block`` voxels a side
-        (Local DVC; :mod:`.blocked`): ``ref``, ``dfm`` (and ``roi``) may then be
+        (:mod:`.blocked`; AL-DVC's ADMM then runs on the merged nodes, in
+        memory proportional to them): ``ref``, ``dfm`` (and ``roi``) may then be
         zarr arrays, memory-mapped arrays or paths of zarr folders, tiled
         TIFFs or ``.npy`` files, never loaded whole. The result's ``roi`` is
         not kept.
@@ -175,6 +185,7 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
             from .aldvc import solve_aldvc  # the ADMM needs scipy.sparse only here
             p, admm = solve_aldvc(st, 0.5, 0.95)
             meta["admm_history"] = admm["history"]
+            meta["regularisation"] = admm["regularisation"]
             meta["timing"].update(admm["timing"])
         reason = final_reasons(st, p)
     finally:

@@ -22,29 +22,19 @@ from .grid import VolumeGrid
 from .init_guess import global_shift, ncc_search
 from .spline import coefficients, gradients
 
-__all__ = ["LocalState", "solve_local_volume", "run_icgn", "extrapolate"]
+__all__ = ["NodeState", "LocalState", "solve_local_volume", "run_icgn", "extrapolate"]
 
 _BATCH = 1024  # nodes between two progress (and cancellation) points
 
 
 @dataclass
-class LocalState:
-    """Inputs and per-node outputs of the local solve."""
+class NodeState:
+    """Per-node outputs of the local solve over a lattice: what AL-DVC, the
+    validity tests and the result need (no images), so the blocks of a large
+    volume can be merged into one."""
 
-    f: np.ndarray
-    g: np.ndarray
-    fg: np.ndarray
-    gc: np.ndarray
-    mask: np.ndarray
     grid: VolumeGrid
     params: DICParams
-    search_max: int = 64
-    p: np.ndarray = None
-    status: np.ndarray = None
-    iters: np.ndarray = None
-    zncc: np.ndarray = None
-    ustd: np.ndarray = None
-    nvox: np.ndarray = None
     timing: dict = field(default_factory=dict)
     #: ``report(stage, fraction, message)`` or None: progress and cancellation
     report: object = None
@@ -62,6 +52,29 @@ class LocalState:
 
     def good(self) -> np.ndarray:
         return (self.status == Reason.OK) & (self.zncc >= self.params.zncc_min)
+
+    def take(self, rows: np.ndarray, grid: VolumeGrid) -> NodeState:
+        """The state of nodes ``rows`` (which ``grid`` lists, in that order)."""
+        out = NodeState(grid, self.params, dict(self.timing), self.report)
+        for name in _NODE_ARRAYS:
+            setattr(out, name, getattr(self, name)[rows])
+        return out
+
+
+_NODE_ARRAYS = ("p", "status", "iters", "zncc", "ustd", "nvox", "hrow")
+
+
+@dataclass(kw_only=True)
+class LocalState(NodeState):
+    """:class:`NodeState` with the inputs of the local solve: both volumes,
+    the reference's gradients and the deformed volume's spline coefficients."""
+
+    f: np.ndarray
+    g: np.ndarray
+    fg: np.ndarray
+    gc: np.ndarray
+    mask: np.ndarray
+    search_max: int = 64
 
 
 def run_icgn(st: LocalState, active: np.ndarray, mu: float = 0.0, target=None,
@@ -205,8 +218,9 @@ def solve_local_volume(ref, dfm, mask, grid: VolumeGrid, params: DICParams, repo
     f = np.ascontiguousarray(ref, np.float32)
     g = np.ascontiguousarray(dfm, np.float32)
     search_max = params.search_max or max(max(f.shape) // 4, 4 * params.search)
-    st = LocalState(f, g, gradients(coefficients(f)), coefficients(g), mask, grid, params,
-                    search_max, report=report)
+    st = LocalState(grid=grid, params=params, report=report, f=f, g=g,
+                    fg=gradients(coefficients(f)), gc=coefficients(g), mask=mask,
+                    search_max=search_max)
     t1 = time.perf_counter()
     say("initial_guess", 0.05 * end, "initial guess")
     shift0, _ = global_shift(f, g, params.search, search_max)
