@@ -32,6 +32,7 @@ couples every node of the volume in memory proportional to the nodes.
 from __future__ import annotations
 
 import time
+
 import numpy as np
 
 from ..core.params import DICParams
