@@ -135,7 +135,9 @@ class DICParams:
         chooses ``ℓ`` per image pair, at most half a subset, by minimising
         Stein's unbiased risk estimate with the noise predicted from the
         images (noise-free pairs get ~0); ``0`` runs plain Algorithm 1. See
-        :mod:`napari_aldic.engine.regularise`.
+        :mod:`napari_aldic.engine.regularise`. AL-DVC (``correlate_volume``)
+        uses the same term in 3-D, its length chosen per node the same way
+        (voxels; :mod:`napari_aldic.engine.volume.smoothing`).
     second_order_warp : bool, default True
         Allow the AL-DIC local step to bend each subset with the global
         field's second derivatives too (held fixed, from ``û`` smoothed over
