@@ -33,3 +33,21 @@ def test_cli_incremental_sequence_matches_the_api(run_cli, tmp_path):
     assert (tmp_path / "run" / "frame_00001.npz").stat().st_mtime_ns == mtime
     np.testing.assert_allclose(load_result(tmp_path / "run" / "frame_00002.npz").u, api[2].u,
                                atol=1e-9)
+
+
+def test_cli_block_sequence_of_tiled_volumes_in_a_folder(run_cli, tmp_path):
+    shape = (40, 40, 40)
+    folder = tmp_path / "vols"
+    folder.mkdir()
+    seq = [speckle_volume_pair(shape, VolumeMotion.make(shift=(0.6 * k, -0.3 * k, 0.2 * k)),
+                               seed=4)[1] for k in range(3)]
+    for k, vol in enumerate(seq):  # natural order: vol_2 before vol_10
+        tifffile.imwrite(folder / f"vol_{k}.tif", vol, tile=(16, 16))
+    api = dict(track_volumes(seq, reference="accumulative", subset=21, step=8, block=16))
+    rc, out, err = run_cli(["run", folder, "--volume", "--block", "16", "-o", tmp_path / "run"])
+    assert rc == 0, err
+    for k in (1, 2):
+        res = load_result(tmp_path / "run" / f"frame_{k:05d}.npz")
+        assert res.meta["blocked"]["blocks"] == 8
+        np.testing.assert_array_equal(res.u, api[k].u)
+        assert np.abs(res.u[res.valid] - 0.6 * k).max() < 0.01
