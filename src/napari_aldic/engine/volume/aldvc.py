@@ -33,12 +33,9 @@ from scipy.spatial import cKDTree
 
 from .hexmesh import hex_operators, nodal_gradient
 from .local import NodeState, extrapolate
-from .smoothing import choose_volume_smoothing, curvature_rows, spd_solver
+from .smoothing import UNTRUSTED_WEIGHT, choose_volume_smoothing, curvature_rows, spd_solver
 
 __all__ = ["solve_aldvc"]
-
-_WEAK = 1e-2  # data weight of an untrusted node in the global step
-
 
 class _Global:
     """The factorised global matrix of one mesh, weights and thin-plate term."""
@@ -115,7 +112,8 @@ def solve_aldvc(st: NodeState, start: float = 0.5, end: float = 0.95):
     p_loc = st.p.copy()
     # β/μ = beta step^2 (G carries the 1/step): gradients weighed as displacements
     curvature, regularisation = _thin_plate(st, good)
-    glob = _Global(ops, np.where(good, 1.0, _WEAK), pr.beta * pr.step ** 2, curvature)
+    glob = _Global(ops, np.where(good, 1.0, UNTRUSTED_WEIGHT), pr.beta * pr.step ** 2,
+                   curvature)
     p = _fill_untrusted(st, good, st.p)
     comps = (0, 4, 8)
     v = np.zeros((st.grid.n, 3))

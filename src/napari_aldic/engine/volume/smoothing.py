@@ -39,9 +39,12 @@ from scipy import sparse
 from ..dic.regularise import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
 from .grid import VolumeGrid
 
-__all__ = ["curvature_rows", "choose_volume_smoothing", "VolumeSmoothing", "spd_solver"]
+__all__ = ["UNTRUSTED_WEIGHT", "curvature_rows", "choose_volume_smoothing", "VolumeSmoothing",
+           "spd_solver"]
 
-_WEAK = 1e-2  # data weight of an untrusted node (as the global step's)
+#: data weight of an untrusted node in AL-DVC's global step and its smoothers
+#: (small: its extrapolated motion only keeps the system well posed)
+UNTRUSTED_WEIGHT = 1e-2
 _DIRECT_MAX = 30_000  # nodes: a sparse factor below, AMG-preconditioned CG above
 _BIAS_SMOOTHING = 0.5  # length of the bias estimate's smoother, in subset half-widths
 _SYMBOL_N = 48  # wavenumbers per axis of the lattice symbols
@@ -207,7 +210,7 @@ def choose_volume_smoothing(grid: VolumeGrid, u: np.ndarray, trusted: np.ndarray
         return VolumeSmoothing(0.0, None)
     lengths = [float(c) * subset for c in candidates]
     KtK = (K.T @ K).tocsc()
-    Wd = sparse.diags(np.where(keep, 1.0, _WEAK)).tocsc()
+    Wd = sparse.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)).tocsc()
     data = np.where(keep[:, None], u, 0.0)
     nvar = np.where(keep, noise_var, np.nan)
     h = subset // 2
