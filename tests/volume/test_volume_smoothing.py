@@ -104,3 +104,20 @@ def test_aldvc_smoothing_beats_the_unsmoothed_global_step_under_noise():
     assert reg["mode"] == "auto" and reg["smooth_px_global"] > 0 and len(reg["risk"]) == 7
     assert plain.meta["regularisation"] == {"mode": "fixed", "smooth_px": 0.0,
                                             "seconds": plain.meta["regularisation"]["seconds"]}
+
+
+def test_large_lattices_choose_one_length_on_a_central_box(monkeypatch, grid):
+    import napari_aldic.engine.volume.smoothing as sm
+    x, y, z = grid.xyz.T.astype(float)
+    truth = np.stack([0.5 * np.sin(x / 40), 0.3 * np.cos(y / 35), 0.2 * np.sin(z / 30)], 1)
+    u_local = truth + _subset_noise(grid, 0.02, 3)
+    var = np.full(grid.n, 3 * 0.02**2)
+    whole = choose_volume_smoothing(grid, u_local, np.ones(grid.n, bool), var, STEP, SUB)
+    rows, sub = sm._central_box(grid, 8**3)
+    assert sub.n == rows.size == 8**3 and sub.shape == (8, 8, 8)
+    np.testing.assert_array_equal(sub.xyz, grid.xyz[rows])  # same voxels, re-indexed
+    monkeypatch.setattr(sm, "ADAPTIVE_MAX_NODES", 1000)
+    monkeypatch.setattr(sm, "WINDOW_NODES", 8**3)
+    one = choose_volume_smoothing(grid, u_local, np.ones(grid.n, bool), var, STEP, SUB)
+    # an 8³ box is more boundary than the 13³ lattice: one rung lower at most
+    assert one.node_smooth_px is None and 0.35 * SUB <= one.smooth_px <= whole.smooth_px

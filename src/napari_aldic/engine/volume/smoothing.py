@@ -48,6 +48,10 @@ UNTRUSTED_WEIGHT = 1e-2
 _DIRECT_MAX = 30_000  # nodes: a sparse factor below, AMG-preconditioned CG above
 _BIAS_SMOOTHING = 0.5  # length of the bias estimate's smoother, in subset half-widths
 _SYMBOL_N = 48  # wavenumbers per axis of the lattice symbols
+# above this many nodes (seven CG smoothers of the whole lattice would cost more
+# than the ADMM) one length is chosen, on a central box of about WINDOW_NODES
+ADAPTIVE_MAX_NODES = 60_000
+WINDOW_NODES = 20_000
 
 
 def spd_solver(A: sparse.spmatrix, rtol: float = 1e-10):
@@ -188,6 +192,23 @@ def _window_mean(grid: VolumeGrid, values: np.ndarray, sigma_nodes: float) -> np
     return out
 
 
+def _central_box(grid: VolumeGrid, size: int):
+    """``(rows, sub-grid)``: the nodes of a central box of about ``size``
+    lattice sites (cubic where the lattice allows)."""
+    dims = np.array(grid.shape)
+    side = np.minimum(dims, max(int(round(size ** (1 / 3))), 3))
+    for _ in range(3):  # flat lattices: widen the other axes
+        side = np.minimum(dims, np.maximum(side, int(np.sqrt(size / side.min()))))
+    lo = (dims - side) // 2
+    at = np.stack([grid.iz, grid.iy, grid.ix], 1)
+    rows = np.flatnonzero(((at >= lo) & (at < lo + side)).all(1))
+    z0, y0, x0 = lo
+    (sz, sy, sx) = side
+    sub = VolumeGrid(grid.xs[x0:x0 + sx], grid.ys[y0:y0 + sy], grid.zs[z0:z0 + sz],
+                     grid.ix[rows] - x0, grid.iy[rows] - y0, grid.iz[rows] - z0)
+    return rows, sub
+
+
 def choose_volume_smoothing(grid: VolumeGrid, u: np.ndarray, trusted: np.ndarray,
                             noise_var: np.ndarray, step: float, subset: int,
                             candidates=SMOOTH_CANDIDATES, window: float = ADAPTIVE_WINDOW
@@ -203,7 +224,15 @@ def choose_volume_smoothing(grid: VolumeGrid, u: np.ndarray, trusted: np.ndarray
     step, subset : node spacing and subset width (voxels).
     candidates : lengths to try, in units of ``subset``.
     window : standard deviation of the risk's averaging window, in subset widths.
+
+    Above ``ADAPTIVE_MAX_NODES`` nodes one length (``node_smooth_px`` None) is
+    chosen on a central box of about ``WINDOW_NODES`` nodes, as 2-D does.
     """
+    if grid.n > ADAPTIVE_MAX_NODES:
+        rows, sub = _central_box(grid, WINDOW_NODES)
+        one = choose_volume_smoothing(sub, u[rows], trusted[rows], noise_var[rows], step,
+                                      subset, candidates, window)
+        return VolumeSmoothing(one.smooth_px, None, one.table, one.predicted_local_noise)
     keep = trusted & np.isfinite(noise_var) & np.isfinite(u).all(1)
     K, _ = curvature_rows(grid, step)
     if K.shape[0] == 0 or keep.sum() < 27:
