@@ -4,7 +4,7 @@ Rules (issue 10):
 
 * import directions inside the engine: kernels -> kernels (+ numpy/numba/math);
   core -> core; dic -> core, kernels; io -> core, dic; viz -> core, io;
-  synthetic -> core, kernels; probes -> core, io, dic, viz;
+  synthetic -> core, kernels; probes -> core, io, dic, viz; volume -> core, kernels, io;
   workflow -> any engine subpackage (each also its own);
 * the engine never imports napari, Qt bindings, magicgui, vispy, superqt, the plugin
   modules (``napari_aldic._*``), the CLI or anything else outside ``napari_aldic.engine``;
@@ -46,7 +46,8 @@ ENGINE_DEPS = {
     "probes": {"core", "io", "dic", "viz"},
     "workflow": {"core", "kernels", "dic", "io", "viz", "synthetic", "probes"},
     "sem": {"core", "kernels", "dic", "io", "viz"},
-    "volume": {"core", "kernels"},  # DVC (issue 28): its own 3-D kernels, the engine's types
+    # DVC (issue 28): its own 3-D kernels, the engine's types, io's volume readers
+    "volume": {"core", "kernels", "io"},
 }
 #: the only outside packages the numba kernels may use
 KERNEL_EXTERNAL = {"numpy", "numba", "math", "__future__"}

@@ -21,8 +21,7 @@ from ..engine import (
     load_result,
     track_volumes,
 )
-from ..engine.io import natural_key, read_volumes
-from ..engine.volume import open_volume
+from ..engine.io import natural_key, open_volume, read_volumes
 from ..i18n import tr
 from .console import PROG, CLIError
 

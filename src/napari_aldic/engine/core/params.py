@@ -16,7 +16,8 @@ import numpy as np
 
 from .reasons import DICError
 
-__all__ = ["DICParams", "StrainParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL"]
+__all__ = ["DICParams", "StrainParams", "MAX_ITER_CAP", "ADMM_ITER_CAP", "MIN_TOL",
+           "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW"]
 
 #: caps on the iteration counts: more never helps, and a huge value would make
 #: a failing node (or ADMM loop) look like a hung program
@@ -24,6 +25,14 @@ MAX_ITER_CAP = 10_000
 ADMM_ITER_CAP = 1_000
 #: largest thin-plate smoothing length ``smooth`` (px)
 SMOOTH_MAX = 1e4
+#: ``smooth="auto"``: candidate smoothing lengths, in units of the subset width
+#: (ratio ~sqrt 2). Local errors are correlated over about one subset width; at
+#: most half a subset keeps (about) the spatial resolution of the subsets, and
+#: even a perfectly smooth field gains little beyond that. AL-DIC and AL-DVC.
+SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
+#: adaptive smoothing: each length's risk is averaged over a Gaussian window of
+#: this standard deviation (in subset widths) around each node
+ADAPTIVE_WINDOW = 1.0
 #: finest IC-GN tolerance (pixels): float32 interpolation noise is about 1e-7 px
 MIN_TOL = 1e-6
 

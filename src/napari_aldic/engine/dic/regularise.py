@@ -51,6 +51,7 @@ import numpy as np
 import scipy.ndimage as ndi
 import scipy.sparse as sp
 
+from ..core.params import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
 from .global_solve import (
     UNTRUSTED_WEIGHT,
     CurvatureEstimator,
@@ -66,14 +67,6 @@ from .reliability import displacement_variance, subset_statistics
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
 
-# candidate smoothing lengths, in units of the subset width (ratio ~sqrt 2):
-# the local errors are correlated over about one subset width. At most half
-# a subset: the field keeps (about) the spatial resolution of the subsets,
-# and even a perfectly smooth field gains little beyond that.
-SMOOTH_CANDIDATES = (0.0, 0.09, 0.125, 0.18, 0.25, 0.35, 0.5)
-# adaptive smoothing: the risk of each length is averaged over a Gaussian
-# window of this standard deviation (in subset widths) around each node
-ADAPTIVE_WINDOW = 1.0
 # above this many nodes (a direct factor per trial length gets too costly) one
 # length is chosen, on a central window of WINDOW_NODES nodes
 ADAPTIVE_MAX_NODES = 250_000

@@ -33,7 +33,7 @@ from .stack import (
     read_image,
 )
 from .tiles import LazyImage, PixelSize, open_lazy, pixel_size_of
-from .volumes import read_volumes
+from .volumes import open_volume, read_volumes
 from .vtk import export_vtu, read_vtu, result_cells
 
 __all__ = [
@@ -44,6 +44,6 @@ __all__ = [
     "export_csv", "read_csv", "export_mat", "export_vtu", "read_vtu", "result_cells",
     "export_davis", "read_settings", "write_settings", "regular_file", "read_json_file",
     "file_sha256", "available_memory",
-    "read_volumes",
+    "read_volumes", "open_volume",
     "ChannelChoiceError", "FrameInterval",
 ]

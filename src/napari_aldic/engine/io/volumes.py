@@ -1,5 +1,8 @@
 """Volumes in: 3-D TIFFs, a 4-D TIFF of volumes, a folder of 3-D TIFFs, ``.npy``.
 
+:func:`read_volumes` reads them whole; :func:`open_volume` opens one volume
+without reading it, for DVC by blocks (``correlate_volume(..., block=N)``).
+
 A 3-D TIFF read as a volume is one (z, y, x) array; without that intent the
 rest of the package reads the same file as a stack of 2-D frames.
 """
@@ -12,7 +15,7 @@ import numpy as np
 
 from .stack import TIFF_SUFFIXES, natural_key
 
-__all__ = ["read_volumes"]
+__all__ = ["read_volumes", "open_volume"]
 
 
 def _read(path: Path) -> np.ndarray:
@@ -50,3 +53,30 @@ def read_volumes(inputs) -> list[np.ndarray]:
                              f"(t, z, y, x); this file holds shape {a.shape}")
     return out
 
+
+def open_volume(path):
+    """One volume opened for block-by-block reading: slicing it reads only the
+    chunks (zarr folder), tiles or strips (TIFF, through tifffile's zarr
+    store) or pages (``.npy``, memory-mapped) it touches.
+
+    Raises ``FileNotFoundError`` for a missing path and ``ValueError`` naming
+    the file when it holds no 3-D array.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"no such file or folder: {p}")
+    if p.suffix.lower() == ".npy":
+        a = np.load(p, allow_pickle=False, mmap_mode="r")
+    elif p.is_dir() or p.suffix.lower() in TIFF_SUFFIXES:
+        import zarr
+        if p.is_dir():
+            a = zarr.open_array(str(p), mode="r")
+        else:
+            import tifffile
+            a = zarr.open_array(tifffile.imread(p, aszarr=True), mode="r")
+    else:
+        raise ValueError(f"{p}: a volume read by blocks must be a zarr folder, a TIFF or .npy")
+    if a.ndim != 3:
+        raise ValueError(f"{p}: a volume must be a 3-D array (z, y, x); it holds shape "
+                         f"{tuple(a.shape)}")
+    return a

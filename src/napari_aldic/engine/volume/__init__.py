@@ -7,9 +7,9 @@ machinery) with its own 3-D kernels (``kernels/icgn3d.py``,
 :func:`~.correlate.correlate_volume`.
 """
 
+from ..io.volumes import open_volume  # re-exported: the blocked entry reads through it
 from .correlate import correlate_volume
 from .export import export_volume
-from .lazy import open_volume
 from .strain import MEASURES3, VolumeStrain, compute_strain_volume
 from .track import compose_increment, track_volumes
 

@@ -13,6 +13,7 @@ from ..core.progress import ProgressEvent, check_cancel, event_callback
 from ..core.reasons import Reason
 from ..core.version import __version__
 from ..core.volresults import VolumeResult
+from ..io.volumes import open_volume
 from .grid import make_volume_grid
 from .local import NodeState, solve_local_volume
 from .validity import final_reasons
@@ -84,7 +85,6 @@ def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
     """``correlate_volume(..., block=N)``: Local DVC read block by block, then
     (``method="aldic"``) the ADMM on the merged nodes."""
     from .blocked import correlate_blocks
-    from .lazy import open_volume
 
     ref, dfm = (open_volume(v) if isinstance(v, (str, os.PathLike)) else v for v in (ref, dfm))
     roi = open_volume(roi) if isinstance(roi, (str, os.PathLike)) else roi

@@ -24,7 +24,7 @@ the smoothed Local field, its noise share removed. The risk of each
 candidate length is averaged over a Gaussian window of one subset width
 around each node and the least one taken, so fine detail in one region and
 smooth noisy motion in another each get their own smoothing. The candidate
-lengths and the window are 2-D's (``SMOOTH_CANDIDATES``,
+lengths and the window are 2-D's (``core.params.SMOOTH_CANDIDATES``,
 ``ADAPTIVE_WINDOW``).
 """
 
@@ -36,7 +36,7 @@ import numpy as np
 import scipy.ndimage as ndi
 from scipy import sparse
 
-from ..dic.regularise import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
+from ..core.params import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
 from .grid import VolumeGrid
 
 __all__ = ["UNTRUSTED_WEIGHT", "curvature_rows", "choose_volume_smoothing", "VolumeSmoothing",
