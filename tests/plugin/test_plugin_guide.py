@@ -175,6 +175,26 @@ def test_dock_at_common_screen_sizes(make_napari_viewer, qtbot, tmp_path, size,
     keep_for_docs(shot)
 
 
+def _insertion_cost(viewer, qtbot) -> float:
+    """Main-thread seconds napari itself takes here to insert (and draw) one
+    layer: the most of an Image, a Points and a Vectors layer of the run's
+    sizes, each the second of its kind (the first compiles its shaders)."""
+    rng = np.random.default_rng(0)
+    makers = (lambda: viewer.add_image(rng.random((48, 48)), name="_cal"),
+              lambda: viewer.add_points(rng.random((400, 2)) * 190, name="_cal"),
+              lambda: viewer.add_vectors(np.stack([rng.random((400, 2)) * 190,
+                                                   rng.random((400, 2))], 1), name="_cal"))
+    costs = []
+    for make in makers:
+        for _ in range(2):
+            c0 = time.thread_time()
+            layer = make()
+            qtbot.wait(1)
+            costs.append(time.thread_time() - c0)
+            viewer.layers.remove(layer)
+    return max(costs[1::2])
+
+
 def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speckle_stack,
                                          monkeypatch):
     """A heartbeat timer every 10 ms while a run tracks frames and its result layers
@@ -187,15 +207,21 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     main thread. The heartbeat gaps are wall-clock time, which also holds napari's
     drawing of the new layer after its step and whatever other programs on a loaded
     machine take: that limit is scaled by the machine's load (1-minute load average
-    per CPU, at least 1) measured just before. The first drawing of a layer kind
-    compiles its OpenGL shaders: Mesa's software renderer under Xvfb takes 0.1-0.2 s
-    of the main thread for that (a GPU driver milliseconds), napari's and vispy's cost
-    whatever shows the layer; the canvas' drawing (vispy's draw event) is timed apart
-    and held to 0.5 s. A full garbage collection of Python (generation 2) stops every
-    thread for a time set by the whole process' heap (~0.3 s for the ~400,000 objects
-    of napari, Qt, vispy and Numba here); the run keeps the objects of before out of
-    collections while it shows its results (about 0.02 s each then), and any beats
-    around one are reported, not counted.
+    per CPU, at least 1) measured just before. All three limits are also scaled by
+    what napari itself costs here: its insertion of one layer, measured before the
+    run (:func:`_insertion_cost`), against the 0.1 s the limits were set with (at
+    least 1). A slower machine or renderer scales napari's share and ours alike (a
+    2-core cloud VM measured 0.15-0.2 s a step and drew a new layer kind in 0.64 s
+    with Mesa's software renderer); the plugin doing its work on the main thread
+    would still exceed them by far (a frame's analysis is seconds).
+    The first drawing of a layer kind compiles its OpenGL shaders: Mesa's software
+    renderer under Xvfb takes 0.1-0.2 s of the main thread for that (a GPU driver
+    milliseconds), napari's and vispy's cost whatever shows the layer; the canvas'
+    drawing (vispy's draw event) is timed apart and held to 0.5 s. A full garbage
+    collection of Python (generation 2) stops every thread for a time set by the whole
+    process' heap (~0.3 s for the ~400,000 objects of napari, Qt, vispy and Numba here);
+    the run keeps the objects of before out of collections while it shows its results
+    (about 0.02 s each then), and any beats around one are reported, not counted.
     """
     import gc
 
@@ -232,7 +258,9 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
             else:
                 collections[-1][1] = time.perf_counter()
 
-    load = max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1))
+    napari_s = _insertion_cost(viewer, qtbot)
+    env = max(1.0, napari_s / 0.1)
+    load = max(1.0, os.getloadavg()[0] / (os.cpu_count() or 1)) * env
     gc.callbacks.append(on_gc)
     try:
         timer.start()
@@ -259,7 +287,8 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
         return not any(s <= end and e >= start for s, e in collections)
 
     steps = [cpu_s for start, end, cpu_s in w.run_panel.display_steps if no_gc(start, end)]
-    assert len(w.run_panel.display_steps) >= 9 and max(steps) < 0.2, steps  # a layer a step
+    # a layer a step
+    assert len(w.run_panel.display_steps) >= 9 and max(steps) < 0.2 * env, (steps, napari_s)
     assert draws, "the canvas was never drawn during the run"
     longest_draw = max(end - start for start, end in draws if no_gc(start, end))
     assert longest_draw < 0.5 * load, f"one drawing of the canvas took {longest_draw:.3f} s"
@@ -267,5 +296,5 @@ def test_viewer_never_stalls_during_a_run(make_napari_viewer_proxy, qtbot, speck
     k = int(np.argmax(rest))
     assert rest[k] < 0.2 * load, (f"event loop stalled {rest[k]:.3f} s outside drawing "
                                   f"(gap {gaps[k]:.3f} s, main thread {cpu[k]:.3f} s of it; "
-                                  f"load factor {load:.1f}; full garbage collections "
+                                  f"load and napari factor {load:.1f}; full garbage collections "
                                   f"{gc_s} s)")
