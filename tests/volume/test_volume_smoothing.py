@@ -70,7 +70,7 @@ def test_noisy_smooth_field_is_smoothed_and_its_error_halved(grid):
                                      np.full(grid.n, 3 * sigma**2), STEP, SUB)
     assert choice.smooth_px > 0.2 * SUB
     fit = _smoothed(grid, u_local, choice.node_smooth_px)
-    assert _rms(fit - truth) < 0.6 * _rms(u_local - truth)
+    assert _rms(fit - truth) < 0.55 * _rms(u_local - truth)  # measured 0.51
 
 
 def test_clean_fine_detail_is_not_smoothed_away(grid):
@@ -99,7 +99,7 @@ def test_aldvc_smoothing_beats_the_unsmoothed_global_step_under_noise():
     def rmse(r):
         U = np.stack([r.u, r.v, r.w], 1)[both]
         return _rms(U - motion.displacement(r.x, r.y, r.z)[both])
-    assert rmse(auto) < 0.7 * rmse(plain)
+    assert rmse(auto) < 0.5 * rmse(plain)  # measured 0.39
     reg = auto.meta["regularisation"]
     assert reg["mode"] == "auto" and reg["smooth_px_global"] > 0 and len(reg["risk"]) == 7
     assert plain.meta["regularisation"] == {"mode": "fixed", "smooth_px": 0.0,

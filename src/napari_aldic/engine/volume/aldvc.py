@@ -164,8 +164,7 @@ def _thin_plate(st: NodeState, good: np.ndarray):
         record = {"mode": "fixed", "smooth_px": ell}
         nodes = np.full(st.grid.n, ell)
     else:
-        var = np.nansum(st.ustd**2, axis=1)
-        var[~np.isfinite(st.ustd).all(1)] = np.nan
+        var = (st.ustd**2).sum(axis=1)  # NaN where a component has no estimate
         choice = choose_volume_smoothing(st.grid, st.p[:, list(_T)], good, var,
                                          float(pr.step), int(pr.subset))
         nodes = (np.full(st.grid.n, choice.smooth_px) if choice.node_smooth_px is None

@@ -38,7 +38,7 @@ import numpy as np
 from ..core.params import DICParams
 from ..core.reasons import Reason
 from .grid import VolumeGrid, make_volume_grid
-from .local import NodeState, solve_local_volume
+from .local import NODE_ARRAYS, NodeState, solve_local_volume
 from .validity import final_reasons
 
 __all__ = ["correlate_blocks", "block_halo"]
@@ -122,7 +122,7 @@ def correlate_blocks(ref, dfm, roi, params: DICParams, block: int, report):
             continue
         (gz, gy, gx), bst, own, r = out
         j = index[gz, gy, gx]
-        for name in ("p", "status", "iters", "zncc", "ustd", "nvox", "hrow"):
+        for name in NODE_ARRAYS:
             getattr(st, name)[j] = getattr(bst, name)[own]
         reason[j] = r
         solved[j] = True

@@ -101,16 +101,22 @@ def _blocked(ref, dfm, roi, params, block, report, t0) -> VolumeResult:
             reason = final_reasons(st, p)
     finally:
         numba.set_num_threads(threads)
-    meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
-                         "numba": numba.__version__},
-            "timing": {"blocks": info["seconds"]}, "n_nodes": st.grid.n,
-            "kind": "volume", "blocked": info}
+    meta = {"timing": {"blocks": info["seconds"]}, "blocked": info}
+    return _finish(st, reason, params, tuple(ref.shape), None, meta, p, admm, t0, report)
+
+
+def _finish(st: NodeState, reason, params, shape, roi, meta: dict, p, admm, t0,
+            report) -> VolumeResult:
+    """The result of either entry (whole or blocked): ``meta`` completed with
+    the versions, the ADMM's record (AL-DVC) and the counts."""
+    meta.update(versions={"napari-aldic": __version__, "numpy": np.__version__,
+                          "numba": numba.__version__}, n_nodes=st.grid.n, kind="volume")
     if admm is not None:
         meta.update(admm_history=admm["history"], regularisation=admm["regularisation"])
         meta["timing"].update(admm["timing"])
     meta["timing"]["total"] = time.perf_counter() - t0
     meta["n_valid"] = int(np.count_nonzero(reason == Reason.OK))
-    res = _result(st, reason, params, tuple(ref.shape), None, meta, p)
+    res = _result(st, reason, params, shape, roi, meta, p)
     if p is not None:
         res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
     report("done", 1.0, f"{meta['n_valid']}/{st.grid.n} valid")
@@ -177,23 +183,12 @@ def correlate_volume(ref, dfm, roi=None, subset: int = 21, step: int = 8,
     try:
         aldic = params.method == "aldic"
         st = solve_local_volume(f, g, mask, grid, params, report, 0.5 if aldic else 0.95)
-        meta = {"versions": {"napari-aldic": __version__, "numpy": np.__version__,
-                             "numba": numba.__version__},
-                "timing": dict(st.timing), "n_nodes": grid.n, "kind": "volume"}
-        p = None
+        p, admm = None, None
         if aldic:
             from .aldvc import solve_aldvc  # the ADMM needs scipy.sparse only here
             p, admm = solve_aldvc(st, 0.5, 0.95)
-            meta["admm_history"] = admm["history"]
-            meta["regularisation"] = admm["regularisation"]
-            meta["timing"].update(admm["timing"])
         reason = final_reasons(st, p)
     finally:
         numba.set_num_threads(threads)
-    meta["timing"]["total"] = time.perf_counter() - t0
-    meta["n_valid"] = int(np.count_nonzero(reason == Reason.OK))
-    res = _result(st, reason, params, f.shape, roi, meta, p)
-    if p is not None:
-        res.u_local, res.v_local, res.w_local = (st.p[:, i].copy() for i in (0, 4, 8))
-    report("done", 1.0, f"{meta['n_valid']}/{grid.n} valid")
-    return res
+    return _finish(st, reason, params, f.shape, roi, {"timing": dict(st.timing)}, p, admm, t0,
+                   report)

@@ -22,7 +22,8 @@ from .grid import VolumeGrid
 from .init_guess import global_shift, ncc_search
 from .spline import coefficients, gradients
 
-__all__ = ["NodeState", "LocalState", "solve_local_volume", "run_icgn", "extrapolate"]
+__all__ = ["NodeState", "NODE_ARRAYS", "LocalState", "solve_local_volume", "run_icgn",
+           "extrapolate"]
 
 _BATCH = 1024  # nodes between two progress (and cancellation) points
 
@@ -56,12 +57,13 @@ class NodeState:
     def take(self, rows: np.ndarray, grid: VolumeGrid) -> NodeState:
         """The state of nodes ``rows`` (which ``grid`` lists, in that order)."""
         out = NodeState(grid, self.params, dict(self.timing), self.report)
-        for name in _NODE_ARRAYS:
+        for name in NODE_ARRAYS:
             setattr(out, name, getattr(self, name)[rows])
         return out
 
 
-_NODE_ARRAYS = ("p", "status", "iters", "zncc", "ustd", "nvox", "hrow")
+#: the per-node arrays of a :class:`NodeState` (what merging blocks copies)
+NODE_ARRAYS = ("p", "status", "iters", "zncc", "ustd", "nvox", "hrow")
 
 
 @dataclass(kw_only=True)

@@ -58,12 +58,11 @@ def spd_solver(A: sparse.spmatrix, rtol: float = 1e-10):
     """``solve(b)`` for a symmetric positive definite sparse ``A``: a sparse
     LU factor on small lattices, AMG-preconditioned CG (pyamg) on large ones,
     whose 3-D factors fill in too much."""
+    from scipy.sparse import linalg as spla
     A = sparse.csc_matrix(A)
     if A.shape[0] <= _DIRECT_MAX:
-        from scipy.sparse import linalg as spla
         return spla.splu(A).solve
     import pyamg
-    from scipy.sparse import linalg as spla
     A = A.tocsr()
     M = pyamg.smoothed_aggregation_solver(A).aspreconditioner()
 
