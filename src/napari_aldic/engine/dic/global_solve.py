@@ -378,7 +378,7 @@ class CurvatureEstimator:
     def __call__(self, uh: np.ndarray, vh: np.ndarray, direct: bool = False) -> np.ndarray:
         """(N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy`` in 1/px, (N, 6, K) for K fields (N, K);
         ``direct``: smoothed by a factor of the smoother's matrix (built once,
-        :class:`~..kernels.cg.TriangularSolver`), not CG: for many columns (noise probes)."""
+        :class:`~.linear_solvers.TriangularSolver`), not CG: for many columns (noise probes)."""
         if direct and self._factor is None:
             self._factor = SPDSolver(self._smoother.A, "direct", 0.0).triangular()
         solve = (self._factor if direct else self._smoother).solve

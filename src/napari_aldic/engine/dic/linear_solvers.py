@@ -5,13 +5,17 @@ preconditioned by algebraic multigrid or by the diagonal
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
+import numba as nb
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..kernels.cg import TriangularSolver, jacobi_cg
+from ..kernels.cg import jacobi_cg, triangular_solve
 
-__all__ = ["SPDSolver", "solver_method", "DIRECT_MAX_UNKNOWNS", "SOLVER_METHODS"]
+__all__ = ["SPDSolver", "TriangularSolver", "solver_method", "DIRECT_MAX_UNKNOWNS",
+           "SOLVER_METHODS"]
 
 # up to this many unknowns the SuperLU factor is used: measured (RESULTS.md,
 # benchmarks/bench_smoothing.py solver) it beats AMG-CG in time up to at least
@@ -32,11 +36,6 @@ def solver_method(n_unknowns: int, method: str = "auto") -> str:
     return "direct" if n_unknowns <= DIRECT_MAX_UNKNOWNS else "amg"
 
 
-#: iterative refinement of solves with a float32 factor (SPDSolver ``single``)
-REFINE_RTOL = 1e-10
-REFINE_STEPS = 4
-
-
 def _splu(A: sp.csc_matrix):
     """SuperLU factor of an SPD matrix, without pivoting (see SPDSolver)."""
     return spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
@@ -50,13 +49,12 @@ class SPDSolver:
     hierarchy (pyamg; built once, reused by every solve with this matrix) or
     by the diagonal (Jacobi). CG keeps memory linear in the mesh size."""
 
-    def __init__(self, A: sp.csc_matrix, method: str, rtol: float, single: bool = False):
+    def __init__(self, A: sp.csc_matrix, method: str, rtol: float):
         self.method = solver_method(A.shape[0], method)
         self.A = A
         self.rtol = rtol
         self._last = None
         self._lu = self._M = None
-        self.single = False  # a float32 factor whose solves are refined (see below)
         self.iterations: list[int] = []  # CG iterations of each solve (per column)
         if self.method == "direct":
             # SPD: no pivoting. The minimum-degree order of A + Aᵀ is then kept and
@@ -64,8 +62,10 @@ class SPDSolver:
             # pivoting let per-node smoothing weights grow it (measured on a
             # 15k-node system with random per-node lengths: 41 M non-zeros and
             # 19 s against 2.2 M and 0.2 s)
-            self._lu = _splu(A.astype(np.float32) if single else A)
-            self.single = single
+            # (float64 only: a float32 factor of the smoothing choice's
+            # well-conditioned trial smoothers fills with subnormal numbers, and
+            # took 0.20 s against float64's 0.086 s at 15k nodes on an Intel Xeon)
+            self._lu = _splu(A)
         elif self.method == "amg":
             import pyamg
 
@@ -85,8 +85,6 @@ class SPDSolver:
         return 0 if self._lu is None else int(self._lu.L.nnz + self._lu.U.nnz)
 
     def solve(self, rhs: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        if self.single:
-            return self._refined(rhs)
         if self._lu is not None:
             # all columns at once: on a quiet machine 2.5x faster than column by
             # column (32 columns of a 15k-node system: 0.04 s against 0.09 s); its
@@ -110,29 +108,8 @@ class SPDSolver:
         self._last = sol
         return sol
 
-    def _refined(self, rhs: np.ndarray) -> np.ndarray:
-        """``A⁻¹ rhs`` with the float32 factor (``single``): iterative refinement,
-        the residual of each column in float64, until it is below
-        ``REFINE_RTOL`` of that column's right-hand side (each step gains the
-        ~5 digits of a float32 factor; measured: 2e-6, then 4e-12 on the
-        smoothing choice's 15k-node systems). A system float32 cannot
-        resolve (no convergence in ``REFINE_STEPS``) gets a float64 factor."""
-        rhs = np.asarray(rhs, float)
-        x = np.zeros_like(rhs)
-        r = rhs
-        tol = REFINE_RTOL * np.linalg.norm(rhs, axis=0)
-        for _ in range(REFINE_STEPS):
-            x += self._lu.solve(np.asfortranarray(r, np.float32)).astype(float)
-            r = rhs - self.A @ x
-            if np.all(np.linalg.norm(r, axis=0) <= tol):
-                return x
-        self._lu, self.single = _splu(self.A), False
-        return self._lu.solve(np.asfortranarray(rhs))
-
     def triangular(self) -> TriangularSolver:
-        """The factor as a :class:`~..kernels.cg.TriangularSolver` (a copy)."""
-        if self.single:  # the propagation's many columns want the float64 factor
-            self._lu, self.single = _splu(self.A), False
+        """The factor as a :class:`TriangularSolver` (a copy)."""
         return TriangularSolver(self._lu)
 
     def _jacobi_cg(self, rhs: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -156,3 +133,38 @@ class SPDSolver:
             self.iterations.append(int(its))
             sol[:, c] = x
         return sol
+
+
+class TriangularSolver:
+    """Solves with a SuperLU factor ``Pr A Pc = L U`` by the compiled
+    single-threaded triangular solves of ``kernels.cg``, all columns in one
+    pass. SuperLU's own multi-column solve hands its small dense blocks to
+    threaded OpenBLAS; on 2 busy cores 32 columns of a 4.8k-node system took
+    0.2-0.4 s there and 3 ms here (equal to rounding)."""
+
+    def __init__(self, lu):
+        self.L, self.U = lu.L.tocsc(), lu.U.tocsc()
+        self.perm_r, self.perm_c = lu.perm_r, lu.perm_c
+
+    def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
+        """``A⁻¹ rhs`` for (n,) or (n, K) ``rhs`` (``guess`` unused: the
+        signature of :meth:`~..dic.global_solve.SPDSolver.solve`). With 4 or
+        more columns, blocks of columns are solved side by side, one per
+        Numba thread (the kernel releases the GIL; each column's arithmetic is
+        the same, so is the result: 0.066 -> 0.036 s for the 32 probe columns
+        of a 15k-node AL-DIC system on 2 cores)."""
+        x = np.empty((rhs.shape[0], int(np.prod(rhs.shape[1:]))))
+        x[self.perm_r] = rhs.reshape(x.shape)
+        blocks = min(nb.get_num_threads(), x.shape[1] // 2)
+        if blocks < 2:
+            self._solve(x)
+        else:
+            parts = [np.ascontiguousarray(p) for p in np.array_split(x, blocks, axis=1)]
+            with ThreadPoolExecutor(blocks) as pool:
+                list(pool.map(self._solve, parts))
+            x = np.concatenate(parts, axis=1)
+        return x[self.perm_c].reshape(rhs.shape)
+
+    def _solve(self, x: np.ndarray) -> None:
+        for f, lower in ((self.L, True), (self.U, False)):
+            triangular_solve(f.indptr, f.indices, f.data, x, lower)

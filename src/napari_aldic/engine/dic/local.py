@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,16 +96,23 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
     dictionary kept while the reference image stays the same (``correlate``'s
     ``solver_cache``), where the reference's spline and gradients are kept."""
     im = Images(f, g, None, None, None, ref_cache=ref_cache)
+    order = im.memo(("order", interpolation), lambda: choose_order(interpolation, f))
+    # the two spline prefilters (scipy, GIL released) run on a second thread
+    # while this one smooths the reference (0.11 -> 0.06 s at 1024² on 2 cores);
+    # only this thread launches Numba's parallel kernels
+    with ThreadPoolExecutor(1) as pool:
+        g_spline = []
 
-    def reference():
-        order = choose_order(interpolation, f)
-        fgx, fgy = reference_gradients(prefilter(f, order))
-        sigma = jacobian_smoothing(f) if jacobian_sigma is None else float(jacobian_sigma)
-        return (order, fgx, fgy, sigma) + tuple(steepest_descent_gradients(f, order, sigma))
+        def reference():
+            f_spline = pool.submit(prefilter, f, order)
+            g_spline.append(pool.submit(prefilter, g, order))
+            sigma = jacobian_smoothing(f) if jacobian_sigma is None else float(jacobian_sigma)
+            jgx, jgy = steepest_descent_gradients(f, order, sigma)
+            return (*reference_gradients(f_spline.result()), sigma, jgx, jgy)
 
-    order, im.fgx, im.fgy, im.j_sigma, im.jgx, im.jgy = im.memo(
-        ("images", interpolation, jacobian_sigma), reference)
-    im.g_spline = prefilter(g, order)
+        im.fgx, im.fgy, im.j_sigma, im.jgx, im.jgy = im.memo(
+            ("images", interpolation, jacobian_sigma), reference)
+        im.g_spline = (g_spline[0] if g_spline else pool.submit(prefilter, g, order)).result()
     return im
 
 

@@ -44,7 +44,7 @@ each get their own smoothing (per-node weights of the thin-plate term).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -305,8 +305,19 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     """
     nvar = np.where(keep, np.nan_to_num(noise_var).sum(axis=1), np.nan)
     bias_length = curv_length if curv_length is not None else BIAS_SMOOTHING * (subset // 2)
-    lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, bias_length)
-    both = _residuals(mesh, np.column_stack([u, v, np.nan_to_num(lap)]), keep, lengths)
+    # the trial smoothers factorise (they need only the mesh and the weights)
+    # while this thread estimates the bias, their third field
+    late = Future()
+    with ThreadPoolExecutor(1) as aside:
+        job = aside.submit(_residuals, mesh, np.column_stack([u, v]), keep, lengths, late)
+        try:
+            lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset,
+                                            bias_length)
+        except BaseException as exc:
+            late.set_exception(exc)
+            raise
+        late.set_result(np.nan_to_num(lap))
+        both = job.result()
     diff = both[..., :2]
     resid = np.sum(diff**2, axis=2)
     qx, qy, r = _lattice_symbols(step, subset)
@@ -334,39 +345,45 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     return plain, warp, gain
 
 
-def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths) -> np.ndarray:
+def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths,
+               late: Future | None = None) -> np.ndarray:
     """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
-    ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes."""
+    ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes.
+    ``late``: a future of more columns of ``fields``, waited for only once a
+    smoother is factorised (the caller computes them meanwhile)."""
     T, _ = mesh.prolongation()
     KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
-    w = keep.astype(float)
     Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
-    data = np.where(keep[:, None], fields, 0.0)
-    rhs = T.T @ (w[:, None] * data)
-    out = np.full((mesh.n_nodes, len(lengths), fields.shape[1]), np.nan)
-    out[keep] = 0.0
-    guess = rhs / np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
+    diag = np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
     trials = [k for k, ell in enumerate(lengths) if ell != 0]
+    known = []  # the fields with the late columns, once they are known
+
+    def data():
+        if not known:
+            more = () if late is None else (late.result(),)
+            known.append(np.where(keep[:, None], np.column_stack([fields, *more]), 0.0))
+        return known[0]
 
     def smooth(k, start):
         # factorised like the global matrix (measured: a factor per length is
         # ~8x faster than CG at 22k nodes); AMG-CG, warm-started from the
         # previous length, on meshes too large for a factor (4 digits suffice)
-        # (a float32 factor, its solves refined to 1e-10: 25 % less time)
-        return SPDSolver((Wd + lengths[k] ** 4 * KtK).tocsc(), "auto",
-                         rtol=1e-5, single=True).solve(rhs, start)
+        solver = SPDSolver((Wd + lengths[k] ** 4 * KtK).tocsc(), "auto", rtol=1e-5)
+        b = T.T @ (keep[:, None] * data())
+        return solver.solve(b, b / diag if start is None else start)
     if solver_method(Wd.shape[0]) == "direct":
         # the factors are independent and SuperLU releases the GIL: two at a
         # time on the two cores (each factor freed once its solve is done)
         with ThreadPoolExecutor(SMOOTHING_THREADS) as pool:
-            sols = list(pool.map(lambda k: smooth(k, guess), trials))
+            sols = list(pool.map(lambda k: smooth(k, None), trials))
     else:
         sols = []
         for k in trials:
-            sols.append(smooth(k, guess))
-            guess = sols[-1]
+            sols.append(smooth(k, sols[-1] if sols else None))
+    out = np.full((mesh.n_nodes, len(lengths), data().shape[1]), np.nan)
+    out[keep] = 0.0
     for k, sol in zip(trials, sols):
-        out[keep, k] = ((T @ sol) - data)[keep]
+        out[keep, k] = ((T @ sol) - data())[keep]
     return out
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from .flags import CACHED
 
-__all__ = ["jacobi_cg", "triangular_solve", "TriangularSolver"]
+__all__ = ["jacobi_cg", "triangular_solve"]
 
 
 @nb.njit(**CACHED)
@@ -125,24 +125,3 @@ def triangular_solve(indptr, indices, data, x, lower):
                 a = data[p]
                 for c in range(k):
                     x[i, c] -= a * x[j, c]
-
-
-class TriangularSolver:
-    """Solves with a SuperLU factor ``Pr A Pc = L U`` by the compiled
-    single-threaded triangular solves above, all columns in one
-    pass. SuperLU's own multi-column solve hands its small dense blocks to
-    threaded OpenBLAS; on 2 busy cores 32 columns of a 4.8k-node system took
-    0.2-0.4 s there and 3 ms here (equal to rounding)."""
-
-    def __init__(self, lu):
-        self.L, self.U = lu.L.tocsc(), lu.U.tocsc()
-        self.perm_r, self.perm_c = lu.perm_r, lu.perm_c
-
-    def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
-        """``A⁻¹ rhs`` for (n,) or (n, K) ``rhs`` (``guess`` unused: the
-        signature of :meth:`~..dic.global_solve.SPDSolver.solve`)."""
-        x = np.empty((rhs.shape[0], int(np.prod(rhs.shape[1:]))))
-        x[self.perm_r] = rhs.reshape(x.shape)
-        for f, lower in ((self.L, True), (self.U, False)):
-            triangular_solve(f.indptr, f.indices, f.data, x, lower)
-        return x[self.perm_c].reshape(rhs.shape)

@@ -329,8 +329,11 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     """
     offs, used, out, by0, tall, height, cut = _layout(products, r0, r1, ys.size, nband)
     if cut.size == 2:  # one band: no parallel launch (it costs more than a small job)
+        # the arguments typed as in the loop below (a literal 0 or the whole
+        # by0 would compile _band and its callees a second time, 2.6 s)
+        first = cut.size - 2
         _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
-              xs, ys, by0, 0, tall, dx, dy, out)
+              xs, ys, by0[cut[first]:cut[first + 1]], first * height, tall, dx, dy, out)
         return out
     for k in nb.prange(cut.size - 1):  # threads write disjoint rows of out
         _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
@@ -430,7 +433,8 @@ def _centre_rows(out, nodes, orders, offs, dx, dy):
     px, py = np.empty(MAX_ORDER + 1), np.empty(MAX_ORDER + 1)
     raw = np.empty(offs[-1])
     for nd in nodes:
-        raw[:] = out[nd]
+        for j in range(raw.size):  # (not raw[:] = ...: its shape check compiles for 1.9 s)
+            raw[j] = out[nd, j]
         for k in range(orders.size):
             a, b = offs[k], offs[k + 1]
             _centre_node(raw[a:b], out[nd, a:b], dx[nd], dy[nd], orders[k], binom, px, py)
@@ -469,7 +473,7 @@ def centre_moments(raw, dx, dy, order):
 
 
 def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
-                   centre: bool = False, joined: bool = False):
+                   centre: bool = False, joined: bool = False, serial: bool = False):
     """Window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
 
     Parameters
@@ -493,6 +497,10 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
         :func:`centre_moments` of the raw ones).
     joined : bool
         Return the one (N, Σ M_k) array the list below is made of.
+    serial : bool
+        One band on the calling thread, however large the job (no parallel
+        launch: several calls may then run at once from Python threads, the
+        kernel releasing the GIL, whatever Numba's threading layer).
 
     Returns
     -------
@@ -532,7 +540,7 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
                          np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h),
                          np.arange(w) - float(cx), np.arange(h) - float(cy), dx, dy,
                          BANDS_PER_THREAD * nb.get_num_threads()
-                         if h * w * len(prod) >= PARALLEL_WORK else 1)
+                         if h * w * len(prod) >= PARALLEL_WORK and not serial else 1)
     if joined:
         return out
     res, k = [], 0
