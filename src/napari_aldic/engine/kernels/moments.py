@@ -34,7 +34,7 @@ import numpy as np
 from .flags import CACHED, FASTMATH, INLINE, PARALLEL
 
 __all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "moment_terms",
-           "moments_kernel", "centre_moments", "window_moments"]
+           "moments_kernel", "band_layout", "centre_moments", "window_moments"]
 
 #: base index of an image of ones (``(ONES, ONES)`` is the mask itself)
 ONES = -1
@@ -278,7 +278,7 @@ def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0,
 
 @nb.njit(**PARALLEL, fastmath=FASTMATH)
 def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0, r1, xs,
-                   ys, dx, dy, nband):
+                   ys, dx, dy, by0, by1, cut, tall, height):
     """Window moments of pixel products per node, streaming over the rows.
 
     For each node ``n`` and product ``k`` (base images ``b_i``, ``b_j``;
@@ -318,8 +318,10 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     dx, dy : (N,) or (0,) float64
         When given, each node's position: its moments are returned about
         it (:func:`centre_moments`) instead of about the origin.
-    nband : int
-        Bands of rows to split the nodes into (a few per thread).
+    by0, by1, cut, tall, height
+        The bands (:func:`band_layout`): the nodes by first row; within
+        each band ``by0[cut[k]:cut[k + 1]]``, the same nodes by last row;
+        the tallest window; the band height (rows).
 
     Returns
     -------
@@ -327,62 +329,66 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
         Per node, the moments of product 0, then those of product 1, ...
         (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
     """
-    offs, used, out, by0, tall, height, cut = _layout(products, r0, r1, ys.size, nband)
+    offs, used = _offsets(products)
+    out = np.zeros((r0.size, offs[-1]))
     if cut.size == 2:  # one band: no parallel launch (it costs more than a small job)
         # the arguments typed as in the loop below (a literal 0 or the whole
         # by0 would compile _band and its callees a second time, 2.6 s)
-        first = cut.size - 2
+        k = cut.size - 2
         _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
-              xs, ys, by0[cut[first]:cut[first + 1]], first * height, tall, dx, dy, out)
+              xs, ys, by0[cut[k]:cut[k + 1]], by1[cut[k]:cut[k + 1]], k * height, tall, dx,
+              dy, out)
         return out
     for k in nb.prange(cut.size - 1):  # threads write disjoint rows of out
         _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
-              xs, ys, by0[cut[k]:cut[k + 1]], k * height, tall, dx, dy, out)
+              xs, ys, by0[cut[k]:cut[k + 1]], by1[cut[k]:cut[k + 1]], k * height, tall, dx,
+              dy, out)
     return out
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
-def _layout(products, r0, r1, h, nband):
-    """Set-up of :func:`moments_kernel` (compiled apart: in the parallel
-    kernel every array expression would be a parallel launch of its own):
-    the products' offsets and base images, the zeroed output, the nodes by
-    first row, the tallest window, the band height and where each band's
-    nodes start in that order."""
-    offs, used = _offsets(products)
+def band_layout(r0: np.ndarray, r1: np.ndarray, h: int, nband: int):
+    """The bands of :func:`moments_kernel` (in NumPy: sorting and searching
+    compiled in Numba cost ~3 s of a first run): ``by0`` the nodes by first
+    row, ``by1`` each band's nodes by last row, ``cut`` where each band
+    starts in ``by0``, ``tall`` the tallest window, ``height`` the band
+    height (whole epochs)."""
     n = r0.size
-    out = np.zeros((n, offs[-1]))
-    by0 = np.argsort(r0)
-    tall = np.max(r1 - r0) if n else 0
+    by0 = np.argsort(r0, kind="stable")
+    tall = int(np.max(r1 - r0)) if n else 0
     height = EPOCH * max(1, -(-h // (EPOCH * max(nband, 1))))
-    cut = np.searchsorted(r0[by0], np.arange(0, h + height, height))
+    cut = np.searchsorted(r0[by0], np.arange(0, h + height, height)).astype(np.int64)
     cut[-1] = n
-    return offs, used, out, by0, tall, height, cut
+    by1 = np.empty_like(by0)
+    for a, b in zip(cut[:-1], cut[1:]):
+        band = by0[a:b]
+        by1[a:b] = band[np.argsort(r1[band], kind="stable")]
+    return by0, by1, cut, tall, height
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1, xs,
-          ys, nodes, start, tall, dx, dy, out):
-    """The moments of one band's nodes (:func:`_stream_band`), shifted to
-    each node when ``dx`` is given."""
+          ys, nodes, by1, start, tall, dx, dy, out):
+    """The moments of one band's nodes (:func:`_stream_band`; ``by1`` the
+    same nodes by last row), shifted to each node when ``dx`` is given."""
     if nodes.size:
         _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
-                     r0, r1, xs, ys, nodes, start, tall, out)
+                     r0, r1, xs, ys, nodes, by1, start, tall, out)
         if dx.size:
             _centre_rows(out, nodes, products[:, 3], offs, dx, dy)
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
-                 r0, r1, xs, ys, by0, start, tall, out):
+                 r0, r1, xs, ys, by0, by1, start, tall, out):
     """The moments of the nodes ``by0`` (sorted by ``r0``, all ``r0 >=
-    start``; ``start`` a multiple of :data:`EPOCH`) from rows ``start`` on."""
+    start``; ``start`` a multiple of :data:`EPOCH`; ``by1``: the same nodes
+    sorted by ``r1``) from rows ``start`` on."""
     nseg = max(edges.size - 1, 0)
     acc = np.zeros((offs[-1], e0.size))
     work = (np.ones((MAX_IMAGES + 2, xs.size)), np.empty(xs.size),
             np.zeros((MAX_ORDER + 1, nseg)), np.zeros((MAX_ORDER + 1, nseg + 1)),
             np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1)), np.empty((MAX_ORDER + 1, e0.size)),
             np.empty(MAX_ORDER + 1))
-    by1 = by0[np.argsort(r1[by0])]
     stop = r1[by1[-1]]
     p0 = p1 = lo = 0
     for b in range(start, stop + 1):
@@ -535,12 +541,13 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
     if centre:
         dx = np.asarray(x, np.float64).ravel() - float(cx)
         dy = yi - float(cy)
+    r0, r1 = np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h)
+    nband = (BANDS_PER_THREAD * nb.get_num_threads()
+             if h * w * len(prod) >= PARALLEL_WORK and not serial else 1)
     out = moments_kernel(*images, m, prod, edges, np.searchsorted(edges, c0),
-                         np.searchsorted(edges, c1), col_of.ravel().astype(np.int64),
-                         np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h),
+                         np.searchsorted(edges, c1), col_of.ravel().astype(np.int64), r0, r1,
                          np.arange(w) - float(cx), np.arange(h) - float(cy), dx, dy,
-                         BANDS_PER_THREAD * nb.get_num_threads()
-                         if h * w * len(prod) >= PARALLEL_WORK and not serial else 1)
+                         *band_layout(r0, r1, h, nband))
     if joined:
         return out
     res, k = [], 0

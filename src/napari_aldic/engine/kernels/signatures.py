@@ -51,7 +51,8 @@ KERNELS: dict[str, tuple[str, ...]] = {
         "boolean[::1]"),),
     "moments.moments_kernel": (_sig(
         _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "boolean[:, ::1]", "int64[:, ::1]", _I64_1,
-        _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _F64_1, _F64_1, _F64_1, _F64_1, "int64"),),
+        _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _F64_1, _F64_1, _F64_1, _F64_1, _I64_1,
+        _I64_1, _I64_1, "int64", "int64"),),
     "moments.centre_moments": (_sig(_F64_2, _F64_1, _F64_1, "int64"),),
     "covariance.mean_noise_factor": (_sig(
         _F64_1, _F64_1, _F64_2, _F64_1, _F64_1, _F64_1, _F64_1),),
