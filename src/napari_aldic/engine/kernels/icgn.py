@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, PARALLEL
+from .flags import CACHED, FASTMATH, INLINE
 from .gauss_newton import (
     CHUNK,
     DIVERGED,
@@ -248,11 +248,13 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn_k, p
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out,
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot,
+                masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out,
                 g, static, static_out):
-    """Affine IC-GN at the ``active`` nodes, chunks of nodes in parallel.
+    """Affine IC-GN at the ``active`` nodes of chunks ``first`` to ``stop`` (of
+    ``CHUNK`` nodes each; ``dic.icgn`` runs ranges of chunks side by side on
+    threads: a serial kernel compiles in 7 s where a ``prange`` one took 10-20).
 
     Per node: gather the subset, build the reference matrix and its LU
     factors (:func:`~.icgn_node.begin_node`; a node without texture is stored
@@ -262,6 +264,8 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
 
     Parameters
     ----------
+    first, stop : int
+        The chunks to solve (nodes ``first * CHUNK`` to ``stop * CHUNK``).
     f, fgx, fgy : (H, W) float32
         Reference image and the gradients of its steepest-descent images
         (possibly smoothed).
@@ -293,55 +297,40 @@ def icgn_affine(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot
         that far, from the last step's samples (else NaN; no rows: off).
     """
     n = nx.size
-    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
-    for c in nb.prange(nchunks):
-        # one call per chunk: the parallel passes then see a small loop, not
-        # the whole inlined solver (compile 20 -> 8 s on one core); np.int64:
-        # the parallel loop index is unsigned, a second specialisation otherwise
-        _affine_chunk(np.int64(c), f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot,
-                      masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out,
-                      stats_out, g, static, static_out, c1, stride, span, npx, xmax, ymax)
-
-
-@nb.njit(**CACHED, fastmath=FASTMATH)
-def _affine_chunk(c, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                  h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out, g,
-                  static, static_out, c1, stride, span, npx, xmax, ymax):
-    """Chunk ``c`` of :func:`icgn_affine` (its arguments, and the layout of
-    :func:`~.gauss_newton.chunk_layout`)."""
-    n = nx.size
+    c1, stride, span, npx, _, xmax, ymax = chunk_layout(f, coef, n, h)
     test_static = static_out.shape[0] == n
-    dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
-    ex = np.empty(npx)
-    ey = np.empty(npx)
-    LU, piv, b, dp = solve_buffers(6)
-    H = np.empty((6, 6))
-    for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-        if not active[k]:
-            continue
-        x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
-                                           dxs, dys, gx, gy, fs)
-        hs = gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
-        sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05 = affine_reference_sums(
-            dxs, dys, gx, gy, ex, ey, fs, m, fm, H)
-        sj = (sj0, sj1, sj2, sj3, sj4, sj5)
-        bf = (b00, b01, b02, b03, b04, b05)
-        p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
-             p_init[k, 5])
-        status, zn, it, dfn = begin_node(k, m, df2, hs, H, LU, piv, stats_out)
-        start = (p[0], p[3])
-        while status == NOT_CONVERGED and it < max_iter:
-            it += 1
-            status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
-                                        gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
-                                        bf, (LU, piv), b, dp, h, span, start, tol, zn)
-        store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
-        if test_static:
-            # the last step sampled the subset within tol of the final warp
-            static_out[k, 0] = static_out[k, 1] = np.nan
-            if status == OK and p[0] * p[0] + p[3] * p[3] >= static[1] * static[1]:
-                static_out[k, 0], static_out[k, 1] = zero_motion_evidence(
-                    g, x0, y0, dxs, dys, fs, gv, m, static[0], xw, yw, static[2])
+    for c in range(first, stop):
+        dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        ex = np.empty(npx)
+        ey = np.empty(npx)
+        LU, piv, b, dp = solve_buffers(6)
+        H = np.empty((6, 6))
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if not active[k]:
+                continue
+            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
+                                               dxs, dys, gx, gy, fs)
+            hs = gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+            sj0, sj1, sj2, sj3, sj4, sj5, b00, b01, b02, b03, b04, b05 = affine_reference_sums(
+                dxs, dys, gx, gy, ex, ey, fs, m, fm, H)
+            sj = (sj0, sj1, sj2, sj3, sj4, sj5)
+            bf = (b00, b01, b02, b03, b04, b05)
+            p = (p_init[k, 0], p_init[k, 1], p_init[k, 2], p_init[k, 3], p_init[k, 4],
+                 p_init[k, 5])
+            status, zn, it, dfn = begin_node(k, m, df2, hs, H, LU, piv, stats_out)
+            start = (p[0], p[3])
+            while status == NOT_CONVERGED and it < max_iter:
+                it += 1
+                status, zn, p = affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx,
+                                            gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, sj,
+                                            bf, (LU, piv), b, dp, h, span, start, tol, zn)
+            store_node(k, p, zn, it, status, p_out, zncc_out, iters_out, reason_out)
+            if test_static:
+                # the last step sampled the subset within tol of the final warp
+                static_out[k, 0] = static_out[k, 1] = np.nan
+                if status == OK and p[0] * p[0] + p[3] * p[3] >= static[1] * static[1]:
+                    static_out[k, 0], static_out[k, 1] = zero_motion_evidence(
+                        g, x0, y0, dxs, dys, fs, gv, m, static[0], xw, yw, static[2])
 
 
 # ------------------------------------------------------------- translation IC-GN
@@ -518,11 +507,12 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
     return NOT_CONVERGED, zn_k, u, v
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_translation(f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv, target,
-                     mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out, iters_out,
-                     reason_out):
-    """Penalised IC-GN of the displacement at the ``active`` nodes (AL-DIC).
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
+                     target, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
+                     iters_out, reason_out):
+    """Penalised IC-GN of the displacement at the ``active`` nodes of chunks
+    ``first`` to ``stop`` (AL-DIC; chunks as :func:`icgn_affine`).
 
     Per node: gather the subset, add the fixed second-order warp offsets when
     ``curv`` has a row per node, build the 2 x 2 reference sums (a node
@@ -533,7 +523,8 @@ def icgn_translation(f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, 
 
     Parameters
     ----------
-    f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+    first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h,
+    max_iter, tol
         As :func:`icgn_affine`.
     uv_init : (n, 2) float64
         Starting displacements.
@@ -549,52 +540,40 @@ def icgn_translation(f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, 
         Receive displacement, ZNCC, iterations and status.
     """
     n = nx.size
-    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
-    for c in nb.prange(nchunks):  # one call per chunk, as icgn_affine
-        _translation_chunk(np.int64(c), f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init,
-                           grad, curv, target, mu, active, slot, masks, h, max_iter, tol,
-                           uv_out, zncc_out, iters_out, reason_out, c1, stride, span, npx,
-                           xmax, ymax)
-
-
-@nb.njit(**CACHED, fastmath=FASTMATH)
-def _translation_chunk(c, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
-                       target, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
-                       iters_out, reason_out, c1, stride, span, npx, xmax, ymax):
-    """Chunk ``c`` of :func:`icgn_translation` (arguments as :func:`_affine_chunk`)."""
-    n = nx.size
+    c1, stride, span, npx, _, xmax, ymax = chunk_layout(f, coef, n, h)
     quad = curv.shape[0] == n
-    dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
-    ex = np.empty(npx)
-    ey = np.empty(npx)
-    qx = np.zeros(npx)
-    qy = np.zeros(npx)
-    for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-        if not active[k]:
-            continue
-        x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
-                                           dxs, dys, gx, gy, fs)
-        gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
-        if quad:
-            curvature_offsets(curv, k, dxs, dys, m, qx, qy)
-        h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(
-            gx, gy, ex, ey, fs, m, fm)
-        start = (uv_init[k, 0], uv_init[k, 1])
-        if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
-            store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
-                       reason_out)
-            continue
-        dfn = np.sqrt(df2)
-        ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
-        a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
-            h00, h01, h10, h11, ux, uy, vx, vy, mu)
-        u, v = start
-        node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
-                m11, det, target[k, 0], target[k, 1], u, v)
-        status, zn, it = NOT_CONVERGED, np.nan, 0
-        while status == NOT_CONVERGED and it < max_iter:
-            it += 1
-            status, zn, u, v = translation_step(
-                c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs, m, fm, dfn,
-                xw, yw, gv, xmax, ymax, quad, qx, qy, node, span, tol, zn)
-        store_node(k, (u, v), zn, it, status, uv_out, zncc_out, iters_out, reason_out)
+    for c in range(first, stop):
+        dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
+        ex = np.empty(npx)
+        ey = np.empty(npx)
+        qx = np.zeros(npx)
+        qy = np.zeros(npx)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            if not active[k]:
+                continue
+            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
+                                               dxs, dys, gx, gy, fs)
+            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+            if quad:
+                curvature_offsets(curv, k, dxs, dys, m, qx, qy)
+            h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(
+                gx, gy, ex, ey, fs, m, fm)
+            start = (uv_init[k, 0], uv_init[k, 1])
+            if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
+                store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
+                           reason_out)
+                continue
+            dfn = np.sqrt(df2)
+            ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
+            a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
+                h00, h01, h10, h11, ux, uy, vx, vy, mu)
+            u, v = start
+            node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
+                    m11, det, target[k, 0], target[k, 1], u, v)
+            status, zn, it = NOT_CONVERGED, np.nan, 0
+            while status == NOT_CONVERGED and it < max_iter:
+                it += 1
+                status, zn, u, v = translation_step(
+                    c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs, m, fm, dfn,
+                    xw, yw, gv, xmax, ymax, quad, qx, qy, node, span, tol, zn)
+            store_node(k, (u, v), zn, it, status, uv_out, zncc_out, iters_out, reason_out)

@@ -43,9 +43,10 @@ KERNELS: dict[str, tuple[str, ...]] = {
     "sums.window_sums": (_sig("float32[:, :, ::1]", "int64"),),
     "sums.integral_image": (_sig(_F64_2), _sig("uint8[:, ::1]")),
     "icgn.icgn_affine": (_sig(
-        _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1, _I64_1, _F64_2,
-        "boolean[::1]", _I32_1, "uint8[:, :, ::1]", "int64", "int64", "float64", _F64_2,
-        _F64_1, _I32_1, "int8[::1]", _F64_2, _F32_2, "UniTuple(float64, 3)", _F64_2),),
+        "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
+        _I64_1, _F64_2, "boolean[::1]", _I32_1, "uint8[:, :, ::1]", "int64", "int64",
+        "float64", _F64_2, _F64_1, _I32_1, "int8[::1]", _F64_2, _F32_2,
+        "UniTuple(float64, 3)", _F64_2),),
     "lattice.median_flags": (_sig(
         _F64_1, _F64_1, "boolean[::1]", "int64[:, ::1]", "float64", "float64", "int64",
         "boolean[::1]"),),
@@ -63,9 +64,9 @@ KERNELS: dict[str, tuple[str, ...]] = {
         _I64_1, "int64", _F64_2),),
     # AL-DIC only
     "icgn.icgn_translation": (_sig(
-        _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1, _I64_1, _F64_2,
-        _F64_2, _F64_2, _F64_2, "float64", "boolean[::1]", _I32_1, "uint8[:, :, ::1]",
-        "int64", "int64", "float64", _F64_2, _F64_1, _I32_1, "int8[::1]"),),
+        "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
+        _I64_1, _F64_2, _F64_2, _F64_2, _F64_2, "float64", "boolean[::1]", _I32_1,
+        "uint8[:, :, ::1]", "int64", "int64", "float64", _F64_2, _F64_1, _I32_1, "int8[::1]"),),
     "covariance.gather_matrices": (_sig(
         _F64_2, _F64_2, "int64[:, ::1]", "int64[:, ::1]", "float64"),),
     "cg.jacobi_cg": (_sig(_I32_1, _I32_1, _F64_1, _F64_1, _F64_1, _F64_1, "float64", "int64"),),
@@ -96,7 +97,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
 #: compile seconds of a kernel's signatures on one unloaded core (helpers
 #: included; measured, see benchmarks/RESULTS.md, issue 25); unlisted: 1 s
 COST: dict[str, float] = {
-    "icgn.icgn_affine": 18.0, "moments.moments_kernel": 16.5, "icgn.icgn_translation": 10.5,
+    "icgn.icgn_affine": 7.4, "moments.moments_kernel": 9.5, "icgn.icgn_translation": 4.7,
     "covariance.covariance_diag": 2.6, "static.lag_peaks": 3.0, "lattice.median_flags": 2.0,
     "cg.jacobi_cg": 2.3, "covariance.mean_noise_factor": 0.8, "speckle.speckle_intensity": 1.0,
     "covariance.gather_matrices": 0.8, "bspline.spline_gradients": 0.8,
