@@ -3,14 +3,9 @@
 import numpy as np
 import pytest
 
-from napari_aldic.engine.kernels import moments
-from napari_aldic.engine.kernels.moments import (
-    HYPOT,
-    ONES,
-    centre_moments,
-    moment_terms,
-    window_moments,
-)
+from napari_aldic.engine.dic import window_moments as moments
+from napari_aldic.engine.dic.window_moments import window_moments
+from napari_aldic.engine.kernels.moments import HYPOT, ONES, centre_moments, moment_terms
 
 
 def _brute(a, x, y, half, order, origin):

@@ -44,7 +44,7 @@ from scipy import ndimage
 
 from ..core.files import array_digest
 from ..kernels.covariance import covariance_diag, gather_matrices, mean_noise_factor
-from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms, window_moments
+from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms
 from .interpolation import (
     jacobian_smoothing,
     prefilter,
@@ -54,6 +54,7 @@ from .interpolation import (
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
 from .uncertainty_aldic import aldic_gain, noise_projector
+from .window_moments import window_moments
 
 __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
            "SubsetAdvice", "advise_subset", "interpolated_noise_factor", "SHAPE_TERMS"]

@@ -37,7 +37,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..kernels.moments import moment_terms, window_moments
+from ..kernels.moments import moment_terms
+from .window_moments import window_moments
 
 __all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver",
            "noise_projector", "rademacher_images"]

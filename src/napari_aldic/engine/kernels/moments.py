@@ -22,8 +22,10 @@ across a restart carry the accumulator over). Memory:
 ``O(nodes x moments + threads x (distinct columns x moments + width))``.
 Moments about each node follow from these by the binomial expansion
 (:func:`centre_moments`). Bands of rows that start where the accumulators
-restart anyway run in parallel, each on the nodes whose windows start in
-it (and shifted to them there): the same bits as one pass over all rows.
+restart anyway can run side by side (one kernel call each, on threads:
+``dic.window_moments``, the wrapper that lays them out), each on the nodes
+whose windows start in it (and shifted to them there): the same bits as one
+pass over all rows.
 """
 
 from __future__ import annotations
@@ -33,8 +35,8 @@ import numpy as np
 
 from .flags import CACHED, FASTMATH, INLINE, PARALLEL
 
-__all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "moment_terms",
-           "moments_kernel", "band_layout", "centre_moments", "window_moments"]
+__all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "EPOCH", "moment_terms",
+           "moments_kernel", "centre_moments"]
 
 #: base index of an image of ones (``(ONES, ONES)`` is the mask itself)
 ONES = -1
@@ -48,13 +50,6 @@ MAX_ORDER = 4
 SBLOCK = 16
 #: ... and the column accumulators every EPOCH rows
 EPOCH = 64
-#: row bands per thread in :func:`window_moments` (more balance the load, each
-#: costs one window height of rows read twice) ...
-BANDS_PER_THREAD = 2
-#: ... for at least this many pixel products (fewer: one band, one thread; a
-#: parallel launch on a busy machine can cost tens of milliseconds)
-PARALLEL_WORK = 1 << 24
-
 _ONES_ROW = MAX_IMAGES
 _MASK_ROW = MAX_IMAGES + 1
 
@@ -195,22 +190,6 @@ def _flush(out, acc, node, col, sign):
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
-def _offsets(products):
-    """Where each product's moments start in a node's output row (``offs``,
-    length P + 1) and which base images the products use."""
-    nprod = products.shape[0]
-    offs = np.zeros(nprod + 1, np.int64)
-    used = np.zeros(MAX_IMAGES, np.bool_)
-    for k in range(nprod):
-        o = products[k, 3]
-        offs[k + 1] = offs[k] + (o + 1) * (o + 2) // 2
-        for t in range(2):
-            if products[k, t] >= 0:
-                used[products[k, t]] = True
-    return offs, used
-
-
-@nb.njit(**CACHED, fastmath=FASTMATH)
 def _close_windows(b, r0, r1, by1, p1, col_of, out, acc):
     """Nodes whose window ends before row ``b`` (``by1``: nodes by ``r1``,
     from position ``p1``) take the accumulator; the next position."""
@@ -276,9 +255,9 @@ def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0,
         _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0, r1, xs,
-                   ys, dx, dy, by0, by1, cut, tall, height):
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def moments_kernel(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0,
+                   r1, xs, ys, nodes, by1, start, tall, dx, dy, out):
     """Window moments of pixel products per node, streaming over the rows.
 
     For each node ``n`` and product ``k`` (base images ``b_i``, ``b_j``;
@@ -292,10 +271,11 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     restarted every SBLOCK segments) give the row's sums over the distinct
     column windows, accumulated per
     column (restarted every EPOCH rows, the open windows carrying over);
-    each node takes the accumulator at ``r1`` less that at ``r0``. About
-    ``nband`` bands of rows (whole epochs, by the nodes' first rows) run in
-    parallel: a band starts where the accumulator restarts anyway, so each
-    node comes out as from one pass over all rows.
+    each node takes the accumulator at ``r1`` less that at ``r0``. One call
+    does one band of rows (whole epochs, by the nodes' first rows;
+    ``dic.window_moments`` runs bands side by side on threads): a band starts
+    where the accumulator restarts anyway, so each node comes out as from one
+    pass over all rows.
 
     Parameters
     ----------
@@ -303,8 +283,12 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
         Base images (any float dtype; unused ones may be empty).
     mask : (H, W) bool or (0, 0) bool
         Binary mask multiplied into every product; empty: none.
+    used : (MAX_IMAGES,) bool
+        The base images the products use.
     products : (P, 4) int64
         Per product ``(i, j, kind, order)``; ``order <= MAX_ORDER``.
+    offs : (P + 1,) int64
+        Where each product's moments start in a node's row of ``out``.
     edges : (E,) int64
         Sorted distinct window edges (columns, within the image).
     e0, e1 : (C,) int64
@@ -318,58 +302,18 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, products, edges, e0, e1, col_of, r0
     dx, dy : (N,) or (0,) float64
         When given, each node's position: its moments are returned about
         it (:func:`centre_moments`) instead of about the origin.
-    by0, by1, cut, tall, height
-        The bands (:func:`band_layout`): the nodes by first row; within
-        each band ``by0[cut[k]:cut[k + 1]]``, the same nodes by last row;
-        the tallest window; the band height (rows).
+    nodes, by1 : (B,) int64
+        The band's nodes by first row (all at or after row ``start``) and
+        by last row.
+    start : int
+        The band's first row (a multiple of :data:`EPOCH`).
+    tall : int
+        The tallest window (rows) of all nodes.
+    out : (N, M) float64, zeroed
+        Receives, at the band's rows, per node the moments of product 0,
+        then those of product 1, ... (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
 
-    Returns
-    -------
-    (N, M) float64
-        Per node, the moments of product 0, then those of product 1, ...
-        (``M = Σ_k (order_k + 1)(order_k + 2) / 2``).
     """
-    offs, used = _offsets(products)
-    out = np.zeros((r0.size, offs[-1]))
-    if cut.size == 2:  # one band: no parallel launch (it costs more than a small job)
-        # the arguments typed as in the loop below (a literal 0 or the whole
-        # by0 would compile _band and its callees a second time, 2.6 s)
-        k = cut.size - 2
-        _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
-              xs, ys, by0[cut[k]:cut[k + 1]], by1[cut[k]:cut[k + 1]], k * height, tall, dx,
-              dy, out)
-        return out
-    for k in nb.prange(cut.size - 1):  # threads write disjoint rows of out
-        _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1,
-              xs, ys, by0[cut[k]:cut[k + 1]], by1[cut[k]:cut[k + 1]], k * height, tall, dx,
-              dy, out)
-    return out
-
-
-def band_layout(r0: np.ndarray, r1: np.ndarray, h: int, nband: int):
-    """The bands of :func:`moments_kernel` (in NumPy: sorting and searching
-    compiled in Numba cost ~3 s of a first run): ``by0`` the nodes by first
-    row, ``by1`` each band's nodes by last row, ``cut`` where each band
-    starts in ``by0``, ``tall`` the tallest window, ``height`` the band
-    height (whole epochs)."""
-    n = r0.size
-    by0 = np.argsort(r0, kind="stable")
-    tall = int(np.max(r1 - r0)) if n else 0
-    height = EPOCH * max(1, -(-h // (EPOCH * max(nband, 1))))
-    cut = np.searchsorted(r0[by0], np.arange(0, h + height, height)).astype(np.int64)
-    cut[-1] = n
-    by1 = np.empty_like(by0)
-    for a, b in zip(cut[:-1], cut[1:]):
-        band = by0[a:b]
-        by1[a:b] = band[np.argsort(r1[band], kind="stable")]
-    return by0, by1, cut, tall, height
-
-
-@nb.njit(**CACHED, fastmath=FASTMATH)
-def _band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0, r1, xs,
-          ys, nodes, by1, start, tall, dx, dy, out):
-    """The moments of one band's nodes (:func:`_stream_band`; ``by1`` the
-    same nodes by last row), shifted to each node when ``dx`` is given."""
     if nodes.size:
         _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
                      r0, r1, xs, ys, nodes, by1, start, tall, out)
@@ -476,83 +420,3 @@ def centre_moments(raw, dx, dy, order):
         for k in range(c * chunk, min(n, c * chunk + chunk)):
             _centre_node(raw[k], out[k], dx[k], dy[k], order, binom, px, py)
     return out
-
-
-def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
-                   centre: bool = False, joined: bool = False, serial: bool = False):
-    """Window moments ``Σ a X^p Y^q`` of pixel products at lattice nodes.
-
-    Parameters
-    ----------
-    images : sequence of (H, W) float arrays
-        Up to :data:`MAX_IMAGES` base images (not copied).
-    products : sequence of tuples
-        ``(i, j, order)`` or ``(i, j, order, kind)``: base indices (``ONES``
-        for an image of ones), highest ``p + q`` (``<= MAX_ORDER``) and kind
-        (:data:`PRODUCT`, the default, or :data:`HYPOT`).
-    x, y : (N,) int-like
-        Node coordinates (column, row).
-    half : int
-        Window half-width: columns ``x - half .. x + half`` clipped to the image.
-    mask : (H, W) bool, optional
-        Binary mask multiplied into every product.
-    origin : (cx, cy), optional
-        Coordinate origin (default: the image centre ``((W-1)/2, (H-1)/2)``).
-    centre : bool
-        Return the moments about each node instead (``X - x``, ``Y - y``;
-        :func:`centre_moments` of the raw ones).
-    joined : bool
-        Return the one (N, Σ M_k) array the list below is made of.
-    serial : bool
-        One band on the calling thread, however large the job (no parallel
-        launch: several calls may then run at once from Python threads, the
-        kernel releasing the GIL, whatever Numba's threading layer).
-
-    Returns
-    -------
-    list of (N, M_k) float64
-        Per product, the moments ``(p, q)`` in :func:`moment_terms` order
-        (views of one array).
-    """
-    images = [np.asarray(a) for a in images]
-    if not 1 <= len(images) <= MAX_IMAGES:
-        raise ValueError(f"window_moments takes 1 to {MAX_IMAGES} images, got {len(images)}")
-    h, w = images[0].shape
-    if any(a.shape != (h, w) for a in images):
-        raise ValueError("window_moments: the images differ in shape")
-    prod = np.array([(int(t[0]), int(t[1]), int(t[3]) if len(t) > 3 else PRODUCT, int(t[2]))
-                     for t in products], np.int64).reshape(-1, 4)
-    if np.any(prod[:, :2] >= len(images)) or np.any(prod[:, :2] < ONES):
-        raise ValueError("window_moments: a product names a missing image")
-    if np.any(prod[:, 3] < 0) or np.any(prod[:, 3] > MAX_ORDER):
-        raise ValueError(f"window_moments: moment orders must be 0..{MAX_ORDER}")
-    empty = np.zeros((0, 0), images[0].dtype)
-    images += [empty] * (MAX_IMAGES - len(images))
-    m = np.zeros((0, 0), np.bool_) if mask is None else np.asarray(mask, np.bool_)
-    if mask is not None and m.shape != (h, w):
-        raise ValueError(f"window_moments: mask shape {m.shape} differs from the images' "
-                         f"{(h, w)}")
-    cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0) if origin is None else origin
-    cols, col_of = np.unique(np.asarray(x, np.int64), return_inverse=True)
-    yi = np.asarray(y, np.int64).ravel()
-    c0, c1 = np.clip(cols - half, 0, w), np.clip(cols + half + 1, 0, w)
-    edges = np.unique(np.concatenate([c0, c1]))
-    dx = dy = np.zeros(0)
-    if centre:
-        dx = np.asarray(x, np.float64).ravel() - float(cx)
-        dy = yi - float(cy)
-    r0, r1 = np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h)
-    nband = (BANDS_PER_THREAD * nb.get_num_threads()
-             if h * w * len(prod) >= PARALLEL_WORK and not serial else 1)
-    out = moments_kernel(*images, m, prod, edges, np.searchsorted(edges, c0),
-                         np.searchsorted(edges, c1), col_of.ravel().astype(np.int64), r0, r1,
-                         np.arange(w) - float(cx), np.arange(h) - float(cy), dx, dy,
-                         *band_layout(r0, r1, h, nband))
-    if joined:
-        return out
-    res, k = [], 0
-    for o in prod[:, 3]:
-        m = (o + 1) * (o + 2) // 2
-        res.append(out[:, k:k + m])
-        k += m
-    return res
