@@ -75,8 +75,9 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter):
         _matvec(indptr, indices, data, x, r)
         for i in range(n):
             r[i] = b[i] - r[i]
-    else:
-        r[:] = b
+    else:  # element by element: an array copy's shape check compiles for 1.7 s
+        for i in range(n):
+            r[i] = b[i]
     z = np.empty(n)
     p = np.empty(n)
     q = np.empty(n)
@@ -92,7 +93,8 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter):
             for i in range(n):
                 p[i] = p[i] * beta + z[i]
         else:
-            p[:] = z
+            for i in range(n):
+                p[i] = z[i]
         _matvec(indptr, indices, data, p, q)
         alpha = rho / _dot(p, q)
         for i in range(n):

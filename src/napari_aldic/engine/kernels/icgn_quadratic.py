@@ -294,7 +294,8 @@ def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, s
                                                dxs, dys, gx, gy, fs)
             hs = gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
             H = quadratic_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, Jm, Em, sj, bf)
-            p[:] = p_init[k]
+            for j in range(p.size):  # (no array copy: its shape check compiles slowly)
+                p[j] = p_init[k, j]
             status, zn, it, dfn = begin_node(k, m, df2, hs, H, LU, piv, stats_out)
             start = (p[0], p[3])
             while status == NOT_CONVERGED and it < max_iter:
