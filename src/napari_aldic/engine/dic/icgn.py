@@ -43,22 +43,17 @@ their inputs and outputs.
 from __future__ import annotations
 
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 
 from ..core.reasons import Reason
 from ..kernels import gauss_newton as status
 from ..kernels.icgn import icgn_affine, icgn_translation
 from ..kernels.icgn_quadratic import NPAR, icgn_quadratic
+from .threads import in_threads
 
 __all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS", "convergence_record",
            "warn_iteration_cap", "CAP_WARN_FRACTION"]
-
-#: ranges of node chunks per thread (several: a range of slow nodes, e.g.
-#: ones that hit the iteration cap, does not hold the others up)
-TASKS_PER_THREAD = 4
 
 #: the subset shape functions ``icgn_solve`` knows
 SHAPE_FUNCTIONS = ("affine", "quadratic")
@@ -178,10 +173,11 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     if shape == "affine":
         g, var_img, min_motion, s_out, min_fraction = \
             (f, 0.0, 0.0, np.empty((0, 2)), 0.0) if static is None else (*static, 0.0)[:5]
-        _in_threads(icgn_affine, n, f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x,
-                    nodes_y, np.ascontiguousarray(p_init, dtype=np.float64), active, slot,
-                    masks, int(half), int(max_iter), float(tol), p, zn, it, rs, stats,
-                    g, (float(var_img), float(min_motion), float(min_fraction)), s_out)
+        in_threads(icgn_affine, -(-n // status.CHUNK), f, fgx, fgy, egx, egy, spline.coef,
+                   spline.order, nodes_x, nodes_y,
+                   np.ascontiguousarray(p_init, dtype=np.float64), active, slot, masks,
+                   int(half), int(max_iter), float(tol), p, zn, it, rs, stats, g,
+                   (float(var_img), float(min_motion), float(min_fraction)), s_out)
     elif shape == "quadratic":
         p12 = np.zeros((n, NPAR))
         p12[:, :6] = p_init
@@ -230,27 +226,10 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     it = np.zeros(n, np.int32)
     rs = np.full(n, _NOT_CONVERGED, np.int8)
     egx, egy = (fgx, fgy) if lin is None else lin
-    _in_threads(
-        icgn_translation, n, f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y,
+    in_threads(
+        icgn_translation, -(-n // status.CHUNK), f, fgx, fgy, egx, egy, spline.coef,
+        spline.order, nodes_x, nodes_y,
         np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64), curv,
         np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks, int(half),
         int(max_iter), float(tol), uv, zn, it, rs)
     return uv, zn, it, rs
-
-
-def _in_threads(kernel, n: int, *args) -> None:
-    """``kernel(first, stop, *args)`` over the chunks of ``n`` nodes, ranges of
-    them side by side on ``numba.get_num_threads()`` Python threads (the
-    kernels release the GIL and write disjoint nodes). The kernels are
-    serial: a ``prange`` kernel took 3-4 s longer to compile, each."""
-    chunks = -(-n // status.CHUNK)
-    threads = min(numba.get_num_threads(), chunks)
-    if threads <= 1:
-        kernel(0, chunks, *args)
-        return
-    edges = np.linspace(0, chunks, min(chunks, TASKS_PER_THREAD * threads) + 1).astype(int)
-    with ThreadPoolExecutor(threads) as pool:
-        jobs = [pool.submit(kernel, int(a), int(b), *args)
-                for a, b in zip(edges[:-1], edges[1:])]
-        for job in jobs:
-            job.result()

@@ -16,6 +16,7 @@ from ..kernels.lattice import median_flags
 from ..kernels.sums import integral_image
 from .mesh import NodeGrid
 from .subsets import rect_sums
+from .threads import in_threads
 
 __all__ = ["lattice_neighbours", "median_test"]
 
@@ -84,6 +85,7 @@ def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: n
     min_neighbours : nodes with fewer trusted neighbours are not tested.
     """
     out = np.zeros(u.size, bool)
-    median_flags(np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64),
-                 trusted, neighbours, float(threshold), float(eps), int(min_neighbours), out)
+    in_threads(median_flags, u.size, np.ascontiguousarray(u, np.float64),
+               np.ascontiguousarray(v, np.float64), trusted, neighbours, float(threshold),
+               float(eps), int(min_neighbours), out, grain=256)
     return out

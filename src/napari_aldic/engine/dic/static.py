@@ -52,6 +52,7 @@ from ..kernels.static import lag_peaks
 from ..kernels.sums import integral_image, window_sums
 from .icgn import icgn_solve
 from .subsets import rect_sums
+from .threads import in_threads
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
            "ambiguity", "candidate_lags"]
@@ -243,9 +244,9 @@ def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
         return np.full(grid.n, -np.inf)  # nothing repeats: no per-node search
     cand, ncand = _node_candidates(grid, tile, ys, xs, lags, np.asarray(active), params.half)
     out = np.empty((grid.n, 3))
-    lag_peaks(np.ascontiguousarray(im.f, np.float32), grid.x.astype(np.int64),
-              grid.y.astype(np.int64), sub.slot.astype(np.int32), sub.masks, int(params.half),
-              cand, ncand, _BLOCK, out)
+    in_threads(lag_peaks, grid.n, np.ascontiguousarray(im.f, np.float32),
+               grid.x.astype(np.int64), grid.y.astype(np.int64), sub.slot.astype(np.int32),
+               sub.masks, int(params.half), cand, ncand, _BLOCK, out, grain=64)
     return out[:, 0]
 
 

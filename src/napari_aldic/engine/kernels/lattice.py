@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import INLINE, PARALLEL
+from .flags import INLINE, PARALLEL, SERIAL
 
 __all__ = ["median_flags", "plane_fit"]
 
@@ -35,17 +35,18 @@ def _sorted_median(a, c):
     return a[h]
 
 
-@nb.njit(**PARALLEL)
-def median_flags(u, v, trusted, nbr, threshold, eps, min_nb, out):
-    """Normalised median test, nodes in parallel.
+@nb.njit(**SERIAL)
+def median_flags(first, stop, u, v, trusted, nbr, threshold, eps, min_nb, out):
+    """Normalised median test of nodes ``first`` to ``stop`` (serial:
+    ``dic.threads.in_threads`` runs ranges side by side).
 
     For each trusted node with at least ``min_nb`` trusted neighbours, and
     for each component: the residual ``|x - median|`` of the node over the
     median absolute fluctuation of its neighbours plus ``eps``; above
     ``threshold`` the node is flagged (J. Westerweel, F. Scarano, "Universal
     outlier detection for PIV data", Exp. Fluids 39, 2005). The nodes are
-    taken in chunks, each with its own work buffers; the medians sort the
-    few neighbour values in place (the same values as ``np.median``).
+    medians sort the few neighbour values in place (the same values as
+    ``np.median``).
 
     Parameters
     ----------
@@ -62,34 +63,32 @@ def median_flags(u, v, trusted, nbr, threshold, eps, min_nb, out):
     out : (n,) bool
         Set True at the outliers (others untouched).
     """
-    n, k = nbr.shape
-    chunk = 256  # nodes per parallel task
-    for t in nb.prange((n + chunk - 1) // chunk):
-        a = np.empty(k)
-        for i in range(t * chunk, min(n, t * chunk + chunk)):
-            if not trusted[i]:
-                continue
+    k = nbr.shape[1]
+    a = np.empty(k)
+    for i in range(first, stop):
+        if not trusted[i]:
+            continue
+        c = 0
+        for j in range(k):
+            q = nbr[i, j]
+            if q >= 0 and trusted[q]:
+                c += 1
+        if c < min_nb:
+            continue
+        for comp in range(2):
+            w = u if comp == 0 else v
             c = 0
             for j in range(k):
                 q = nbr[i, j]
                 if q >= 0 and trusted[q]:
+                    a[c] = w[q]
                     c += 1
-            if c < min_nb:
-                continue
-            for comp in range(2):
-                w = u if comp == 0 else v
-                c = 0
-                for j in range(k):
-                    q = nbr[i, j]
-                    if q >= 0 and trusted[q]:
-                        a[c] = w[q]
-                        c += 1
-                med = _sorted_median(a, c)
-                for j in range(c):
-                    a[j] = abs(a[j] - med)
-                fl = _sorted_median(a, c)
-                if abs(w[i] - med) / (fl + eps) > threshold:
-                    out[i] = True
+            med = _sorted_median(a, c)
+            for j in range(c):
+                a[j] = abs(a[j] - med)
+            fl = _sorted_median(a, c)
+            if abs(w[i] - med) / (fl + eps) > threshold:
+                out[i] = True
 
 
 @nb.njit(**PARALLEL)

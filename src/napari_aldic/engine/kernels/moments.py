@@ -33,7 +33,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, PARALLEL
+from .flags import CACHED, FASTMATH, INLINE, SERIAL
 
 __all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "EPOCH", "moment_terms",
            "moments_kernel", "centre_moments"]
@@ -390,7 +390,8 @@ def _centre_rows(out, nodes, orders, offs, dx, dy):
             _centre_node(raw[a:b], out[nd, a:b], dx[nd], dy[nd], orders[k], binom, px, py)
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
+# serial (issue 25): a few milliseconds per run, 0.6 s less compiling
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def centre_moments(raw, dx, dy, order):
     """Moments about each node from moments about the origin.
 
@@ -414,9 +415,7 @@ def centre_moments(raw, dx, dy, order):
     n = raw.shape[0]
     out = np.empty((n, raw.shape[1]))  # every entry is written
     binom = _binomials()
-    chunk = 1024  # nodes per parallel task
-    for c in nb.prange((n + chunk - 1) // chunk):
-        px, py = np.empty(order + 1), np.empty(order + 1)
-        for k in range(c * chunk, min(n, c * chunk + chunk)):
-            _centre_node(raw[k], out[k], dx[k], dy[k], order, binom, px, py)
+    px, py = np.empty(order + 1), np.empty(order + 1)
+    for k in range(n):
+        _centre_node(raw[k], out[k], dx[k], dy[k], order, binom, px, py)
     return out

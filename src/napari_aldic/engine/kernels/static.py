@@ -22,7 +22,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .flags import FASTMATH, INLINE, PARALLEL
+from .flags import FASTMATH, INLINE, SERIAL
 
 __all__ = ["zero_motion_evidence", "lag_peaks"]
 
@@ -171,10 +171,11 @@ def _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, sx, sy):
     return sfg * nf / math.sqrt(vg)
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def lag_peaks(f, nx, ny, slot, masks, h, cand, ncand, w, out):
-    """The highest isolated secondary peak of each reference subset's
-    normalised autocorrelation near candidate lags.
+@nb.njit(**SERIAL, fastmath=FASTMATH)
+def lag_peaks(first, stop, f, nx, ny, slot, masks, h, cand, ncand, w, out):
+    """The highest isolated secondary peak of the normalised autocorrelation
+    of the reference subsets of nodes ``first`` to ``stop`` near candidate
+    lags (serial: ``dic.threads.in_threads`` runs ranges side by side).
 
     Around each candidate lag ``c`` the NCC is evaluated on the
     ``(2w + 1)²`` lags ``c + [-w, w]²``; its maximum counts only when it lies
@@ -206,7 +207,7 @@ def lag_peaks(f, nx, ny, slot, masks, h, cand, ncand, w, out):
     """
     npx = (2 * h + 1) ** 2
     nb_ = 2 * w + 1
-    for k in nb.prange(nx.size):
+    for k in range(first, stop):
         out[k, 0] = -np.inf
         out[k, 1] = 0.0
         out[k, 2] = 0.0
