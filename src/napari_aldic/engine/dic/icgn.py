@@ -183,9 +183,9 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
         p12[:, :6] = p_init
         q = np.zeros((n, NPAR))
         q[:, :6] = p
-        icgn_quadratic(f, fgx, fgy, egx, egy, spline.coef, spline.order, nodes_x, nodes_y, p12,
-                       active, slot, masks, int(half), int(max_iter), float(tol), q, zn, it, rs,
-                       stats)
+        in_threads(icgn_quadratic, -(-n // status.CHUNK), f, fgx, fgy, egx, egy, spline.coef,
+                   spline.order, nodes_x, nodes_y, p12, active, slot, masks, int(half),
+                   int(max_iter), float(tol), q, zn, it, rs, stats)
         p[active] = q[active, :6]
     else:
         raise ValueError(f"shape={shape!r} must be one of {SHAPE_FUNCTIONS}")

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, PARALLEL
+from .flags import CACHED, FASTMATH, INLINE
 from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
 from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
@@ -250,10 +250,12 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
     return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn
 
 
-@nb.njit(**PARALLEL, fastmath=FASTMATH)
-def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot, masks,
-                   h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out):
-    """Quadratic IC-GN at the ``active`` nodes, chunks of nodes in parallel.
+@nb.njit(**CACHED, fastmath=FASTMATH)
+def icgn_quadratic(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active,
+                   slot, masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out,
+                   stats_out):
+    """Quadratic IC-GN at the ``active`` nodes of chunks ``first`` to ``stop``
+    (serial, as :func:`~.icgn.icgn_affine`).
 
     As :func:`~.icgn.icgn_affine` with twelve parameters: per node gather the
     subset, build and factorise the 12 x 12 reference matrix
@@ -264,7 +266,8 @@ def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, s
 
     Parameters
     ----------
-    f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h, max_iter, tol
+    first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, active, slot, masks, h,
+    max_iter, tol
         As :func:`~.icgn.icgn_affine`.
     p_init : (n, 12) float64
         Initial parameters (layout in the module docstring).
@@ -274,8 +277,8 @@ def icgn_quadratic(f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, s
         Receives the reference subset's statistics, as for the affine solver.
     """
     n = nx.size
-    c1, stride, span, npx, nchunks, xmax, ymax = chunk_layout(f, coef, n, h)
-    for c in nb.prange(nchunks):
+    c1, stride, span, npx, _, xmax, ymax = chunk_layout(f, coef, n, h)
+    for c in range(first, stop):
         dxs, dys, gx, gy, fs, xw, yw, gv = subset_buffers(npx)
         qx = np.empty(npx)
         qy = np.empty(npx)
