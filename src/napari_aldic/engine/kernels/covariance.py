@@ -191,7 +191,7 @@ def _row_quadratic_form(lu, piv, e, z, mid, w):
     return q
 
 
-@nb.njit(**INLINE)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def _node_covariance(mats, var, lu, piv, z, w):
     """The u and v variances of one node from its matrices ``mats`` = ``A,
     E_A, C, E_C`` (overwritten; ``E_A`` ends as a work array; ``z, w`` work

@@ -27,9 +27,10 @@ FASTMATH_ALL = True
 #: a serial top-level kernel: compiled once, cached on disk, GIL released
 CACHED = {"cache": True, "nogil": True}
 
-#: a serial top-level kernel that was parallel: NumPy's division semantics
-#: (x / 0 gives inf or NaN, as in a ``prange`` loop) rather than Python's
-#: ZeroDivisionError, which the callers of such kernels do not expect
+#: a serial kernel that was parallel (or a helper such a kernel calls as a
+#: function): NumPy's division semantics (x / 0 gives inf or NaN, as in a
+#: ``prange`` loop) rather than Python's ZeroDivisionError, which the callers
+#: of such kernels do not expect
 SERIAL = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 #: a top-level kernel whose outer loop is a ``prange`` over threads

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE
+from .flags import FASTMATH, INLINE, SERIAL
 from .gauss_newton import (
     CHUNK,
     DIVERGED,
@@ -60,7 +60,7 @@ def _moment_block(H, r0, c0, m0, mx, my, mxx, mxy, myy):
 
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     """Gauss-Newton matrix and sums of the reference subset (affine warp).
 
@@ -250,7 +250,7 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
     return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn_k, p
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot,
                 masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out,
                 g, static, static_out):
@@ -509,7 +509,7 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
     return NOT_CONVERGED, zn_k, u, v
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
                      target, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
                      iters_out, reason_out):

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE
+from .flags import CACHED, FASTMATH, INLINE, SERIAL
 from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
 from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
@@ -250,7 +250,7 @@ def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, 
     return step_status(p[0] - start[0], p[3] - start[1], span, nrm, tol), zn
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_quadratic(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active,
                    slot, masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out,
                    stats_out):

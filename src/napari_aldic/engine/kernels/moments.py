@@ -255,7 +255,7 @@ def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0,
         _add_row(acc, loc, btot, e0, e1, order, offs[k], ypow, band)
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**SERIAL, fastmath=FASTMATH)
 def moments_kernel(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of, r0,
                    r1, xs, ys, nodes, by1, start, tall, dx, dy, out):
     """Window moments of pixel products per node, streaming over the rows.
