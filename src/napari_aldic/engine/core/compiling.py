@@ -1,8 +1,9 @@
 """Seconds spent compiling Numba kernels, so that runs report them apart.
 
 The first analysis in a fresh environment compiles the engine's kernels
-(a minute or more on a small machine); later ones load them from Numba's
-disk cache in well under a second. Showing that minute as analysis time
+(10-15 s on 2 cores, a minute or more before issue 25's compile work);
+later ones load them from Numba's disk cache in well under a second.
+Showing those seconds as analysis time
 ("frame 1: 72 s, 11 POI/s") misleads, so ``correlate`` records the compile
 seconds of its call in ``meta["timing"]["compile"]`` (and
 ``meta["timing"]["analysis"]`` = total - compile), read from Numba's

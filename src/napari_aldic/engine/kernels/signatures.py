@@ -95,13 +95,15 @@ GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 #: compile seconds of a kernel's signatures on one unloaded core (helpers
-#: included; measured, see benchmarks/RESULTS.md, issue 25); unlisted: 1 s
+#: included, compiled alone in a fresh process; measured 2026-12-02, see
+#: benchmarks/RESULTS.md, issue 25); unlisted: 1 s
 COST: dict[str, float] = {
-    "icgn.icgn_affine": 7.4, "moments.moments_kernel": 5.9, "icgn.icgn_translation": 4.7,
-    "covariance.covariance_diag": 2.6, "static.lag_peaks": 1.4, "lattice.median_flags": 0.5,
-    "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.8, "speckle.speckle_intensity": 1.0,
-    "covariance.gather_matrices": 0.8, "bspline.spline_gradients": 0.8,
-    "sums.window_sums": 0.3, "moments.centre_moments": 0.5, "lattice.plane_fit": 0.8,
+    "icgn.icgn_affine": 5.5, "moments.moments_kernel": 4.5, "icgn.icgn_translation": 4.5,
+    "covariance.covariance_diag": 2.0, "static.lag_peaks": 1.1, "lattice.median_flags": 0.5,
+    "cg.jacobi_cg": 0.7, "covariance.mean_noise_factor": 0.8, "speckle.speckle_intensity": 1.0,
+    "covariance.gather_matrices": 0.6, "bspline.spline_gradients": 0.7,
+    "sums.window_sums": 0.5, "sums.integral_image": 0.4, "moments.centre_moments": 0.4,
+    "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
 }
 
 
