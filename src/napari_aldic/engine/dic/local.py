@@ -98,8 +98,7 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
     im = Images(f, g, None, None, None, ref_cache=ref_cache)
     order = im.memo(("order", interpolation), lambda: choose_order(interpolation, f))
     # the two spline prefilters (scipy, GIL released) run on a second thread
-    # while this one smooths the reference (0.11 -> 0.06 s at 1024² on 2 cores);
-    # only this thread launches Numba's parallel kernels
+    # while this one smooths the reference (0.11 -> 0.06 s at 1024² on 2 cores)
     with ThreadPoolExecutor(1) as pool:
         g_spline = []
 

@@ -77,24 +77,8 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
         Per product, the moments ``(p, q)`` in :func:`moment_terms` order
         (views of one array).
     """
-    images = [np.asarray(a) for a in images]
-    if not 1 <= len(images) <= MAX_IMAGES:
-        raise ValueError(f"window_moments takes 1 to {MAX_IMAGES} images, got {len(images)}")
+    images, prod, m = _checked(images, products, mask)
     h, w = images[0].shape
-    if any(a.shape != (h, w) for a in images):
-        raise ValueError("window_moments: the images differ in shape")
-    prod = np.array([(int(t[0]), int(t[1]), int(t[3]) if len(t) > 3 else PRODUCT, int(t[2]))
-                     for t in products], np.int64).reshape(-1, 4)
-    if np.any(prod[:, :2] >= len(images)) or np.any(prod[:, :2] < ONES):
-        raise ValueError("window_moments: a product names a missing image")
-    if np.any(prod[:, 3] < 0) or np.any(prod[:, 3] > MAX_ORDER):
-        raise ValueError(f"window_moments: moment orders must be 0..{MAX_ORDER}")
-    empty = np.zeros((0, 0), images[0].dtype)
-    images += [empty] * (MAX_IMAGES - len(images))
-    m = np.zeros((0, 0), np.bool_) if mask is None else np.asarray(mask, np.bool_)
-    if mask is not None and m.shape != (h, w):
-        raise ValueError(f"window_moments: mask shape {m.shape} differs from the images' "
-                         f"{(h, w)}")
     cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0) if origin is None else origin
     cols, col_of = np.unique(np.asarray(x, np.int64), return_inverse=True)
     yi = np.asarray(y, np.int64).ravel()
@@ -134,3 +118,27 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
         res.append(out[:, k:k + m])
         k += m
     return res
+
+
+def _checked(images, products, mask):
+    """The kernel's inputs of :func:`window_moments`: the base images padded
+    with empty ones to :data:`MAX_IMAGES`, the (P, 4) product table and the
+    mask ((0, 0) for none); a ValueError naming what is wrong."""
+    images = [np.asarray(a) for a in images]
+    if not 1 <= len(images) <= MAX_IMAGES:
+        raise ValueError(f"window_moments takes 1 to {MAX_IMAGES} images, got {len(images)}")
+    h, w = images[0].shape
+    if any(a.shape != (h, w) for a in images):
+        raise ValueError("window_moments: the images differ in shape")
+    prod = np.array([(int(t[0]), int(t[1]), int(t[3]) if len(t) > 3 else PRODUCT, int(t[2]))
+                     for t in products], np.int64).reshape(-1, 4)
+    if np.any(prod[:, :2] >= len(images)) or np.any(prod[:, :2] < ONES):
+        raise ValueError("window_moments: a product names a missing image")
+    if np.any(prod[:, 3] < 0) or np.any(prod[:, 3] > MAX_ORDER):
+        raise ValueError(f"window_moments: moment orders must be 0..{MAX_ORDER}")
+    images += [np.zeros((0, 0), images[0].dtype)] * (MAX_IMAGES - len(images))
+    m = np.zeros((0, 0), np.bool_) if mask is None else np.asarray(mask, np.bool_)
+    if mask is not None and m.shape != (h, w):
+        raise ValueError(f"window_moments: mask shape {m.shape} differs from the images' "
+                         f"{(h, w)}")
+    return images, prod, m

@@ -254,9 +254,8 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
 def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init, active, slot,
                 masks, h, max_iter, tol, p_out, zncc_out, iters_out, reason_out, stats_out,
                 g, static, static_out):
-    """Affine IC-GN at the ``active`` nodes of chunks ``first`` to ``stop`` (of
-    ``CHUNK`` nodes each; ``dic.icgn`` runs ranges of chunks side by side on
-    threads: a serial kernel compiles in 7 s where a ``prange`` one took 10-20).
+    """Affine IC-GN at the ``active`` nodes of chunks ``first`` to ``stop``
+    (``CHUNK`` nodes each; ``dic.threads.in_threads`` runs ranges side by side).
 
     Per node: gather the subset, build the reference matrix and its LU
     factors (:func:`~.icgn_node.begin_node`; a node without texture is stored
@@ -289,9 +288,7 @@ def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init,
     p_out, zncc_out, iters_out, reason_out : (n, 6), (n,), (n,), (n,)
         Receive parameters, ZNCC, iterations and status.
     stats_out : (n, 5) float64
-        Receives the reference subset's statistics as
-        :func:`~.subset.subset_stats` computes them (free here: the sums are
-        needed anyway).
+        Receives the reference subset's statistics (:func:`~.subset.subset_stats`).
     g, static, static_out : (H, W) float32, (float, float, float), (n or 0, 2) float64
         Deformed image; noise variance of one image, least motion (px) and
         the share ``S / D`` above which ``z`` is computed; receives
