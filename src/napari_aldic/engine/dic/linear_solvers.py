@@ -5,14 +5,13 @@ preconditioned by algebraic multigrid or by the diagonal
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
-import numba as nb
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..kernels.cg import jacobi_cg, triangular_solve
+from .threads import side_by_side
 
 __all__ = ["SPDSolver", "TriangularSolver", "solver_method", "DIRECT_MAX_UNKNOWNS",
            "SOLVER_METHODS"]
@@ -155,13 +154,12 @@ class TriangularSolver:
         of a 15k-node AL-DIC system on 2 cores)."""
         x = np.empty((rhs.shape[0], int(np.prod(rhs.shape[1:]))))
         x[self.perm_r] = rhs.reshape(x.shape)
-        blocks = min(nb.get_num_threads(), x.shape[1] // 2)
+        blocks = min(numba.get_num_threads(), x.shape[1] // 2)
         if blocks < 2:
             self._solve(x)
         else:
             parts = [np.ascontiguousarray(p) for p in np.array_split(x, blocks, axis=1)]
-            with ThreadPoolExecutor(blocks) as pool:
-                list(pool.map(self._solve, parts))
+            side_by_side(self._solve, parts, blocks)
             x = np.concatenate(parts, axis=1)
         return x[self.perm_c].reshape(rhs.shape)
 

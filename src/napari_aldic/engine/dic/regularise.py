@@ -63,6 +63,7 @@ from .global_solve import (
     solver_method,
 )
 from .reliability import displacement_variance, subset_statistics
+from .threads import side_by_side
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
@@ -356,34 +357,31 @@ def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths,
     Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
     diag = np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
     trials = [k for k, ell in enumerate(lengths) if ell != 0]
-    known = []  # the fields with the late columns, once they are known
 
-    def data():
-        if not known:
-            more = () if late is None else (late.result(),)
-            known.append(np.where(keep[:, None], np.column_stack([fields, *more]), 0.0))
-        return known[0]
+    def data():  # the fields, the late columns with them, 0 off keep
+        more = () if late is None else (late.result(),)
+        return np.where(keep[:, None], np.column_stack([fields, *more]), 0.0)
 
     def smooth(k, start):
         # factorised like the global matrix (measured: a factor per length is
         # ~8x faster than CG at 22k nodes); AMG-CG, warm-started from the
         # previous length, on meshes too large for a factor (4 digits suffice)
         solver = SPDSolver((Wd + lengths[k] ** 4 * KtK).tocsc(), "auto", rtol=1e-5)
-        b = T.T @ (keep[:, None] * data())
+        b = T.T @ data()
         return solver.solve(b, b / diag if start is None else start)
     if solver_method(Wd.shape[0]) == "direct":
         # the factors are independent and SuperLU releases the GIL: two at a
         # time on the two cores (each factor freed once its solve is done)
-        with ThreadPoolExecutor(SMOOTHING_THREADS) as pool:
-            sols = list(pool.map(lambda k: smooth(k, None), trials))
+        sols = side_by_side(lambda k: smooth(k, None), trials, SMOOTHING_THREADS)
     else:
         sols = []
         for k in trials:
             sols.append(smooth(k, sols[-1] if sols else None))
-    out = np.full((mesh.n_nodes, len(lengths), data().shape[1]), np.nan)
+    full = data()
+    out = np.full((mesh.n_nodes, len(lengths), full.shape[1]), np.nan)
     out[keep] = 0.0
     for k, sol in zip(trials, sols):
-        out[keep, k] = ((T @ sol) - data())[keep]
+        out[keep, k] = ((T @ sol) - full)[keep]
     return out
 
 

@@ -16,11 +16,27 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-__all__ = ["in_threads", "TASKS_PER_THREAD"]
+__all__ = ["in_threads", "side_by_side", "TASKS_PER_THREAD"]
 
 #: ranges of items per thread (several: a range of slow items, e.g. nodes that
 #: hit the iteration cap, does not hold the others up)
 TASKS_PER_THREAD = 4
+
+
+def side_by_side(fn, items, workers: int | None = None) -> list:
+    """``[fn(item) for item in items]``, the calls on ``workers`` threads
+    (default ``numba.get_num_threads()``; ``fn`` releases the GIL for this to
+    pay: a serial kernel, SuperLU, scipy's filters). ``items`` is read on this
+    thread as the calls run, so a generator may make the next item meanwhile.
+    With one worker (or one item) the calls run here, in order."""
+    workers = numba.get_num_threads() if workers is None else workers
+    if hasattr(items, "__len__"):
+        workers = min(workers, len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(workers) as pool:
+        jobs = [pool.submit(fn, item) for item in items]
+        return [job.result() for job in jobs]
 
 
 def in_threads(kernel, items: int, *args, grain: int = 1) -> None:
@@ -32,8 +48,5 @@ def in_threads(kernel, items: int, *args, grain: int = 1) -> None:
         kernel(0, items, *args)
         return
     edges = np.linspace(0, items, tasks + 1).astype(np.int64)
-    with ThreadPoolExecutor(min(numba.get_num_threads(), tasks)) as pool:
-        jobs = [pool.submit(kernel, int(a), int(b), *args)
-                for a, b in zip(edges[:-1], edges[1:])]
-        for job in jobs:
-            job.result()
+    side_by_side(lambda ab: kernel(int(ab[0]), int(ab[1]), *args), zip(edges[:-1], edges[1:]),
+                 min(numba.get_num_threads(), tasks))

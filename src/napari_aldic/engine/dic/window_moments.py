@@ -6,12 +6,11 @@ to compile on a first run)."""
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numba
 import numpy as np
 
 from ..kernels.moments import EPOCH, MAX_IMAGES, MAX_ORDER, ONES, PRODUCT, moments_kernel
+from .threads import side_by_side
 
 __all__ = ["window_moments", "band_layout", "BANDS_PER_THREAD", "PARALLEL_WORK"]
 
@@ -105,11 +104,7 @@ def window_moments(images, products, x, y, half: int, *, mask=None, origin=None,
     def band(k: int) -> None:  # each band writes its own nodes' rows of out
         moments_kernel(*fixed, by0[cut[k]:cut[k + 1]], by1[cut[k]:cut[k + 1]],
                        k * height, tall, dx, dy, out)
-    if cut.size == 2:
-        band(0)
-    else:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(band, range(cut.size - 1)))
+    side_by_side(band, range(cut.size - 1), threads)
     if joined:
         return out
     res, k = [], 0
