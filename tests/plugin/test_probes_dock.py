@@ -170,3 +170,27 @@ def test_added_probe_layers_are_marked_as_probes_not_roi(make_napari_viewer):
     other = viewer.add_shapes(name="gauges", edge_color="red")
     dock.set_probe_layers(other, None)
     assert is_probe_layer(other)
+
+
+def test_probe_layers_are_not_offered_as_roi_holes_or_seeds(make_napari_viewer):
+    """The DIC dock's layer lists leave the probe layers out (they measure; a probe
+    chosen as the ROI or as seeds would silently reshape the analysis)."""
+    from napari_aldic._qt import DICWidget
+    from napari_aldic._qt.plot_dock import ProbePlotDock
+
+    viewer = make_napari_viewer()
+    widget = DICWidget(viewer)
+    viewer.window.add_dock_widget(widget, name="DIC (AL-DIC)", area="right")
+    ProbePlotDock(viewer).add_probe_layers()
+    viewer.add_shapes(name="coupon", edge_color="red")
+    viewer.add_points(np.array([[10.0, 10.0]]), name="seed points")
+    widget.inputs.reset_choices()
+    inp = widget.inputs
+
+    shapes = {lay.name for lay in viewer.layers if lay.__class__.__name__ == "Shapes"}
+    assert {"probes", "coupon"} <= shapes  # both exist, only one is offered
+    for w in (inp.roi_add, inp.roi_subtract):
+        got = {lay.name for lay in w.choices}
+        assert "coupon" in got and "probes" not in got, (w.label, got)
+    seeds = {lay.name for lay in inp.seeds.choices if lay is not None}
+    assert "seed points" in seeds and "probe points" not in seeds, seeds

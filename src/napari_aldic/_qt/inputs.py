@@ -72,8 +72,8 @@ class InputsPanel(Panel):
             import napari.layers as nl
 
             cls = getattr(nl, kind)
-            return [(lay.name, lay) for lay in self._viewer.layers
-                    if isinstance(lay, cls) and not is_result_layer(lay)]
+            return [(lay.name, lay) for lay in self._viewer.layers  # probes shape no input
+                    if isinstance(lay, cls) and not (is_result_layer(lay) or is_probe_layer(lay))]
         return choices
 
     def _setup_ui(self) -> None:
