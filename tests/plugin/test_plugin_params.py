@@ -348,3 +348,24 @@ def test_parameter_file_keeps_the_probes_in_image_pixels(make_napari_viewer_prox
     line = probes.lines[0]
     assert (line.x0, line.y0, line.x1, line.y1) == (10.0, 20.0, 80.0, 20.0)
     assert (probes.points[0].x, probes.points[0].y) == (50.0, 60.0)
+
+
+def test_the_automatic_vector_scale_says_so(make_napari_viewer, qtbot):
+    """0 is the automatic arrow scale: the spin box says "automatic" (it showed
+    "0.00"), in the chosen language too, and a set scale shows its number."""
+    from napari_aldic._qt.language import switch_language
+
+    viewer = make_napari_viewer()
+    widget = DICWidget(viewer)
+    viewer.window.add_dock_widget(widget, name="DIC (AL-DIC)", area="right")
+    box = widget.display.vector_length
+    assert box.value == 0.0 and box.native.text() == "automatic"
+    box.value = 2.5
+    assert box.native.text() == "2.50"
+    box.value = 0.0
+    try:
+        switch_language("de")
+        assert box.native.text() == "automatisch"
+    finally:
+        switch_language("en")
+    assert box.native.text() == "automatic"

@@ -82,6 +82,8 @@ class DisplayPanel(Panel):
         self.note = Label(value=tr(_NOTE_REFERENCE))
         self.legend = Label(value=tr("Unreliable nodes: run an analysis first."))
         self.extend([self.show_field, toggles, self.vector_length, self.note, self.legend])
+        # 0 is the automatic scale: say so rather than show "0.00"
+        self.vector_length.native.setSpecialValueText(tr("automatic"))
         from qtpy.QtWidgets import QSizePolicy
 
         for label in (self.note, self.legend):

@@ -24,8 +24,8 @@ def demo_command(args) -> None:
              "noise {noise:g} grey levels").format(
                  prog=PROG, size=args.size, noise=args.noise))
     print("  " + tr("field: {description}").format(description=case.description))
-    print("  " + tr("warming up the kernels (Numba compiles them on a first run, a minute "
-                    "or more; later runs load them from its cache) ..."), flush=True)
+    print("  " + tr("warming up the kernels (loaded from Numba's cache; a kernel not "
+                    "compiled yet compiles now) ..."), flush=True)
     warm = _warm_up(args)
     print("  " + tr("warm-up: {warm:.1f} s (Numba compiles the kernels on a first "
                     "run, later runs load them from its cache; not part of the "
