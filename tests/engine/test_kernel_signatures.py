@@ -15,6 +15,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from napari_aldic.engine import precompile_kernels
 from napari_aldic.engine.kernels import signatures as sigs
 from napari_aldic.engine.workflow.precompile import kernels_to_compile
@@ -86,16 +88,22 @@ def test_every_kernel_call_of_an_analysis_is_listed():
                              f'    "{k}": {tuple(v)!r},' for k, v in missing.items()))
 
 
-def test_precompiled_kernels_load_from_the_cache_in_a_new_process(tmp_path):
-    """Worker processes write the cache under the key this process looks up."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+@pytest.mark.parametrize("fork", ["1", "0"])
+def test_precompiled_kernels_load_from_the_cache_in_a_new_process(tmp_path, fork):
+    """Worker processes, forked (the CLI's case on Linux) or fresh interpreters,
+    write the cache under the key this process looks up."""
+    if fork == "1" and not sys.platform.startswith("linux"):
+        pytest.skip("workers are forked on Linux only")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"),
+               NAPARI_ALDIC_PRECOMPILE_FORK=fork)
     groups = ("static.lag_peaks", "covariance.mean_noise_factor", "lattice.plane_fit",
               "speckle.speckle_intensity")  # enough work to share between two processes
     code = ("from napari_aldic.engine import precompile_kernels as p; import json; "
             f"r = p({groups!r}, workers=2); "
-            "print(json.dumps([r.processes, sorted(r.compiled), r.errors]))")
-    processes, compiled, errors = json.loads(_python(code, env))
+            "print(json.dumps([r.processes, sorted(r.compiled), r.errors, r.start]))")
+    processes, compiled, errors, start = json.loads(_python(code, env))
     assert processes == 2 and errors == []
+    assert start == ("fork" if fork == "1" else "spawn")
     assert compiled == sorted(groups)
     left = ("from napari_aldic.engine.workflow.precompile import kernels_to_compile as k; "
             f"print(k({groups!r}))")
@@ -108,3 +116,17 @@ def test_precompile_returns_at_once_when_cached():
     assert kernels_to_compile(("strain",)) == []
     again = precompile_kernels(("strain",))
     assert again.processes == 0 and again.compiled == [] and again.seconds < 1.0
+
+
+def test_workers_are_not_forked_from_a_thread():
+    """A GUI or a thread pool calls from a thread: forking there could leave a
+    lock held in the child, so fresh interpreters are started instead."""
+    import threading
+
+    from napari_aldic.engine.workflow.precompile import _can_fork
+
+    seen = []
+    t = threading.Thread(target=lambda: seen.append(_can_fork()))
+    t.start()
+    t.join()
+    assert seen == [False]
