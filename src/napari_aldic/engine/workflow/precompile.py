@@ -142,7 +142,10 @@ class _Forked:
         self.err_file = tempfile.TemporaryFile(mode="w+")
         self.returncode = None
         r, w = os.pipe()
-        with warnings.catch_warnings():
+        from numba.core.compiler_lock import global_compiler_lock
+
+        # held across the fork, so no other thread holds it in the child's copy
+        with global_compiler_lock, warnings.catch_warnings():
             # Python >= 3.12 warns of native threads (OpenBLAS's idle pool, which
             # re-forms in the child): the child only compiles, then leaves
             warnings.simplefilter("ignore", DeprecationWarning)
