@@ -155,8 +155,7 @@ class _Forked:
             try:
                 os.close(r)
                 os.dup2(self.err_file.fileno(), 2)
-                failed = _compile(names)
-                msg = json.dumps({"failed": failed, "cpu_s": time.process_time()}).encode()
+                msg = _work(names).encode()
                 while msg:
                     msg = msg[os.write(w, msg):]
                 code = 0
@@ -178,7 +177,7 @@ def _can_fork() -> bool:
     (a GUI, Jupyter or a thread pool would leave locks held in the child)."""
     return (sys.platform.startswith("linux") and hasattr(os, "fork")
             and threading.current_thread() is threading.main_thread()
-            and threading.active_count() == 1 and not getattr(sys, "frozen", False))
+            and threading.active_count() == 1)
 
 
 def _fork_wanted(fork: bool | None) -> bool:
@@ -200,11 +199,16 @@ def _collect(proc, names: list[str]) -> tuple[list, float]:
             return [(k, why) for k in names], float("nan")
 
 
+def _work(names: list[str]) -> str:
+    """A worker's job, forked or spawned: compile ``names``; the failures and
+    the process's CPU seconds as the JSON line :func:`_collect` reads."""
+    failed = _compile(names)
+    return json.dumps({"failed": failed, "cpu_s": time.process_time()})
+
+
 def _worker_main() -> None:
-    """Entry of a worker process: compile the kernels named in ``sys.argv``,
-    print the failures and its CPU seconds as one JSON line."""
-    failed = _compile(sys.argv[1:])
-    print(json.dumps({"failed": failed, "cpu_s": time.process_time()}), flush=True)
+    """Entry of a spawned worker: :func:`_work` on the kernels in ``sys.argv``."""
+    print(_work(sys.argv[1:]), flush=True)
 
 
 def _usable_cpus() -> int:
