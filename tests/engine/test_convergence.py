@@ -48,7 +48,7 @@ def oht_nodes(repo_root):
     ref, dfm = (tifffile.imread(folder / n).astype(np.float32) for n in OPEN_HOLE_FILES)
     roi = open_hole_roi(ref)
     grid = make_grid(roi, 27, 8)
-    sub = split_subsets(roi, grid, 13)
+    sub = split_subsets(roi, grid, 27)
     ok = sub.reason == 0
     # start every node from a coarse Local answer, rounded to whole pixels
     res = correlate(ref, dfm, roi=roi, subset=27, step=8)
@@ -90,6 +90,45 @@ def test_exact_linearisation_is_plain_gauss_newton(oht_nodes):
                    lin=exact)
     np.testing.assert_array_equal(a[3], b[3])
     np.testing.assert_allclose(a[0][good], b[0][good], atol=1e-9)
+
+
+def test_masks_of_another_subset_size_are_refused(oht_nodes):
+    """Masks built with ``split_subsets(..., 13)`` (a full width) handed to a
+    solver of half-width 13 made the kernels read past the mask array: the
+    results changed from run to run (this file's fixture did it, and CI
+    caught the two solves above differing). The solvers now refuse them."""
+    from napari_aldic.engine.dic.icgn import icgn_solve_translation
+    from napari_aldic.engine.dic.reliability import subset_statistics
+
+    ref, dfm, grid, sub, good, p0 = oht_nodes
+    wrong = split_subsets(open_hole_roi(ref), grid, 13)
+    assert (wrong.slot >= 0).any()
+    spl = prefilter(dfm, 3)
+    exact = reference_gradients(prefilter(ref, 3))
+    with pytest.raises(ValueError, match="do not fit subsets of half-width 13"):
+        icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, wrong.slot, wrong.masks, 13)
+    with pytest.raises(ValueError, match="27 x 27"):
+        icgn_solve_translation(ref, *exact, spl, grid.x, grid.y, p0[:, [0, 3]],
+                               np.zeros((grid.n, 4)), p0[:, [0, 3]], 0.1, good, wrong.slot,
+                               wrong.masks, 13)
+    with pytest.raises(ValueError, match="do not fit"):
+        subset_statistics(ref, *exact, grid.x, grid.y, wrong.slot, wrong.masks, 13)
+    bad_slot = sub.slot.copy()
+    bad_slot[0] = sub.masks.shape[0]
+    with pytest.raises(ValueError, match="slot refers to masks outside"):
+        icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, bad_slot, sub.masks, 13)
+
+
+def test_repeated_solves_are_identical(oht_nodes):
+    """With fitting masks the kernels read only their inputs: the same solve
+    twice gives the same bits (the symptom of the out-of-bounds reads)."""
+    ref, dfm, grid, sub, good, p0 = oht_nodes
+    spl = prefilter(dfm, 3)
+    exact = reference_gradients(prefilter(ref, 3))
+    a, b = (icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, sub.slot, sub.masks, 13)
+            for _ in range(2))
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_smoothing_width_follows_noise_and_speckle_size():

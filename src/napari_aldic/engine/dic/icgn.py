@@ -50,6 +50,7 @@ from ..core.reasons import Reason
 from ..kernels import gauss_newton as status
 from ..kernels.icgn import icgn_affine, icgn_translation
 from ..kernels.icgn_quadratic import NPAR, icgn_quadratic
+from .subsets import check_masks
 from .threads import in_threads
 
 __all__ = ["icgn_solve", "icgn_solve_translation", "SHAPE_FUNCTIONS", "convergence_record",
@@ -163,6 +164,7 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     p, zncc, iters, reason
     """
     n = nodes_x.size
+    check_masks(slot, masks, half, n)
     if out is None:
         out = (np.array(p_init, dtype=np.float64, copy=True), np.full(n, np.nan),
                np.zeros(n, np.int32), np.full(n, _NOT_CONVERGED, np.int8))
@@ -221,6 +223,7 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     curv = (np.zeros((0, 6)) if curvature is None
             else np.ascontiguousarray(curvature, np.float64))
     n = nodes_x.size
+    check_masks(slot, masks, half, n)
     uv = np.array(uv_init, dtype=np.float64, copy=True)
     zn = np.full(n, np.nan)
     it = np.zeros(n, np.int32)

@@ -40,6 +40,7 @@ from scipy import ndimage
 
 from ..core.params import DICParams
 from ..kernels.subset import subset_stats
+from .subsets import check_masks
 
 __all__ = ["SubsetStats", "subset_statistics", "image_noise", "displacement_variance",
            "Validity", "MISMATCH_ALLOWANCE", "NOISE_CAP", "GLOBAL_TOLERANCE", "GLOBAL_SIGMAS"]
@@ -87,6 +88,7 @@ def subset_statistics(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int) -> 
     """Pixel count, grey-level variance and 2 x 2 Gauss-Newton matrix of
     every node's reference subset (mask component only)."""
     out = np.zeros((np.size(nodes_x), 5))
+    check_masks(np.asarray(slot), masks, half, out.shape[0])
     subset_stats(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
                  np.asarray(slot, np.int32), masks, int(half), out)
     return SubsetStats(out)

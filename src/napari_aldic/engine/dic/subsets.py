@@ -19,7 +19,7 @@ from scipy import ndimage
 from ..core.reasons import Reason
 from ..kernels.sums import integral_image
 
-__all__ = ["SubsetMasks", "split_subsets", "integral_image", "rect_sums"]
+__all__ = ["SubsetMasks", "split_subsets", "check_masks", "integral_image", "rect_sums"]
 
 
 @dataclass
@@ -88,3 +88,24 @@ def split_subsets(roi: np.ndarray, grid, subset: int,
             "a larger ROI"
         )
     return SubsetMasks(slot, masks, fraction, reason)
+
+
+def check_masks(slot, masks, half: int, n: int) -> None:
+    """Refuse ``slot, masks`` (:class:`SubsetMasks`) that do not fit ``n``
+    nodes with subsets of half-width ``half``.
+
+    The kernels index ``masks[slot[k], a + half, b + half]`` without bounds
+    checks (they run in the hot loop): masks built for another subset size
+    (``split_subsets`` takes the full width, the solvers the half-width)
+    would read memory outside the array and give results that change from
+    run to run.
+    """
+    side = 2 * int(half) + 1
+    if masks.ndim != 3 or masks.shape[1:] != (side, side):
+        raise ValueError(
+            f"component masks of shape {masks.shape[1:]} do not fit subsets of half-width "
+            f"{half} ({side} x {side} px): build them with split_subsets(..., subset={side})")
+    if slot.shape != (n,):
+        raise ValueError(f"slot has shape {slot.shape}, expected one entry per node ({n})")
+    if n and (slot.max(initial=-1) >= masks.shape[0] or slot.min(initial=-1) < -1):
+        raise ValueError(f"slot refers to masks outside 0..{masks.shape[0] - 1}")
