@@ -107,5 +107,5 @@ def check_masks(slot, masks, half: int, n: int) -> None:
             f"{half} ({side} x {side} px): build them with split_subsets(..., subset={side})")
     if slot.shape != (n,):
         raise ValueError(f"slot has shape {slot.shape}, expected one entry per node ({n})")
-    if n and (slot.max(initial=-1) >= masks.shape[0] or slot.min(initial=-1) < -1):
+    if slot.max(initial=-1) >= masks.shape[0] or slot.min(initial=-1) < -1:
         raise ValueError(f"slot refers to masks outside 0..{masks.shape[0] - 1}")
