@@ -88,7 +88,8 @@ def test_exact_linearisation_is_plain_gauss_newton(oht_nodes):
     a = icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, sub.slot, sub.masks, 13)
     b = icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, sub.slot, sub.masks, 13,
                    lin=exact)
-    # the same arrays as linearisation: the same arithmetic, the same bits
+    # the same arrays as linearisation: the same arithmetic, the same bits (with
+    # masks that do not fit, reads past the mask array broke this at random)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
 
@@ -118,18 +119,6 @@ def test_masks_of_another_subset_size_are_refused(oht_nodes):
     bad_slot[0] = sub.masks.shape[0]
     with pytest.raises(ValueError, match="slot refers to masks outside"):
         icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, bad_slot, sub.masks, 13)
-
-
-def test_repeated_solves_are_identical(oht_nodes):
-    """With fitting masks the kernels read only their inputs: the same solve
-    twice gives the same bits (the symptom of the out-of-bounds reads)."""
-    ref, dfm, grid, sub, good, p0 = oht_nodes
-    spl = prefilter(dfm, 3)
-    exact = reference_gradients(prefilter(ref, 3))
-    a, b = (icgn_solve(ref, *exact, spl, grid.x, grid.y, p0, good, sub.slot, sub.masks, 13)
-            for _ in range(2))
-    for x, y in zip(a, b):
-        np.testing.assert_array_equal(x, y)
 
 
 def test_smoothing_width_follows_noise_and_speckle_size():

@@ -88,9 +88,10 @@ def subset_statistics(f, fgx, fgy, nodes_x, nodes_y, slot, masks, half: int) -> 
     """Pixel count, grey-level variance and 2 x 2 Gauss-Newton matrix of
     every node's reference subset (mask component only)."""
     out = np.zeros((np.size(nodes_x), 5))
-    check_masks(np.asarray(slot), masks, half, out.shape[0])
+    slot = np.asarray(slot, np.int32)
+    check_masks(slot, masks, half, out.shape[0])
     subset_stats(f, fgx, fgy, np.asarray(nodes_x, np.int64), np.asarray(nodes_y, np.int64),
-                 np.asarray(slot, np.int32), masks, int(half), out)
+                 slot, masks, int(half), out)
     return SubsetStats(out)
 
 
