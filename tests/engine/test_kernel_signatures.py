@@ -130,3 +130,42 @@ def test_workers_are_not_forked_from_a_thread():
     t.start()
     t.join()
     assert seen == [False]
+
+
+def test_kernels_sharing_helpers_compile_in_one_process():
+    """The translation IC-GN kernel calls the affine one's compiled step
+    (``gauss_newton.gn_step``): shared between processes it is compiled twice
+    (3.4 s instead of 1.6 s), so the shares keep the two together, in order."""
+    from napari_aldic.engine.kernels import signatures as sigs
+    from napari_aldic.engine.workflow.precompile import _shares
+
+    names = [n for n, _ in sigs.entries(("local", "aldic"))]
+    for n in (2, 3, 4):
+        shares = _shares(names, n, 0.1)
+        assert sorted(k for s in shares for k in s) == sorted(names)
+        (share,) = [s for s in shares if "icgn.icgn_affine" in s]
+        assert share.index("icgn.icgn_translation") == share.index("icgn.icgn_affine") + 1
+    # alone (the affine kernel cached already), it is a unit of its own
+    assert _shares(["icgn.icgn_translation", "moments.moments_kernel"], 2, 0.1) == [
+        ["moments.moments_kernel"], ["icgn.icgn_translation"]]
+
+
+def test_gn_step_compiles_once_for_both_solvers(tmp_path):
+    """A literal ``False`` for ``quad`` made the affine solver compile its own
+    ``gn_step`` (Numba types a literal argument apart); both solvers must call
+    one specialisation (compiled here in a process with an empty cache)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("from napari_aldic.engine.kernels import gauss_newton, signatures as sigs\n"
+            "from napari_aldic.engine.workflow.precompile import _dispatcher\n"
+            "for name in ('icgn.icgn_affine', 'icgn.icgn_translation'):\n"
+            "    disp = _dispatcher(name)\n"
+            "    for s in sigs.KERNELS[name]:\n"
+            "        disp.compile(sigs.parse(s))\n"
+            "print(len(gauss_newton.gn_step.signatures))\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True)
+    assert out.stdout.split()[-1] == "1"

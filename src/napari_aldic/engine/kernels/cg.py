@@ -16,12 +16,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED
+from .flags import CACHED, CALLEE
 
 __all__ = ["jacobi_cg", "triangular_solve"]
 
 
-@nb.njit(**CACHED)
+@nb.njit(**CALLEE)
 def _matvec(indptr, indices, data, x, out):
     """``out = A x`` for CSR arrays, row by row."""
     for i in range(out.size):
@@ -31,7 +31,7 @@ def _matvec(indptr, indices, data, x, out):
         out[i] = s
 
 
-@nb.njit(**CACHED)
+@nb.njit(**CALLEE)
 def _dot(a, b):
     """``a · b``, summed in order."""
     s = 0.0

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import FASTMATH, INLINE, PARALLEL, SERIAL
+from .flags import FASTMATH, INLINE, PARALLEL, SERIAL, SERIAL_CALLEE
 from .icgn_node import lu_factor, lu_solve
 
 __all__ = ["CHUNK", "MIN_SPECKLE_FRACTION", "gather_matrices", "mean_noise_factor",
@@ -191,7 +191,7 @@ def _row_quadratic_form(lu, piv, e, z, mid, w):
     return q
 
 
-@nb.njit(**SERIAL, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def _node_covariance(mats, var, lu, piv, z, w):
     """The u and v variances of one node from its matrices ``mats`` = ``A,
     E_A, C, E_C`` (overwritten; ``E_A`` ends as a work array; ``z, w`` work

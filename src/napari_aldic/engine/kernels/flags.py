@@ -12,7 +12,8 @@ module inlines, delete the ``__pycache__/*.nbi``/``*.nbc`` files of
 
 from __future__ import annotations
 
-__all__ = ["FASTMATH", "FASTMATH_ALL", "CACHED", "SERIAL", "PARALLEL", "INLINE"]
+__all__ = ["FASTMATH", "FASTMATH_ALL", "CACHED", "SERIAL", "PARALLEL", "INLINE", "CALLEE",
+           "SERIAL_CALLEE"]
 
 #: fast-math without the no-NaN/no-inf assumptions, so NaN checks survive:
 #: no signed zeros, reciprocals, FMA contraction, approximate functions and
@@ -41,3 +42,12 @@ PARALLEL = {"cache": True, "nogil": True, "parallel": True}
 #: called from plain Python, and then ``cache`` keeps that compilation too:
 #: every kernel of the engine is cached, tests/engine/test_kernel_cache.py)
 INLINE = {"inline": "always", "cache": True}
+
+#: a helper that only compiled code calls, as a function (not inlined): no
+#: CPython or C-callable wrapper, whose generation, optimisation and machine
+#: code cost ~0.1 s of compiling per helper (issue 25: 19 % of the moments
+#: kernel's compile time); calling it from Python raises TypeError
+CALLEE = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+
+#: ... the same for a helper of a ``SERIAL`` kernel (NumPy's division semantics)
+SERIAL_CALLEE = dict(CALLEE, error_model="numpy")

@@ -13,7 +13,7 @@ import numba as nb
 import numpy as np
 
 from .bspline import sample_cubic_f32, sample_quintic_f32
-from .flags import FASTMATH, INLINE
+from .flags import FASTMATH, INLINE, SERIAL_CALLEE
 
 __all__ = ["OK", "NOT_CONVERGED", "OUT_OF_IMAGE", "NO_TEXTURE", "DIVERGED", "CHUNK",
            "chunk_layout", "store_node", "warp_sums", "gn_step"]
@@ -173,7 +173,7 @@ def warp_sums(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
     return True, sg, sgg, sfg, t0, t1, t2, t3, t4, t5
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def gn_step(c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
             dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, quad, qx, qy):
     """Evaluate the warped subset for one Gauss-Newton step.

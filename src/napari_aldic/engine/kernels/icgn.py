@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import FASTMATH, INLINE, SERIAL
+from .flags import FASTMATH, INLINE, SERIAL, SERIAL_CALLEE
 from .gauss_newton import (
     CHUNK,
     DIVERGED,
@@ -60,7 +60,7 @@ def _moment_block(H, r0, c0, m0, mx, my, mxx, mxy, myy):
 
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
-@nb.njit(**SERIAL, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     """Gauss-Newton matrix and sums of the reference subset (affine warp).
 
@@ -226,9 +226,11 @@ def affine_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm,
         Updated parameters (unchanged if the step failed).
     """
     u, ux, uy, v, vx, vy = p
+    # np.bool_, not a literal False: gn_step would compile apart from the
+    # translation solver's (a run-time flag there)
     st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
         c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, False, xw, yw)
+        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, np.bool_(False), xw, yw)
     if st != OK:
         return st, zn, p
     # b = sum J [(f - fm) - (df/dg)(g - gm)];  H dp = -b

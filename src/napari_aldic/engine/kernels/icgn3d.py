@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from .bspline3d import tricubic
-from .flags import CACHED, FASTMATH, INLINE, PARALLEL
+from .flags import CALLEE, FASTMATH, INLINE, PARALLEL
 from .gauss_newton import DIVERGED, NO_TEXTURE, NOT_CONVERGED, OK, OUT_OF_IMAGE
 from .icgn_node import lu_factor, lu_solve
 
@@ -33,7 +33,7 @@ EDGE3 = 3.0  # voxels kept clear of the deformed volume's faces (see _gather)
 SMALL_SUBSET = 1  # fewer usable voxels than min_frac of the cube (Reason.SMALL_COMPONENT)
 
 
-@nb.njit(**CACHED)
+@nb.njit(**CALLEE)
 def _compose(p, dp):
     """``p <- W(p) o W(dp)^-1`` for the affine warp: with ``W(p): d -> A d + t``
     (``A = I + G``), the new warp is ``A Di d + (A ti + t)``, ``Di = (I + G_dp)^-1``,
@@ -85,7 +85,7 @@ def _warp_sample(gc, p, cx, cy, cz, d, m, g, lim):
     return near
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _gather(f, fg, mask, p, cx, cy, cz, h, d, fv, gr):
     """Usable voxels of a cube: in the mask, and (warped by the initial
     ``p``) at least :data:`EDGE3` voxels inside the deformed volume, where
@@ -156,7 +156,7 @@ def _row_add(R, k, v, dx):
     R[2, k] += v * dx * dx
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _hessian(gr, d, m, H):
     """``H = sum J J^T`` with ``J = g (x) (1, dx, dy, dz)``: every entry is a
     moment ``sum g_a g_b d_i d_j``. Along a row of the cube (``dy``, ``dz``
@@ -248,7 +248,7 @@ def _rhs(fv, g, gr, d, m, fm, gm, ratio, b):
     return e2
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv, b, dp, pen, q):
     """Gauss-Newton steps from ``p`` (updated in place). Returns ``(status,
     iterations, zncc, sum e^2, near)``; ``near``: the last sampling came
@@ -297,7 +297,7 @@ def _iterate(gc, c, p, h, max_iter, tol, lim, d, fv, gr, g, m, fm, df2, LU, piv,
     return status, it, zn, e2, near == 1
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _translation_system(gr, m, mu, H, pen):
     """AL-DVC's local step, as 2-D AL-DIC: the subset's gradient is held at
     the global field's (Algorithm 1), so only the three displacements are
@@ -334,7 +334,7 @@ def _translation_system(gr, m, mu, H, pen):
             H[i, i] = 1.0
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _solve_node(f, fg, gc, mask, c, p, h, max_iter, tol, min_frac, lim, out, mu, q, hr):
     """One node: returns ``(status, iterations, zncc, e2/(m - 12), m)``;
     ``p`` is updated in place; ``out`` (3,) receives diag(H^-1) at u, v, w,

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, SERIAL
+from .flags import CALLEE, FASTMATH, INLINE, SERIAL
 from .gauss_newton import CHUNK, NOT_CONVERGED, OK, chunk_layout, gn_step, store_node
 from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .subset import gather_gradients, gather_subset, subset_buffers
@@ -178,7 +178,7 @@ def compose_quadratic(p, d):
         p[8 + o] += kyy
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def quadratic_step(c1, stride, coef, order, x0, y0, p, dxs, dys, gx, gy, fs, m, fm, dfn,
                    xw, yw, gv, xmax, ymax, qx, qy, sj, bf, fac, b, dp, h, span, start, tol):
     """One quadratic IC-GN step of a node.

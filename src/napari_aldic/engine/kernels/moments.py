@@ -33,7 +33,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, FASTMATH, INLINE, SERIAL
+from .flags import CALLEE, FASTMATH, INLINE, SERIAL
 
 __all__ = ["ONES", "PRODUCT", "HYPOT", "MAX_IMAGES", "MAX_ORDER", "EPOCH", "moment_terms",
            "moments_kernel", "centre_moments"]
@@ -59,14 +59,14 @@ def moment_terms(order: int) -> list:
     return [(p, q) for p in range(order + 1) for q in range(order + 1 - p)]
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _copy_row(dst, src, i):
     """``dst[:] = src[i, :]`` as float64 (any input dtype)."""
     for j in range(dst.size):
         dst[j] = src[i, j]
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _load_rows(i, a0, a1, a2, a3, a4, mask, used, rows):
     """Row ``i`` of every used base image and of the mask into ``rows``
     (float64; row :data:`_ONES_ROW` holds ones and is left alone)."""
@@ -86,7 +86,7 @@ def _load_rows(i, a0, a1, a2, a3, a4, mask, used, rows):
             m[j] = 1.0 if mask[i, j] else 0.0
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _product_row(rows, ia, ib, kind, out):
     """One row of the product image ``b_ia b_ib`` (or their hypot), masked
     (the mask row holds ones when there is no mask)."""
@@ -99,7 +99,7 @@ def _product_row(rows, ia, ib, kind, out):
             out[j] = u[j] * v[j] * m[j]
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _segment_sums(a, xs, edges, order, seg):
     """``seg[p, s]``: sum of ``a X^p`` over columns ``[edges[s], edges[s + 1])``
     for ``p <= order`` (one loop per order range, the powers as independent
@@ -136,7 +136,7 @@ def _segment_sums(a, xs, edges, order, seg):
         seg[4, s] = s4
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _segment_prefix(seg, nseg, order, loc, btot):
     """Running sums of the segment sums, restarting every SBLOCK segments:
     ``loc[p, s]`` sums the segments of ``s``'s block before ``s``,
@@ -153,7 +153,7 @@ def _segment_prefix(seg, nseg, order, loc, btot):
         loc[p, nseg] = btot[p, nblk - 1]
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _add_row(acc, loc, btot, e0, e1, order, off, ypow, band):
     """Add the row's window sums (segments ``[e0, e1)`` of each distinct
     column ``c``, from the block running sums) times ``Y^q`` to the column
@@ -182,14 +182,14 @@ def _add_row(acc, loc, btot, e0, e1, order, off, ypow, band):
             t += 1
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _flush(out, acc, node, col, sign):
     """``out[node, :] += sign * acc[:, col]`` (every moment)."""
     for k in range(out.shape[1]):
         out[node, k] += sign * acc[k, col]
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _close_windows(b, r0, r1, by1, p1, col_of, out, acc):
     """Nodes whose window ends before row ``b`` (``by1``: nodes by ``r1``,
     from position ``p1``) take the accumulator; the next position."""
@@ -202,7 +202,7 @@ def _close_windows(b, r0, r1, by1, p1, col_of, out, acc):
     return p1
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _restart(b, r0, r1, by0, lo, tall, col_of, out, acc):
     """Restart the accumulator at row ``b`` (bounds its cancellation): the
     windows open across ``b`` keep what they have so far. Windows taller
@@ -220,7 +220,7 @@ def _restart(b, r0, r1, by0, lo, tall, col_of, out, acc):
     return lo
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _open_windows(b, r0, r1, by0, p0, col_of, out, acc):
     """Nodes whose window starts at row ``b`` give back what the accumulator
     holds so far; the next position in ``by0`` (nodes by ``r0``)."""
@@ -233,7 +233,7 @@ def _open_windows(b, r0, r1, by0, p0, col_of, out, acc):
     return p0
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _add_image_row(b, a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, xs,
                    y, acc, work):
     """Add row ``b`` (at coordinate ``Y = y``) of every product to the
@@ -321,7 +321,7 @@ def moments_kernel(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1
             _centre_rows(out, nodes, products[:, 3], offs, dx, dy)
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, col_of,
                  r0, r1, xs, ys, by0, by1, start, tall, out):
     """The moments of the nodes ``by0`` (sorted by ``r0``, all ``r0 >=
@@ -334,7 +334,7 @@ def _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, 
             np.zeros((MAX_ORDER + 1, nseg // SBLOCK + 1)), np.empty((MAX_ORDER + 1, e0.size)),
             np.empty(MAX_ORDER + 1))
     stop = r1[by1[-1]]
-    p0 = p1 = lo = 0
+    p0 = p1 = lo = np.int64(0)  # not a literal 0: the helpers would compile twice
     for b in range(start, stop + 1):
         p1 = _close_windows(b, r0, r1, by1, p1, col_of, out, acc)
         if b == stop:  # every window of the band is closed
@@ -346,7 +346,7 @@ def _stream_band(a0, a1, a2, a3, a4, mask, used, products, offs, edges, e0, e1, 
                        xs, ys[b], acc, work)
 
 
-@nb.njit(**CACHED)
+@nb.njit(**CALLEE)
 def _binomials():
     """Binomial coefficients ``C(p, i)``, ``p, i <= MAX_ORDER``."""
     binom = np.zeros((MAX_ORDER + 1, MAX_ORDER + 1))
@@ -375,7 +375,7 @@ def _centre_node(raw, out, dx, dy, order, binom, px, py):
             out[p * (order + 1) - p * (p - 1) // 2 + q] = m
 
 
-@nb.njit(**CACHED, fastmath=FASTMATH)
+@nb.njit(**CALLEE, fastmath=FASTMATH)
 def _centre_rows(out, nodes, orders, offs, dx, dy):
     """Rows ``nodes`` of ``out`` (the moments of each product, ``orders``,
     from column ``offs``) taken about each node, in place."""

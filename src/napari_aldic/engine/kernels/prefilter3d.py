@@ -18,7 +18,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, INLINE, PARALLEL
+from .flags import CALLEE, INLINE, PARALLEL
 
 __all__ = ["prefilter_inplace", "knot_gradients"]
 
@@ -74,7 +74,7 @@ def _along_x(c):
             _filter_line(c[iz, iy], nx)
 
 
-@nb.njit(**CACHED)
+@nb.njit(**CALLEE)
 def _filter_cols(a):
     """Filter the 2-D array ``a`` (n, m) along axis 0, its m columns side by side."""
     n, m = a.shape

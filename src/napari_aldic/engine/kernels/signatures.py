@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from numba.core import sigutils, types
 
-__all__ = ["KERNELS", "GROUPS", "COST", "spell", "parse", "entries"]
+__all__ = ["KERNELS", "GROUPS", "COST", "AFTER", "spell", "parse", "entries"]
 
 _F32_2 = "float32[:, ::1]"
 _F64_1 = "float64[::1]"
@@ -94,16 +94,24 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "synthetic": ("speckle.speckle_intensity",),
 }
 
-#: compile seconds of a kernel's signatures on one unloaded core (helpers
-#: included, compiled alone in a fresh process; measured 2026-12-02, see
-#: benchmarks/RESULTS.md, issue 25); unlisted: 1 s
+#: compile seconds of a kernel's signatures on one core (helpers included,
+#: each compiled alone in a fresh process after a trivial warm-up; measured
+#: 2026-12-03 on a 2-core Xeon, see benchmarks/RESULTS.md, issue 25): relative
+#: weights for sharing the work between processes; unlisted: 1 s
 COST: dict[str, float] = {
-    "icgn.icgn_affine": 5.5, "moments.moments_kernel": 4.5, "icgn.icgn_translation": 4.5,
-    "covariance.covariance_diag": 2.0, "static.lag_peaks": 1.1, "lattice.median_flags": 0.5,
-    "cg.jacobi_cg": 0.7, "covariance.mean_noise_factor": 0.8, "speckle.speckle_intensity": 1.0,
-    "covariance.gather_matrices": 0.6, "bspline.spline_gradients": 0.7,
-    "sums.window_sums": 0.5, "sums.integral_image": 0.4, "moments.centre_moments": 0.4,
-    "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
+    "icgn.icgn_affine": 5.2, "moments.moments_kernel": 4.1, "icgn.icgn_translation": 3.4,
+    "covariance.covariance_diag": 2.25, "static.lag_peaks": 1.4, "lattice.median_flags": 0.6,
+    "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.65,
+    "speckle.speckle_intensity": 1.0, "covariance.gather_matrices": 0.75,
+    "bspline.spline_gradients": 0.75, "sums.window_sums": 0.5, "sums.integral_image": 0.4,
+    "moments.centre_moments": 0.6, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
+}
+
+#: kernels that compile much faster in the process that compiles another one
+#: first, because they call the same compiled helpers (the IC-GN step, the
+#: subset gathering): ``kernel: (the other kernel, its seconds after it)``
+AFTER: dict[str, tuple[str, float]] = {
+    "icgn.icgn_translation": ("icgn.icgn_affine", 1.6),
 }
 
 

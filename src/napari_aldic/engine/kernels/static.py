@@ -22,7 +22,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .flags import FASTMATH, INLINE, SERIAL
+from .flags import FASTMATH, INLINE, SERIAL, SERIAL_CALLEE
 
 __all__ = ["zero_motion_evidence", "lag_peaks"]
 
@@ -55,7 +55,7 @@ def _positive_part_moments(a, b):
 
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
-@nb.njit(**SERIAL, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def zero_motion_evidence(g, x0, y0, dxs, dys, fs, gp, m, var_img, g0, dbuf, min_fraction):
     """How strongly part of a subset prefers zero motion to its found warp.
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import FASTMATH, INLINE, PARALLEL, SERIAL
+from .flags import FASTMATH, INLINE, PARALLEL, SERIAL_CALLEE
 
 __all__ = ["subset_buffers", "gather_subset", "gather_gradients", "subset_stats"]
 
@@ -38,7 +38,7 @@ def subset_buffers(npx):
 
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
-@nb.njit(**SERIAL, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h, dxs, dys, gx, gy, fs):
     """Copy node ``k``'s subset pixels (its mask component only) into buffers.
 
@@ -98,7 +98,7 @@ def gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h, dxs, dys, gx, gy, fs):
 
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
-@nb.njit(**SERIAL, fastmath=FASTMATH)
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
 def gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey):
     """Copy the gradients ``egx, egy`` of node ``k``'s subset pixels into
     buffers, in the order of :func:`gather_subset`.

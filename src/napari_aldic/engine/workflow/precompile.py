@@ -218,17 +218,32 @@ def _usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def _units(names: list[str]) -> list[tuple[list[str], float]]:
+    """``names`` as units that one process compiles, with their seconds: a
+    kernel of ``sigs.AFTER`` joins the kernel whose helpers it shares, after
+    it, when both are to compile."""
+    units = {n: ([n], sigs.COST.get(n, 1.0)) for n in names
+             if sigs.AFTER.get(n, ("",))[0] not in names}
+    for name in names:
+        if name not in units:
+            base, secs = sigs.AFTER[name]
+            units[base][0].append(name)
+            units[base] = (units[base][0], units[base][1] + secs)
+    return list(units.values())
+
+
 def _shares(names: list[str], n: int, start_cost: float = _START_COST) -> list[list[str]]:
-    """``names`` split into ``n`` shares of similar compile time (longest
-    first, each to the least loaded share); share 0 is this process's, the
-    others start late by a worker's start-up (``start_cost`` seconds)."""
+    """``names`` split into ``n`` shares of similar compile time (the longest
+    unit (:func:`_units`) first, each to the least loaded share); share 0 is
+    this process's, the others start late by a worker's start-up
+    (``start_cost`` seconds)."""
     load = [0.0] + [start_cost] * (n - 1)
     out: list[list[str]] = [[] for _ in range(n)]
-    for name in sorted(names, key=lambda k: -sigs.COST.get(k, 1.0)):
+    for unit, secs in sorted(_units(names), key=lambda u: -u[1]):
         i = min(range(n), key=load.__getitem__)
-        out[i].append(name)
-        load[i] += sigs.COST.get(name, 1.0)
-    return [s for s in out if s]  # share 0 holds the costliest kernel
+        out[i] += unit
+        load[i] += secs
+    return [s for s in out if s]  # share 0 holds the costliest unit
 
 
 def _worker_count(workers: int | None, todo: list[str], start_cost: float) -> int:
