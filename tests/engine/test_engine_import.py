@@ -35,3 +35,18 @@ def test_engine_import_pulls_no_gui_modules():
 def test_every_engine_subpackage_imports_without_gui_plugin_or_cli():
     statement = "; ".join(f"import napari_aldic.engine.{p}" for p in SUBPACKAGES)
     assert _loaded_after(statement) == ["OK"]
+
+
+def test_engine_names_import_on_first_use():
+    """``import napari_aldic.engine`` loads neither SciPy nor Numba (the
+    command line starts compiling before the rest imports, issue 25); a name's
+    first use imports its module only."""
+    code = ("import sys, napari_aldic.engine as e; "
+            "before = sorted(m for m in ('scipy', 'numba', 'tifffile', 'zarr') "
+            "if m in sys.modules); "
+            "e.DICParams; "
+            "print(before, 'napari_aldic.engine.dic.correlate' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["[]", "False"]

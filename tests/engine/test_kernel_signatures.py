@@ -169,3 +169,47 @@ def test_gn_step_compiles_once_for_both_solvers(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True)
     assert out.stdout.split()[-1] == "1"
+
+
+@pytest.mark.parametrize("fork", ["1", "0"])
+def test_background_precompile_is_collected_by_the_next_call(tmp_path, fork):
+    """``background=True`` returns at once with the workers compiling; the next
+    call collects them (their kernels in its report, its seconds from their
+    start) and compiles what else it needs, and the cache then holds it all."""
+    if fork == "1" and not sys.platform.startswith("linux"):
+        pytest.skip("workers are forked on Linux only")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"),
+               NAPARI_ALDIC_PRECOMPILE_FORK=fork)
+    first = ("static.lag_peaks", "covariance.mean_noise_factor")
+    code = ("import json, time; from napari_aldic.engine import precompile_kernels as p\n"
+            "from napari_aldic.engine.workflow.precompile import kernels_to_compile as k\n"
+            f"t = time.perf_counter(); b = p({first!r}, workers=2, background=True)\n"
+            "started = time.perf_counter() - t\n"
+            "time.sleep(1.0)\n"
+            f"f = p({first!r} + ('lattice.plane_fit',), workers=1)\n"
+            "print(json.dumps([started, b.processes, b.seconds, sorted(b.compiled), "
+            f"sorted(f.compiled), f.seconds, f.errors, k({first!r} + ('lattice.plane_fit',))]))")
+    started, procs, b_secs, b_names, f_names, f_secs, errors, left = json.loads(
+        _python(code, env))
+    assert started < 1.0 and procs == 2 and b_secs == 0.0  # returned before compiling
+    assert b_names == sorted(first)
+    assert f_names == sorted(first + ("lattice.plane_fit",)) and errors == []
+    assert f_secs > 1.0  # counted from the background start, the second of sleep included
+    assert left == []
+
+
+def test_uncollected_background_workers_are_stopped_at_exit(tmp_path):
+    """A command that ends before its analysis (an error, --help) leaves no
+    compiling process behind."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("workers are forked on Linux only")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    code = ("from napari_aldic.engine import precompile_kernels as p\n"
+            "from napari_aldic.engine.workflow import precompile as m\n"
+            "p(('static.lag_peaks', 'covariance.mean_noise_factor'), workers=2, "
+            "background=True)\n"
+            "print(' '.join(str(w.pid) for r in m._RUNNING for w, _ in r.procs))")
+    pids = [int(x) for x in _python(code, env).split()]
+    assert len(pids) == 2
+    for pid in pids:  # killed and reaped by the exiting process: no such process
+        assert not os.path.exists(f"/proc/{pid}"), f"worker {pid} outlived its parent"

@@ -121,3 +121,27 @@ def test_zero_motion_z_skipped_only_where_it_cannot_flag():
             return (e[:, 1] > S.STATIC_Z) & (e[:, 0] > S.STATIC_FRACTION)
     assert np.array_equal(flags(fast), flags(full))
     assert flags(full).sum() > 0  # the occluder is caught
+
+
+@pytest.mark.parametrize("dtype", [bool, np.uint8])
+def test_integral_image_sums_every_rectangle_exactly(dtype):
+    """The summed-area table (NumPy's cumulative sums since issue 25) gives
+    the exact count of every rectangle, int64, on boolean and uint8 masks."""
+    from napari_aldic.engine.dic.subsets import integral_image, rect_sums
+
+    rng = np.random.default_rng(3)
+    mask = (rng.random((37, 23)) > 0.4).astype(dtype)
+    ii = integral_image(mask)
+    assert ii.dtype == np.int64 and ii.shape == (38, 24)
+    assert (ii[0] == 0).all() and (ii[:, 0] == 0).all()
+    x0, y0 = rng.integers(0, 20, 50), rng.integers(0, 30, 50)
+    x1, y1 = x0 + rng.integers(0, 3, 50), y0 + rng.integers(0, 6, 50)
+    want = [mask[a:b + 1, c:d + 1].sum() for a, b, c, d in zip(y0, y1, x0, x1)]
+    assert np.array_equal(rect_sums(ii, x0, y0, x1, y1), want)
+
+
+def test_integral_image_rejects_float_images():
+    from napari_aldic.engine.dic.subsets import integral_image
+
+    with pytest.raises(ValueError, match="boolean or unsigned"):
+        integral_image(np.ones((4, 4)))

@@ -53,6 +53,10 @@ def main(argv=None) -> int:
             signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, None):
         previous = signal.signal(signal.SIGINT, _quit_now)
     try:
+        from .console import compile_ahead
+
+        # a first run: the kernels compile while the commands' modules import
+        compile_ahead(sys.argv[1:] if argv is None else list(argv))
         from .app import main as run
     except BaseException:
         if previous is not None:

@@ -27,7 +27,15 @@ from ..engine.sem import (
 )
 from ..engine.viz import plot_scan_lines
 from ..i18n import tr
-from .console import PROG, CLIError, clear_bar, frame_summary, progress_bar
+from .console import (
+    PROG,
+    CLIError,
+    clear_bar,
+    frame_summary,
+    kernel_groups,
+    precompile,
+    progress_bar,
+)
 from .masks import read_mask
 from .settings import settings_from_args
 
@@ -134,6 +142,7 @@ def run_sem(args, params, units, tiled_run) -> None:
         print(tr("{prog} run: reference {frame_name}, {n_deformed} deformed frame(s); SEM "
                  "corrections: {what}").format(prog=PROG, frame_name=src.frame_name(0),
                                                n_deformed=n - 1, what=_what(args)))
+        precompile(kernel_groups(params.method))  # a first run: in parallel processes
         for k in range(1, n):
             res = correlate_sem(src[0], src[k], roi=roi, params=params, distortion=distortion,
                                 scan_lines=args.scan_lines, drift=drift,

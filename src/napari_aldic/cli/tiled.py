@@ -10,7 +10,7 @@ from pathlib import Path
 from ..engine import ProgressEvent, Units, correlate_tiled, needs_tiling
 from ..engine.io import open_image, pixel_size_of
 from ..i18n import tr
-from .console import CLIError, clear_bar, frame_summary, progress_bar
+from .console import CLIError, clear_bar, frame_summary, kernel_groups, precompile, progress_bar
 from .masks import open_mask
 from .sem import distortion_corrected
 
@@ -85,6 +85,7 @@ def run_tiled_pair(args, params, units, output: Path | None) -> bool:
              "{workers} at a time, reading the images tile by tile").format(
                  ref=Path(ref.name).name, rows=ref.shape[0], cols=ref.shape[1],
                  dfm=Path(dfm.name).name, tile=tile or 2048, workers=workers))
+    precompile(kernel_groups(params.method))  # a first run: in parallel processes
     t0 = time.perf_counter()
     kw = {"tile_size": tile} if tile is not None else {}
     bar = progress_bar("  " + tr("frame 1/1"))

@@ -24,39 +24,50 @@ Layout, by role (imports flow downwards only; see docs/architecture.md):
 
 from __future__ import annotations
 
-from . import io, probes, sem, synthetic, viz
-from .core.compiling import compile_seconds, is_compiling
-from .core.files import EncoderNotFoundError, ExportError, InputFileError, RunFolderError
-from .core.params import DICParams, StrainParams
-from .core.progress import Cancelled, ProgressEvent
-from .core.reasons import DICError, Reason
-from .core.results import DICResult, SequenceResult, load_result
-from .core.settings import Settings
-from .core.units import Units
-from .core.volresults import VolumeResult
-from .dic.correlate import correlate
-from .dic.noise_floor import noise_floor
-from .dic.quadtree import Refinement, resolve_refinement
-from .dic.quality import SubsetAdvice, advise_subset
-from .dic.strain import StrainResult, compute_strain
-from .io.runs import load_run
-from .io.settings_file import read_settings, write_settings
-from .io.stack import open_stack
-from .sem import correct_distortion, correlate_sem
-from .viz.report import export_report
-from .volume import (
-    VolumeStrain,
-    compute_strain_volume,
-    correlate_volume,
-    export_volume,
-    track_volumes,
-)
-from .workflow.export import export_result
-from .workflow.precompile import precompile_kernels
-from .workflow.sequence import TrackError, track
-from .workflow.tiled import correlate_tiled, needs_tiling
-from .workflow.watch import watch
-from .workflow.watch_probes import LiveProbes
+import lazy_loader
+
+#: where each public name lives. Imported on first use (PEP 562, through
+#: ``lazy_loader``): ``import napari_aldic.engine`` costs milliseconds, and a
+#: command imports the parts it uses only (issue 25: the command line starts
+#: compiling the kernels before SciPy and the readers are loaded).
+_WHERE = {
+    "core.compiling": ["compile_seconds", "is_compiling"],
+    "core.files": ["EncoderNotFoundError", "ExportError", "InputFileError", "RunFolderError"],
+    "core.params": ["DICParams", "StrainParams"],
+    "core.progress": ["Cancelled", "ProgressEvent"],
+    "core.reasons": ["DICError", "Reason"],
+    "core.results": ["DICResult", "SequenceResult", "load_result"],
+    "core.settings": ["Settings"],
+    "core.units": ["Units"],
+    "core.volresults": ["VolumeResult"],
+    "dic.correlate": ["correlate"],
+    "dic.noise_floor": ["noise_floor"],
+    "dic.quadtree": ["Refinement", "resolve_refinement"],
+    "dic.quality": ["SubsetAdvice", "advise_subset"],
+    "dic.strain": ["StrainResult", "compute_strain"],
+    "io.runs": ["load_run"],
+    "io.settings_file": ["read_settings", "write_settings"],
+    "io.stack": ["open_stack"],
+    "sem": ["correct_distortion", "correlate_sem"],
+    "volume": ["VolumeStrain", "compute_strain_volume", "correlate_volume", "export_volume",
+               "track_volumes"],
+    "viz.report": ["export_report"],
+    "workflow.export": ["export_result"],
+    "workflow.precompile": ["precompile_kernels"],
+    "workflow.sequence": ["TrackError", "track"],
+    "workflow.tiled": ["correlate_tiled", "needs_tiling"],
+    "workflow.watch": ["watch"],
+    "workflow.watch_probes": ["LiveProbes"],
+}
+_lazy_getattr, __dir__, _ = lazy_loader.attach(
+    __name__, submodules=["io", "probes", "sem", "synthetic", "viz"], submod_attrs=_WHERE)
+
+
+def __getattr__(name: str):
+    try:
+        return _lazy_getattr(name)
+    except AttributeError:  # Python's own wording, as for any module
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
 
 __all__ = [
     # analysis

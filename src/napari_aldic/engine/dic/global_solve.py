@@ -40,9 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..kernels.sums import integral_image
 from .linear_solvers import DIRECT_MAX_UNKNOWNS, SPDSolver, solver_method
-from .subsets import rect_sums
+from .subsets import integral_image, rect_sums
 
 __all__ = ["Q4Mesh", "uniform_mesh", "gradient_operator", "GlobalSolver",
            "element_inside_roi", "CurvatureEstimator", "curvature_operator",

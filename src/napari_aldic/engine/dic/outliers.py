@@ -13,9 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.lattice import median_flags
-from ..kernels.sums import integral_image
 from .mesh import NodeGrid
-from .subsets import rect_sums
+from .subsets import integral_image, rect_sums
 from .threads import in_threads
 
 __all__ = ["lattice_neighbours", "median_test"]

@@ -35,9 +35,8 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.reasons import DICError
-from ..kernels.sums import integral_image
 from .global_solve import Q4Mesh, element_inside_roi
-from .subsets import rect_sums
+from .subsets import integral_image, rect_sums
 
 __all__ = ["Refinement", "resolve_refinement", "QuadMesh", "build_quadtree", "PRESETS"]
 

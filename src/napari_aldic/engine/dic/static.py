@@ -49,9 +49,9 @@ from scipy import fft as sp_fft, ndimage as ndi
 from ..core.files import array_digest
 from ..core.reasons import Reason
 from ..kernels.static import lag_peaks
-from ..kernels.sums import integral_image, window_sums
+from ..kernels.sums import window_sums
 from .icgn import icgn_solve
-from .subsets import rect_sums
+from .subsets import integral_image, rect_sums
 from .threads import in_threads
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
@@ -339,7 +339,7 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
     flat = _flat_pixels(im.f, im.g, roi, image_var)
     if not flat.any():
         return out
-    ii = integral_image(flat.astype(np.float64))
+    ii = integral_image(flat)
     x, y = grid.x.astype(np.int64), grid.y.astype(np.int64)
     share = rect_sums(ii, x - h, y - h, x + h, y + h) / (size * size)
     nodes = np.nonzero(cand & (share >= EDGE_SHARE))[0]

@@ -17,7 +17,6 @@ import numpy as np
 from scipy import ndimage
 
 from ..core.reasons import Reason
-from ..kernels.sums import integral_image
 
 __all__ = ["SubsetMasks", "split_subsets", "check_masks", "integral_image", "rect_sums"]
 
@@ -43,6 +42,34 @@ class SubsetMasks:
     masks: np.ndarray
     fraction: np.ndarray
     reason: np.ndarray
+
+
+def integral_image(mask: np.ndarray) -> np.ndarray:
+    """Summed-area table of a boolean/uint8 image (F. C. Crow, SIGGRAPH 1984).
+
+    Two cumulative sums in int64, exact: NumPy's rather than a compiled
+    kernel (~3 ms on a megapixel mask, ~0.5 s less compiling on a first run:
+    issue 25).
+
+    Parameters
+    ----------
+    mask : (H, W) uint8 or bool
+        The image.
+
+    Returns
+    -------
+    (H + 1, W + 1) int64
+        ``ii[i, j]`` is the sum of ``mask[:i, :j]``.
+    """
+    mask = np.asarray(mask)
+    if mask.ndim != 2 or mask.dtype.kind not in "bu":
+        raise ValueError(f"integral_image wants a 2-D boolean or unsigned image, "
+                         f"not {mask.ndim}-D {mask.dtype}")
+    h, w = mask.shape
+    ii = np.zeros((h + 1, w + 1), np.int64)
+    np.cumsum(mask, axis=1, dtype=np.int64, out=ii[1:, 1:])
+    np.cumsum(ii[1:, 1:], axis=0, out=ii[1:, 1:])
+    return ii
 
 
 def rect_sums(ii: np.ndarray, x0, y0, x1, y1) -> np.ndarray:

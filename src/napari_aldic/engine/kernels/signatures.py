@@ -41,7 +41,6 @@ def _sig(*args: str) -> str:
 KERNELS: dict[str, tuple[str, ...]] = {
     "bspline.spline_gradients": (_sig(_F32_2, _F64_1, _F64_1, _F32_2, _F32_2),),
     "sums.window_sums": (_sig("float32[:, :, ::1]", "int64"),),
-    "sums.integral_image": (_sig(_F64_2), _sig("uint8[:, ::1]")),
     "icgn.icgn_affine": (_sig(
         "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
         _I64_1, _F64_2, "boolean[::1]", _I32_1, "uint8[:, :, ::1]", "int64", "int64",
@@ -84,10 +83,9 @@ KERNELS: dict[str, tuple[str, ...]] = {
 #: with a Local step), "aldic" AL-DIC's global steps, "strain" the strain's
 #: plane fit, "synthetic" the synthetic speckle images
 GROUPS: dict[str, tuple[str, ...]] = {
-    "local": ("bspline.spline_gradients", "sums.window_sums", "sums.integral_image",
-              "icgn.icgn_affine", "lattice.median_flags", "moments.moments_kernel",
-              "moments.centre_moments", "covariance.mean_noise_factor",
-              "covariance.covariance_diag", "static.lag_peaks"),
+    "local": ("bspline.spline_gradients", "sums.window_sums", "icgn.icgn_affine",
+              "lattice.median_flags", "moments.moments_kernel", "moments.centre_moments",
+              "covariance.mean_noise_factor", "covariance.covariance_diag", "static.lag_peaks"),
     "aldic": ("icgn.icgn_translation", "covariance.gather_matrices", "cg.jacobi_cg",
               "cg.triangular_solve"),
     "strain": ("lattice.plane_fit",),
@@ -96,14 +94,15 @@ GROUPS: dict[str, tuple[str, ...]] = {
 
 #: compile seconds of a kernel's signatures on one core (helpers included,
 #: each compiled alone in a fresh process after a trivial warm-up; measured
-#: 2026-12-03 on a 2-core Xeon, see benchmarks/RESULTS.md, issue 25): relative
+#: 2026-12-03 on a 2-core Xeon, lag_peaks and spline_gradients 2026-12-04 on a
+#: 2-core EPYC; see benchmarks/RESULTS.md, issue 25): relative
 #: weights for sharing the work between processes; unlisted: 1 s
 COST: dict[str, float] = {
     "icgn.icgn_affine": 5.2, "moments.moments_kernel": 4.1, "icgn.icgn_translation": 3.4,
-    "covariance.covariance_diag": 2.25, "static.lag_peaks": 1.4, "lattice.median_flags": 0.6,
+    "covariance.covariance_diag": 2.25, "static.lag_peaks": 1.65, "lattice.median_flags": 0.6,
     "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.65,
     "speckle.speckle_intensity": 1.0, "covariance.gather_matrices": 0.75,
-    "bspline.spline_gradients": 0.75, "sums.window_sums": 0.5, "sums.integral_image": 0.4,
+    "bspline.spline_gradients": 0.25, "sums.window_sums": 0.5,
     "moments.centre_moments": 0.6, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
 }
 

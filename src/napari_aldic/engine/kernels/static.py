@@ -151,26 +151,68 @@ def _evidence(fs, g0, gp, m, var_img, mf, mg0, mgp, dbuf, min_fraction):
     return evid / disc, z
 
 
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, sx, sy):
-    """NCC of a gathered reference subset with the reference shifted by
-    ``(sx, sy)`` pixels (NaN when the shifted subset leaves the image or is
-    flat)."""
+@nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
+def _lag_ncc(fz, mk, m, nf, f, top, left, box, sx, sy):
+    """NCC of a reference subset (``fz``: its zero-mean values, 0 outside its
+    mask ``mk``) with the reference shifted by ``(sx, sy)`` pixels; NaN when
+    the shifted subset leaves the image or is flat.
+
+    The subset's square is read row by row, contiguously and without a test
+    per pixel (the bounding box ``box`` of its mask is tested once), so LLVM
+    vectorises the three sums (issue 25: ~4x faster than pixel by pixel)."""
     rows, cols = f.shape
+    r0, r1, c0, c1 = box
+    y, x = top + sy, left + sx
+    if y + r0 < 0 or x + c0 < 0 or y + r1 >= rows or x + c1 >= cols:
+        return np.nan
     sg = sgg = sfg = 0.0
-    for q in range(m):
-        xx = x0 + dxs[q] + sx
-        yy = y0 + dys[q] + sy
-        if xx < 0 or yy < 0 or xx >= cols or yy >= rows:
-            return np.nan
-        gv = f[yy, xx]
-        sg += gv
-        sgg += gv * gv
-        sfg += (fs[q] - mf) * gv
+    for a in range(r0, r1 + 1):
+        # row views indexed from 0 by the loop counter: no negative-index
+        # wrap-around test per pixel, which keeps LLVM from vectorising
+        gr = f[y + a, x + c0:x + c1 + 1]
+        zr = fz[a, c0:c1 + 1]
+        mr = mk[a, c0:c1 + 1]
+        for b in range(gr.size):
+            gv = np.float64(gr[b])
+            sg += mr[b] * gv
+            sgg += mr[b] * gv * gv
+            sfg += zr[b] * gv
     vg = sgg - sg * sg / m
     if vg <= 0.0:
         return np.nan
     return sfg * nf / math.sqrt(vg)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _dense_subset(f, x0, y0, h, sl, masks, fz, mk):
+    """Fill ``fz`` with the node's zero-mean reference values (0 outside the
+    mask component) and ``mk`` with the mask; returns the pixel count, the
+    norm factor ``1 / sqrt(sum fz²)`` (0: fewer than 3 pixels or flat) and the
+    mask's bounding box ``(r0, r1, c0, c1)`` in the square."""
+    side = 2 * h + 1
+    m = 0
+    mf = 0.0
+    r0 = c0 = side
+    r1 = c1 = -1
+    for a in range(side):
+        for b in range(side):
+            use = sl < 0 or masks[sl, a, b] != 0
+            mk[a, b] = 1.0 if use else 0.0
+            fz[a, b] = f[y0 - h + a, x0 - h + b] if use else 0.0
+            if use:
+                mf += fz[a, b]
+                m += 1
+                r0, r1, c0, c1 = min(r0, a), max(r1, a), min(c0, b), max(c1, b)
+    if m < 3:
+        return m, 0.0, (r0, r1, c0, c1)
+    mf /= m
+    sf = 0.0
+    for a in range(side):
+        for b in range(side):
+            if mk[a, b] != 0.0:
+                fz[a, b] -= mf
+                sf += fz[a, b] ** 2
+    return m, (1.0 / math.sqrt(sf) if sf > 0.0 else 0.0), (r0, r1, c0, c1)
 
 
 @nb.njit(**SERIAL, fastmath=FASTMATH)
@@ -207,46 +249,28 @@ def lag_peaks(first, stop, f, nx, ny, slot, masks, h, cand, ncand, w, out):
         Receives ``(peak NCC, lag x, lag y)`` of the best isolated peak
         (``-inf`` and zeros when there is none).
     """
-    npx = (2 * h + 1) ** 2
+    side = 2 * h + 1
     nb_ = 2 * w + 1
+    fz = np.empty((side, side))
+    mk = np.empty((side, side))
+    block = np.empty((nb_, nb_))
     for k in range(first, stop):
         out[k, 0] = -np.inf
         out[k, 1] = 0.0
         out[k, 2] = 0.0
         if ncand[k] == 0:
             continue
-        fs = np.empty(npx)
-        dxs = np.empty(npx, np.int64)
-        dys = np.empty(npx, np.int64)
-        block = np.empty((nb_, nb_))
-        x0, y0, sl = nx[k], ny[k], slot[k]
-        m = 0
-        mf = 0.0
-        for a in range(-h, h + 1):
-            for bb in range(-h, h + 1):
-                if sl >= 0 and masks[sl, a + h, bb + h] == 0:
-                    continue
-                fs[m] = f[y0 + a, x0 + bb]
-                dxs[m] = bb
-                dys[m] = a
-                mf += fs[m]
-                m += 1
-        if m < 3:
+        x0, y0 = nx[k], ny[k]
+        m, nf, box = _dense_subset(f, x0, y0, h, slot[k], masks, fz, mk)
+        if nf == 0.0:
             continue
-        mf /= m
-        sf = 0.0
-        for q in range(m):
-            sf += (fs[q] - mf) ** 2
-        if sf <= 0.0:
-            continue
-        nf = 1.0 / math.sqrt(sf)
         for c in range(ncand[k]):
-            _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cand[k, c, 0], cand[k, c, 1],
+            _best_peak(fz, mk, m, nf, f, y0 - h, x0 - h, box, cand[k, c, 0], cand[k, c, 1],
                        w, block, out, k)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cx, cy, w, block, out, k):
+def _best_peak(fz, mk, m, nf, f, top, left, box, cx, cy, w, block, out, k):
     """Search the lag block around candidate ``(cx, cy)`` of node ``k`` and
     keep its peak in ``out[k]`` when isolated and higher (see :func:`lag_peaks`)."""
     best = -np.inf
@@ -256,7 +280,7 @@ def _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cx, cy, w, block, out, k):
             sx, sy = cx + j - w, cy + i - w
             v = -np.inf
             if sx != 0 or sy != 0:
-                v = _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, sx, sy)
+                v = _lag_ncc(fz, mk, m, nf, f, top, left, box, sx, sy)
                 if not v == v:  # NaN: out of the image or flat
                     v = -np.inf
             block[i, j] = v
@@ -267,7 +291,7 @@ def _best_peak(fs, dxs, dys, m, mf, nf, f, x0, y0, cx, cy, w, block, out, k):
     sx, sy = cx + bj - w, cy + bi - w
     if abs(sx) < 2 and abs(sy) < 2:
         return  # next to zero lag: the main lobe
-    mid = _lag_ncc(fs, dxs, dys, m, mf, nf, f, x0, y0, int(round(0.5 * sx)),
+    mid = _lag_ncc(fz, mk, m, nf, f, top, left, box, int(round(0.5 * sx)),
                    int(round(0.5 * sy)))
     if not mid <= 0.5 * best:
         return  # no dip between zero lag and the peak: a ridge

@@ -1,8 +1,9 @@
-"""Summed-area tables and window sums.
+"""Window sums from summed-area tables.
 
-An integral image turns the sum over any axis-aligned rectangle into four
-look-ups: the mask tests of the subsets, the quadtree and the lattice
-neighbours, and the window energies of the NCC search, use it.
+A summed-area table turns the sum over any axis-aligned rectangle into four
+look-ups: the window energies of the NCC search and of the static-feature
+test use it (the integral images of masks are NumPy's cumulative sums:
+``dic.subsets.integral_image``).
 
 Reference: F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984.
 """
@@ -12,35 +13,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, SERIAL
+from .flags import SERIAL
 
-__all__ = ["integral_image", "window_sums"]
-
-
-@nb.njit(**CACHED)
-def integral_image(mask):
-    """Summed-area table of a boolean/uint8 image.
-
-    Row by row, a running sum of the row is added to the table's row above.
-
-    Parameters
-    ----------
-    mask : (H, W) uint8 or bool
-        The image.
-
-    Returns
-    -------
-    (H + 1, W + 1) int64
-        ``ii[i, j]`` is the sum of ``mask[:i, :j]``.
-    """
-    h, w = mask.shape
-    ii = np.zeros((h + 1, w + 1), np.int64)
-    for i in range(h):
-        run = 0
-        for j in range(w):
-            run += mask[i, j]
-            ii[i + 1, j + 1] = ii[i, j + 1] + run
-    return ii
+__all__ = ["window_sums"]
 
 
 # serial (issue 25): threads cost more than they gain here (measured, 2 cores),

@@ -18,9 +18,11 @@ call it before every analysis.
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -164,6 +166,16 @@ class _Forked:
         os.close(w)
         self._r = r
 
+    def kill(self) -> None:
+        """Stop the worker now (it was not collected) and reap it."""
+        try:
+            os.kill(self.pid, signal.SIGKILL)
+            os.waitpid(self.pid, 0)
+        except (ProcessLookupError, ChildProcessError):  # gone already
+            pass
+        os.close(self._r)
+        self.err_file.close()
+
     def communicate(self) -> tuple[str, None]:
         with os.fdopen(self._r, "rb") as pipe:
             out = pipe.read().decode("utf-8", "replace")
@@ -257,8 +269,23 @@ def _worker_count(workers: int | None, todo: list[str], start_cost: float) -> in
     return max(1, min(workers, len(todo)))
 
 
+@dataclass
+class _Running:
+    """A background run of :func:`precompile_kernels` not collected yet."""
+
+    names: list[str]
+    procs: list  # (process, its share)
+    t0: float
+
+
+#: background runs in flight (``precompile_kernels(background=True)``): the
+#: next foreground call collects them
+_RUNNING: list[_Running] = []
+
+
 def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
-                       on_start=None, fork: bool | None = None) -> PrecompileReport:
+                       on_start=None, fork: bool | None = None,
+                       background: bool = False) -> PrecompileReport:
     """Compile the kernels that ``groups`` of analyses need and the cache
     lacks, in up to ``workers`` processes (default: the usable CPUs, or
     ``$NAPARI_ALDIC_PRECOMPILE_WORKERS``; 1 = in this process only).
@@ -276,21 +303,34 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
     start-up; the CLI's case) rather than fresh interpreters; ``None`` forks
     where that is safe (Linux, called from the only Python thread: not from a
     GUI, Jupyter or a thread) unless ``$NAPARI_ALDIC_PRECOMPILE_FORK`` is 0.
+
+    ``background``: start the worker processes and return at once (the report
+    lists what they compile, ``seconds`` 0): this process goes on importing and
+    reading its inputs meanwhile (the command line, issue 25). The next call
+    without ``background`` collects them (its report counts them, its
+    ``seconds`` from their start); at exit, workers never collected are stopped.
     """
     from numba.core import config
 
     t0 = time.perf_counter()
     if config.DISABLE_JIT:
         return PrecompileReport()
-    todo = kernels_to_compile(groups)
-    if not todo:
-        return PrecompileReport(seconds=time.perf_counter() - t0)
+    running = _RUNNING.pop() if _RUNNING else None
+    flight = running.names if running is not None else []
+    todo = [k for k in kernels_to_compile(groups) if k not in flight]
     fork = _fork_wanted(fork)
     start = _FORK_START_COST if fork else _START_COST
-    shares = _shares(todo, _worker_count(workers, todo, start), start)
+    if background:
+        if running is not None:
+            _RUNNING.append(running)
+        return _start_background(todo, _worker_count(workers, todo, start), fork, t0)
+    if running is None and not todo:
+        return PrecompileReport(seconds=time.perf_counter() - t0)
+    shares = _shares(todo, _worker_count(workers, todo, start), start) if todo else []
+    procs = list(running.procs) if running is not None else []
     if on_start is not None:
-        on_start(len(todo), len(shares))
-    own, procs = list(shares[0]), []
+        on_start(len(flight) + len(todo), len(procs) + len(shares))
+    own = list(shares[0]) if shares else []
     for share in shares[1:]:
         try:
             procs.append((_Forked(share) if fork else _spawn(share), share))
@@ -298,12 +338,44 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
             own += share
     c0 = time.thread_time()
     failed = _compile(own)
-    cpu = [time.thread_time() - c0]
+    cpu = [time.thread_time() - c0] if own else []
     for proc, share in procs:
         more, secs = _collect(proc, share)
         failed += more
         cpu.append(secs)
-    return PrecompileReport(compiled=todo, processes=len(shares),
+    return PrecompileReport(compiled=flight + todo, processes=len(cpu),
                             start=("fork" if fork else "spawn") if procs else "",
-                            seconds=time.perf_counter() - t0, cpu_seconds=cpu,
-                            errors=[f"{k}: {e}" for k, e in failed])
+                            seconds=time.perf_counter() - (t0 if running is None else running.t0),
+                            cpu_seconds=cpu, errors=[f"{k}: {e}" for k, e in failed])
+
+
+def _start_background(todo: list[str], n: int, fork: bool, t0: float) -> PrecompileReport:
+    """Start ``n`` worker processes on ``todo`` (none in this process) and
+    leave them in :data:`_RUNNING`."""
+    if not todo:
+        return PrecompileReport(seconds=time.perf_counter() - t0)
+    procs = []
+    for share in _shares(todo, n, 0.0):  # every share is a worker's: equal starts
+        try:
+            procs.append((_Forked(share) if fork else _spawn(share), share))
+        except OSError:  # no process: the foreground call compiles these
+            todo = [k for k in todo if k not in share]
+    if not procs:
+        return PrecompileReport(seconds=time.perf_counter() - t0)
+    _RUNNING.append(_Running(todo, procs, t0))
+    return PrecompileReport(compiled=todo, processes=len(procs),
+                            start="fork" if fork else "spawn")
+
+
+def _stop_running() -> None:
+    """At exit: stop the background workers nobody collected (a command that
+    ended before its analysis: an error, ``--help``); Numba writes a cache
+    file whole or not at all, so a stopped worker leaves no damaged entry."""
+    while _RUNNING:
+        for proc, _ in _RUNNING.pop().procs:
+            proc.kill()
+            if isinstance(proc, subprocess.Popen):
+                proc.wait()
+
+
+atexit.register(_stop_running)
