@@ -188,7 +188,6 @@ def _from_array(arr, name: str, pixel_size, closer=None) -> LazyImage:
 # ------------------------------------------------------------------ TIFF
 def _open_tiff(path: Path) -> LazyImage:
     import tifffile
-    import zarr
 
     try:
         tf = tifffile.TiffFile(path)
@@ -204,6 +203,8 @@ def _open_tiff(path: Path) -> LazyImage:
             rows, cols = series.shape[-2:]
             return LazyImage(contiguous, (rows, cols), series.dtype, str(path), ps,
                              None, tf.close)
+        import zarr  # only here: ~0.2 s of every run's start-up otherwise
+
         store = tf.aszarr(series=0, level=0)
         arr = zarr.open_array(store=store, mode="r")
         return _from_array(arr, str(path), ps, closer=lambda: (store.close(), tf.close()))
