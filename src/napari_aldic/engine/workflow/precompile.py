@@ -184,6 +184,20 @@ class _Forked:
         return out, None
 
 
+def _add_one(x):
+    return x + 1
+
+
+def _warm_compiler() -> None:
+    """Initialise Numba's compiler in this process (its typing and target
+    contexts: ~0.4 s CPU, paid by the first compilation or cache load of a
+    process) before forking workers, which inherit it instead of each paying
+    it again; this process needs it to load their kernels anyway."""
+    import numba
+
+    numba.njit(cache=False)(_add_one)(1)
+
+
 def _can_fork() -> bool:
     """Whether workers may be forked: Linux, this process's only Python thread
     (a GUI, Jupyter or a thread pool would leave locks held in the child)."""
@@ -331,6 +345,8 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
     if on_start is not None:
         on_start(len(flight) + len(todo), len(procs) + len(shares))
     own = list(shares[0]) if shares else []
+    if fork and len(shares) > 1:
+        _warm_compiler()
     for share in shares[1:]:
         try:
             procs.append((_Forked(share) if fork else _spawn(share), share))
@@ -355,6 +371,8 @@ def _start_background(todo: list[str], n: int, fork: bool, t0: float) -> Precomp
     if not todo:
         return PrecompileReport(seconds=time.perf_counter() - t0)
     procs = []
+    if fork:
+        _warm_compiler()
     for share in _shares(todo, n, 0.0):  # every share is a worker's: equal starts
         try:
             procs.append((_Forked(share) if fork else _spawn(share), share))
