@@ -94,23 +94,26 @@ GROUPS: dict[str, tuple[str, ...]] = {
 
 #: compile seconds of a kernel's signatures on one core (helpers included,
 #: each compiled alone in a fresh process after a trivial warm-up; measured
-#: 2026-12-03 on a 2-core Xeon, lag_peaks and spline_gradients 2026-12-04 on a
-#: 2-core EPYC; see benchmarks/RESULTS.md, issue 25): relative
-#: weights for sharing the work between processes; unlisted: 1 s
+#: 2026-12-04 on a 2-core EPYC, several runs each, the AL-DIC, strain and
+#: synthetic kernels 2026-12-03 on a 2-core Xeon; see benchmarks/RESULTS.md,
+#: issue 25): relative weights for sharing the work between processes;
+#: unlisted: 1 s
 COST: dict[str, float] = {
-    "icgn.icgn_affine": 5.2, "moments.moments_kernel": 4.1, "icgn.icgn_translation": 3.4,
-    "covariance.covariance_diag": 2.25, "static.lag_peaks": 1.65, "lattice.median_flags": 0.6,
-    "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.65,
+    "icgn.icgn_affine": 6.0, "moments.moments_kernel": 4.6, "icgn.icgn_translation": 3.4,
+    "covariance.covariance_diag": 2.45, "static.lag_peaks": 1.65, "lattice.median_flags": 0.7,
+    "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.78,
     "speckle.speckle_intensity": 1.0, "covariance.gather_matrices": 0.75,
-    "bspline.spline_gradients": 0.25, "sums.window_sums": 0.5,
-    "moments.centre_moments": 0.6, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
+    "bspline.spline_gradients": 0.22, "sums.window_sums": 0.55,
+    "moments.centre_moments": 0.68, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
 }
 
 #: kernels that compile much faster in the process that compiles another one
 #: first, because they call the same compiled helpers (the IC-GN step, the
-#: subset gathering): ``kernel: (the other kernel, its seconds after it)``
+#: subset gathering; the moments' centring, ``moments._centre_rows``):
+#: ``kernel: (the other kernel, its seconds after it)``
 AFTER: dict[str, tuple[str, float]] = {
     "icgn.icgn_translation": ("icgn.icgn_affine", 1.6),
+    "moments.centre_moments": ("moments.moments_kernel", 0.3),  # 0.68 s alone
 }
 
 
