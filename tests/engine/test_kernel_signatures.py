@@ -204,6 +204,27 @@ def test_background_precompile_is_collected_by_the_next_call(tmp_path, fork):
     assert left == []
 
 
+def test_one_call_collects_every_background_run(tmp_path):
+    """Two background runs (the second for what the first does not compile):
+    the next call waits for both, compiling nothing again, and none is left
+    in flight (a second run left behind would be compiled twice, then killed)."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("workers are forked on Linux only")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    both = ("static.lag_peaks", "covariance.mean_noise_factor")
+    code = ("import json; from napari_aldic.engine import precompile_kernels as p\n"
+            "from napari_aldic.engine.workflow import precompile as m\n"
+            f"a = p({both[:1]!r}, workers=1, background=True)\n"
+            f"b = p({both!r}, workers=1, background=True)\n"
+            f"f = p({both!r}, workers=1)\n"
+            "print(json.dumps([a.compiled, b.compiled, sorted(f.compiled), f.processes, "
+            f"len(m._RUNNING), m.kernels_to_compile({both!r})]))")
+    a, b, f_names, procs, left_runs, left = json.loads(_python(code, env))
+    assert a == list(both[:1]) and b == list(both[1:])
+    assert f_names == sorted(both) and procs == 2  # the two workers, nothing here
+    assert left_runs == 0 and left == []
+
+
 def test_uncollected_background_workers_are_stopped_at_exit(tmp_path):
     """A command that ends before its analysis (an error, --help) leaves no
     compiling process behind."""

@@ -94,3 +94,12 @@ def test_one_reader_names_the_file(tmp_path):
     assert src.shape == (3, 8, 9)
     assert [int(src[k][0, 0]) for k in range(3)] == [1, 2, 10]  # natural order
     assert sorted(["a10", "a2"], key=natural_key) == ["a2", "a10"]
+
+
+def test_every_public_name_has_one_lazy_home():
+    """``__all__`` (curated, by role) and the lazy import table of
+    ``engine/__init__`` name the same things: a name missing from the table
+    would fail at first use, one missing from ``__all__`` would be unlisted."""
+    table = [n for names in engine._WHERE.values() for n in names]
+    assert len(table) == len(set(table))
+    assert set(table) | {"io", "probes", "sem", "synthetic", "viz"} == set(engine.__all__)

@@ -145,3 +145,60 @@ def test_integral_image_rejects_float_images():
 
     with pytest.raises(ValueError, match="boolean or unsigned"):
         integral_image(np.ones((4, 4)))
+
+
+def _lag_block_reference(f, x0, y0, h, mask, cx, cy, w):
+    """NumPy NCC of a node's (masked) reference subset with the reference
+    shifted by every lag of the block around ``(cx, cy)``; NaN off the image."""
+    a, b = np.nonzero(mask)
+    fs = f[y0 - h + a, x0 - h + b].astype(np.float64)
+    fz = fs - fs.mean()
+    block = np.full((2 * w + 1, 2 * w + 1), np.nan)
+    for i in range(2 * w + 1):
+        for j in range(2 * w + 1):
+            yy, xx = y0 - h + a + cy + i - w, x0 - h + b + cx + j - w
+            if yy.min() < 0 or xx.min() < 0 or yy.max() >= f.shape[0] or xx.max() >= f.shape[1]:
+                continue
+            g = f[yy, xx].astype(np.float64)
+            block[i, j] = (fz @ g) / (np.sqrt(fz @ fz) * np.sqrt(g @ g - g.sum() ** 2 / g.size))
+    return block
+
+
+def test_lag_peaks_matches_a_numpy_ncc_for_full_and_masked_subsets():
+    """The periodic-texture kernel (rows read contiguously, the mask's bounding
+    box tested once per lag) against a NumPy NCC: the peak lag and its
+    parabola-refined height, for a full subset and for a masked one near the
+    border whose full square would leave the image at these lags while its
+    mask does not (a test on the square instead of the mask fails here)."""
+    from napari_aldic.engine.kernels.static import lag_peaks
+
+    yy, xx = np.mgrid[:64, :64]
+    rng = np.random.default_rng(5)
+    # periodic along x (7 px); a product, so that every x lag but the period
+    # decorrelates the whole subset, however narrow its mask
+    f = (np.cos(2 * np.pi * xx / 7) * np.cos(2 * np.pi * yy / 13)
+         + 0.05 * rng.standard_normal((64, 64))).astype(np.float32)
+    h, w, lag = 5, 2, (7, 0)
+    nx, ny = np.array([30, 54], np.int64), np.array([30, 20], np.int64)
+    masks = np.zeros((1, 2 * h + 1, 2 * h + 1), np.uint8)
+    masks[0, :, :4] = 1  # node 1: the left four columns only
+    slot = np.array([-1, 0], np.int32)
+    cand = np.array([[lag], [lag]], np.int64)
+    out = np.empty((2, 3))
+    lag_peaks(0, 2, f, nx, ny, slot, masks, h, cand, np.ones(2, np.int64), w, out)
+    full = np.ones((2 * h + 1, 2 * h + 1), bool)
+    for k, mask in enumerate((full, masks[0].astype(bool))):
+        assert nx[k] - h + lag[0] + w + 2 * h > 63 or k == 0  # node 1's square leaves
+        block = _lag_block_reference(f, nx[k], ny[k], h, mask, *lag, w)
+        bi, bj = np.unravel_index(np.nanargmax(block), block.shape)
+        assert (bi, bj) == (w, w)  # the period, inside the block
+        best = block[bi, bj]
+        val = best
+        for a0, a2 in ((block[bi, bj - 1], block[bi, bj + 1]),
+                       (block[bi - 1, bj], block[bi + 1, bj])):
+            den = a0 - 2 * best + a2
+            if den < 0:
+                val += -0.125 * (a2 - a0) ** 2 / den
+        assert out[k, 1:].tolist() == [7.0, 0.0]
+        assert abs(out[k, 0] - min(val, 1.0)) < 1e-9
+        assert 0.9 < out[k, 0] <= 1.0

@@ -159,7 +159,8 @@ def _lag_ncc(fz, mk, m, nf, f, top, left, box, sx, sy):
 
     The subset's square is read row by row, contiguously and without a test
     per pixel (the bounding box ``box`` of its mask is tested once), so LLVM
-    vectorises the three sums (issue 25: ~4x faster than pixel by pixel)."""
+    vectorises the three sums (issue 25: the kernel 2.2x faster than pixel by
+    pixel with a test per pixel)."""
     rows, cols = f.shape
     r0, r1, c0, c1 = box
     y, x = top + sy, left + sx

@@ -329,7 +329,7 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
     t0 = time.perf_counter()
     if config.DISABLE_JIT:
         return PrecompileReport()
-    running = _RUNNING.pop() if _RUNNING else None
+    running = _take_running()
     flight = running.names if running is not None else []
     todo = [k for k in kernels_to_compile(groups) if k not in flight]
     fork = _fork_wanted(fork)
@@ -363,6 +363,17 @@ def precompile_kernels(groups=("local", "aldic"), workers: int | None = None,
                             start=("fork" if fork else "spawn") if procs else "",
                             seconds=time.perf_counter() - (t0 if running is None else running.t0),
                             cpu_seconds=cpu, errors=[f"{k}: {e}" for k, e in failed])
+
+
+def _take_running() -> _Running | None:
+    """Every background run in flight, as one (its kernels, its workers, the
+    earliest start), removed from :data:`_RUNNING`; None when there is none."""
+    if not _RUNNING:
+        return None
+    runs = _RUNNING[:]
+    _RUNNING.clear()
+    return _Running([k for r in runs for k in r.names], [p for r in runs for p in r.procs],
+                    min(r.t0 for r in runs))
 
 
 def _start_background(todo: list[str], n: int, fork: bool, t0: float) -> PrecompileReport:
