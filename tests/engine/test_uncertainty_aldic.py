@@ -55,7 +55,7 @@ def test_aldic_std_is_below_the_subset_std_and_local_is_unchanged():
 
 def _captured_gain_inputs(monkeypatch, ref, dfm, **kw):
     """``(q, project, lin)`` that an AL-DIC run hands to ``aldic_gain``."""
-    import napari_aldic.engine.dic.quality as Q
+    import napari_aldic.engine.dic.result_quality as Q
 
     seen = {}
     real = Q.aldic_gain

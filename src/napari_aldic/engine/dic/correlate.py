@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import logging
+import os
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
@@ -26,10 +29,10 @@ from .interpolation import choose_order
 from .local import Images, prepare_images, solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
-from .quality import result_quality
 from .regularise import gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
-from .static import flag_static_features
+from .result_quality import probe_job, result_quality, speckle_job
+from .static import flag_static_features, prefetch_static
 from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
 
@@ -132,16 +135,32 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
                                      _reference_cache(solver_cache, reference))
     meta = {"versions": _versions(),
             "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
-    with _numba_threads(params.n_threads):
-        sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
-        if ref_spec is not None and ref_spec.error:
-            grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
-                                                params, timing, report, solver_cache, meta)
-    quality = _quality(im, mask, grid, sol, params, timing, meta)
+    # one thread for work on the reference alone, started ahead (Images.prefetch)
+    im.background = ThreadPoolExecutor(1, initializer=_yielding)
+    try:
+        with _numba_threads(params.n_threads):
+            sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
+            if ref_spec is not None and ref_spec.error:
+                grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
+                                                    params, timing, report, solver_cache, meta)
+        quality = _quality(im, mask, grid, sol, params, timing, meta)
+    finally:  # what is still running finishes on its own (Images.memo did not wait)
+        im.background.shutdown(wait=False, cancel_futures=True)
+        im.background, im.pending = None, {}
     sol.reason = _uncertain_as_exported(sol, quality, params)
     _record(meta, sol, ref_spec, grid, params, timing, (t_start, c_start), im.j_sigma)
     report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
+
+
+def _yielding() -> None:
+    """Lower this thread's priority (Linux; elsewhere nothing): the work it
+    runs ahead should fill the cores the analysis leaves idle, not slow the
+    analysis down."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 15)
+    except (AttributeError, OSError):  # not Linux, or not allowed
+        pass
 
 
 def _check_guess(guess) -> None:
@@ -287,6 +306,14 @@ def reference_result(image, roi=None, params: DICParams | None = None,
 def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: dict,
              report: ProgressFn, guess, solver_cache: dict | None = None) -> _Solution:
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
+    prefetch_static(im, roi, params)
+    if params.extra.get("quality", True):
+        inputs = _quality_inputs(im, roi, grid, params)
+        im.prefetch(*speckle_job(*inputs))
+        if params.method == "aldic":  # the noise probes of its u_std propagation
+            _, grads, _, mask, x, y, subset, shape, jacobian = inputs
+            im.prefetch(*probe_job(grads, mask, x, y, subset, shape, jacobian,
+                                   ADMMLinearisation.seed, ADMMLinearisation.probes))
     sub = split_subsets(roi, grid, params.subset, params.min_component)
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
@@ -349,17 +376,22 @@ def _quality(im: Images, mask, grid: NodeGrid, sol: _Solution, params: DICParams
                          "meshes solved iteratively; the smoothed u is usually less noisy)")
     elif aldic is not None:
         meta["u_std"] = "AL-DIC: propagated through the linearised ADMM run"
-    out = result_quality(im.f, (im.fgx, im.fgy), im.g_spline.order, mask, grid.x, grid.y,
-                         params.subset, zncc=sol.zncc,
+    f, grads, order, roi, x, y, subset, shape, jacobian = _quality_inputs(im, mask, grid, params)
+    out = result_quality(f, grads, order, roi, x, y, subset, zncc=sol.zncc,
                          u=sol.u_local if local else sol.u, v=sol.v_local if local else sol.v,
-                         grad=sol.grad,
-                         shape_function=getattr(params, "shape_function", "affine"),
-                         # the steepest-descent images IC-GN (and AL-DIC's local
-                         # step) matched with, when smoothed
-                         jacobian=None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma),
-                         aldic=aldic, memo=im.memo if im.ref_cache is not None else None)
+                         grad=sol.grad, shape_function=shape, jacobian=jacobian,
+                         aldic=aldic, memo=im.memo)
     timing["quality"] = time.perf_counter() - t
     return out
+
+
+def _quality_inputs(im: Images, mask, grid: NodeGrid, params: DICParams) -> tuple:
+    """``result_quality``'s first arguments for this pair (``speckle_job``'s too)."""
+    return (im.f, (im.fgx, im.fgy), im.g_spline.order, mask, grid.x, grid.y, params.subset,
+            getattr(params, "shape_function", "affine"),
+            # the steepest-descent images IC-GN (and AL-DIC's local step)
+            # matched with, when smoothed
+            None if im.jgx is None else (im.jgx, im.jgy, im.j_sigma))
 
 
 def _uncertain_as_exported(sol: _Solution, quality: dict | None, params: DICParams):

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from concurrent.futures import Executor, ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -79,16 +79,39 @@ class Images:
     #: what was computed from the reference image alone, kept for the next
     #: pair with the same reference (a sequence's frames); None: not kept
     ref_cache: dict | None = None
+    #: the thread :meth:`prefetch` starts work on (None: none is started)
+    background: Executor | None = None
+    #: work started ahead, by ``memo`` key
+    pending: dict = field(default_factory=dict)
 
     def memo(self, key, compute: Callable):
         """``compute()``, or its value for ``key`` kept from an earlier pair
         with this reference (the inputs of ``compute`` must be in ``key``
-        unless they are the reference image itself)."""
-        if self.ref_cache is None:
-            return compute()
-        if key not in self.ref_cache:
-            self.ref_cache[key] = compute()
-        return self.ref_cache[key]
+        unless they are the reference image itself), or started ahead by
+        :meth:`prefetch`."""
+        if self.ref_cache is not None and key in self.ref_cache:
+            return self.ref_cache[key]
+        job = self.pending.pop(key, None)
+        # not done yet (a loaded machine starves the low-priority thread):
+        # computed here rather than waited for
+        value = job.result() if job is not None and job.done() else compute()
+        if job is not None:
+            job.cancel()
+        if self.ref_cache is not None:
+            self.ref_cache[key] = value
+        return value
+
+    def prefetch(self, key, compute: Callable) -> None:
+        """Start ``compute()`` on :attr:`background` for a later :meth:`memo`
+        of ``key`` (unless it is kept already; nothing without a background
+        thread): work on the reference alone that overlaps the analysis, on
+        a core its serial stages leave idle (the thread runs at a low
+        priority; what it has not finished when needed is computed there
+        and then, so it never holds the analysis up)."""
+        if self.background is None or key in self.pending:
+            return
+        if self.ref_cache is None or key not in self.ref_cache:
+            self.pending[key] = self.background.submit(compute)
 
 
 def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,

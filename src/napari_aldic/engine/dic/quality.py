@@ -42,7 +42,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ..core.files import array_digest
 from ..kernels.covariance import covariance_diag, gather_matrices, mean_noise_factor
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms
 from .interpolation import (
@@ -53,7 +52,6 @@ from .interpolation import (
 )
 from .regularise import gradient_noise_gain
 from .reliability import image_noise
-from .uncertainty_aldic import aldic_gain, noise_projector
 from .window_moments import window_moments
 
 __all__ = ["SpeckleQuality", "speckle_quality", "node_uncertainty", "static_uncertainty",
@@ -411,44 +409,6 @@ def static_uncertainty(q: SpeckleQuality, noise: float) -> np.ndarray:
     deviation ``noise`` (grey levels) each: ``Cov = 2 σ² S⁻¹ H S⁻¹``."""
     var = np.full(q.m.shape, float(noise) ** 2)
     return np.sqrt(_covariance_diag(q, var))
-
-
-def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
-                   shape_function: str = "affine", jacobian=None, aldic=None,
-                   memo=None) -> dict:
-    """The quality fields ``correlate`` stores with a result: ``sssig``,
-    ``mig`` and the standard uncertainty ``u_std``, ``v_std`` (px) of the
-    subset displacements ``u``, ``v`` (pass ``zncc=None`` for the fields of
-    the reference alone: no uncertainty). ``jacobian``: ``(jx, jy, sigma)``,
-    the gradients of the steepest-descent images when they are smoothed ones
-    and the smoothing (px) they were made with.
-    ``aldic``: an :class:`~.uncertainty_aldic.ADMMLinearisation` of the run
-    when ``u``, ``v`` are AL-DIC's local estimates: ``u_std``, ``v_std`` then
-    describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`).
-    ``memo``: :meth:`~.local.Images.memo` of the pair, which keeps the speckle
-    quality (the reference's alone) for the next pair with this reference."""
-    xi = np.rint(np.asarray(x, float)).astype(np.int64)
-    yi = np.rint(np.asarray(y, float)).astype(np.int64)
-    sd_images = jacobian if jacobian is not None else gradients
-    if zncc is None:
-        jacobian = None
-
-    def quality():
-        return speckle_quality(f, xi, yi, subset, roi, shape_function=shape_function,
-                               order=order, gradients=gradients, jacobian=jacobian)
-    key = ("speckle", array_digest(np.asarray(roi)) if roi is not None else None,
-           array_digest(xi), array_digest(yi), subset, shape_function, order,
-           None if jacobian is None else float(jacobian[2]))
-    q = quality() if memo is None else memo(key, quality)
-    out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
-    if zncc is not None:
-        s = node_uncertainty(q, zncc, u, v, grad, order)
-        if aldic is not None:
-            project = noise_projector(*sd_images[:2], xi, yi, subset, roi,
-                                      SHAPE_TERMS[shape_function])
-            s = s * aldic_gain(q, project, aldic)
-        out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
-    return out
 
 
 #: subset widths the advice tries when none are given

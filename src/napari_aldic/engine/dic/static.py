@@ -55,7 +55,7 @@ from .subsets import integral_image, rect_sums
 from .threads import in_threads
 
 __all__ = ["STATIC_Z", "STATIC_FRACTION", "STATIC_MIN_MOTION", "AMBIGUITY", "flag_static_features",
-           "ambiguity", "candidate_lags"]
+           "ambiguity", "candidate_lags", "prefetch_static"]
 
 #: evidence for zero motion beyond this many noise standard deviations ...
 STATIC_Z = 20.0
@@ -234,11 +234,23 @@ def _node_candidates(grid, tile, ys, xs, lags, active, h):
     return np.ascontiguousarray(np.take_along_axis(cand, order[:, :, None], axis=1)), ncand
 
 
+def _lags_key(roi, params) -> tuple:
+    return ("lags", array_digest(roi), params.subset, params.search)
+
+
+def prefetch_static(im, roi, params) -> None:
+    """Start the tests' work on the reference alone (the tiles' candidate
+    lags, the flat-pixel windows of ``f``) on ``im``'s background thread."""
+    im.prefetch(_lags_key(roi, params),
+                lambda: candidate_lags(im.f, roi, params.subset, params.search))
+    im.prefetch(("flat_var",), lambda: _window_var(im.f))
+
+
 def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
     """Per node (n,) the height of the highest isolated second peak of the
     reference subset's autocorrelation within ``params.search`` (``-inf``
     where there is none or the node is not ``active``)."""
-    tile, ys, xs, lags = im.memo(("lags", array_digest(roi), params.subset, params.search),
+    tile, ys, xs, lags = im.memo(_lags_key(roi, params),
                                  lambda: candidate_lags(im.f, roi, params.subset, params.search))
     if not lags.any():
         return np.full(grid.n, -np.inf)  # nothing repeats: no per-node search
@@ -275,21 +287,22 @@ def _window_var(a: np.ndarray, tile: int = 120) -> np.ndarray:
     return var.reshape(ny * tile, nx * tile)[:h, :w]
 
 
-def _flat_pixels(f, g, roi, image_var: float) -> np.ndarray:
+def _flat_pixels(f, g, roi, image_var: float, f_var=None) -> np.ndarray:
     """Pixels of the ROI flat in both images: their window's variance is that
     of the noise (:data:`FLAT_NOISE`) and well below the image's typical
     local contrast (:data:`FLAT_CONTRAST` of the 75th percentile). The second
     condition keeps speckle under heavy noise (whose windows are not much
     above the noise either) from counting as flat: a static region stands
-    out from the speckle around it, noise does not."""
+    out from the speckle around it, noise does not. ``f_var``: the windows'
+    variance of ``f`` (:func:`_window_var`), when computed already."""
     thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
     roi = np.asarray(roi, bool)
     whole = roi.all()
     flat = roi.copy()
-    for a in (f, g):
+    for a, var in ((f, f_var), (g, None)):
         if not flat.any():  # speckle: the reference alone shows nothing flat
             break
-        var = _window_var(a)
+        var = _window_var(a) if var is None else var
         flat &= var <= thr2
         if flat.any() and not _typical_at_least(var, roi, whole, thr2 / FLAT_CONTRAST ** 2):
             typical = np.percentile(var if whole else var[roi], 75)
@@ -336,7 +349,8 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
     """
     out = np.zeros(grid.n, bool)
     h, size = params.half, params.subset
-    flat = _flat_pixels(im.f, im.g, roi, image_var)
+    flat = _flat_pixels(im.f, im.g, roi, image_var,
+                        im.memo(("flat_var",), lambda: _window_var(im.f)))
     if not flat.any():
         return out
     ii = integral_image(flat)
