@@ -17,8 +17,8 @@ from scipy import ndimage
 
 from napari_aldic.engine import synthetic as S
 from napari_aldic.engine.dic.icgn import icgn_solve
+from napari_aldic.engine.dic.images import prepare_images
 from napari_aldic.engine.dic.interpolation import prefilter, reference_gradients
-from napari_aldic.engine.dic.local import prepare_images
 
 U, V = 0.3, -0.45
 HALF = 10

@@ -7,7 +7,7 @@ import pytest
 
 from napari_aldic.engine import DICParams, Settings, correlate, synthetic as S
 from napari_aldic.engine.dic.icgn import icgn_solve
-from napari_aldic.engine.dic.local import prepare_images
+from napari_aldic.engine.dic.images import prepare_images
 
 
 class Bend(S.DisplacementField):

@@ -12,7 +12,7 @@ from napari_aldic.engine.dic.global_solve import (
     second_difference_operators,
     uniform_mesh,
 )
-from napari_aldic.engine.dic.local import prepare_images
+from napari_aldic.engine.dic.images import prepare_images
 from napari_aldic.engine.dic.mesh import make_grid
 from napari_aldic.engine.dic.quadtree import build_quadtree
 from napari_aldic.engine.dic.regularise import (

@@ -12,8 +12,8 @@ from scipy import ndimage as ndi
 from napari_aldic.engine import synthetic
 from napari_aldic.engine.dic import static as S
 from napari_aldic.engine.dic.icgn import icgn_solve
+from napari_aldic.engine.dic.images import prepare_images
 from napari_aldic.engine.dic.interpolation import JACOBIAN_SIGMAS, gaussian_smooth
-from napari_aldic.engine.dic.local import prepare_images
 from napari_aldic.engine.dic.mesh import make_grid
 from napari_aldic.engine.dic.subsets import split_subsets
 

@@ -25,8 +25,9 @@ from .admm import image_local_step
 from .aldic import aldic_stage
 from .global_solve import Q4Mesh, uniform_mesh
 from .icgn import convergence_record, warn_iteration_cap
+from .images import Images, prepare_images
 from .interpolation import choose_order
-from .local import Images, prepare_images, solve_local
+from .local import solve_local
 from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .regularise import gradient_noise_gain

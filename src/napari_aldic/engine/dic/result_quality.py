@@ -28,7 +28,7 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     ``aldic``: an :class:`~.uncertainty_aldic.ADMMLinearisation` of the run
     when ``u``, ``v`` are AL-DIC's local estimates: ``u_std``, ``v_std`` then
     describe the smoothed global field (:func:`~.uncertainty_aldic.aldic_gain`).
-    ``memo``: :meth:`~.local.Images.memo` of the pair, which keeps the speckle
+    ``memo``: :meth:`~.images.Images.memo` of the pair, which keeps the speckle
     quality (the reference's alone) for the next pair with this reference."""
     xi = np.rint(np.asarray(x, float)).astype(np.int64)
     yi = np.rint(np.asarray(y, float)).astype(np.int64)
@@ -47,6 +47,7 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
                 def project(rng, count=1):
                     return memo((*base, str(rng.bit_generator.state), count),
                                 lambda: plain(rng, count))
+                project.apply = plain.apply
             s = s * aldic_gain(q, project, aldic)
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out

@@ -334,7 +334,7 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
 
     Parameters
     ----------
-    im : :class:`~.local.Images`
+    im : :class:`~.images.Images`
     roi : (H, W) bool
     grid, sub : the nodes and their subset masks.
     p : (n, 6) affine warps of the Local result.
@@ -389,7 +389,7 @@ def flag_static_features(im, roi, grid, sub, p, zncc, reason, evidence, validity
 
     Parameters
     ----------
-    im : :class:`~.local.Images`
+    im : :class:`~.images.Images`
     roi : (H, W) bool
     grid, sub : the nodes and their subset masks.
     p : (n, 6) affine warps of the Local result.
