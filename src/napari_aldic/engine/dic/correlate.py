@@ -307,7 +307,8 @@ def reference_result(image, roi=None, params: DICParams | None = None,
 def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: dict,
              report: ProgressFn, guess, solver_cache: dict | None = None) -> _Solution:
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
-    prefetch_static(im, roi, params)
+    sub = split_subsets(roi, grid, params.subset, params.min_component)
+    prefetch_static(im, roi, grid, sub, params)
     if params.extra.get("quality", True):
         inputs = _quality_inputs(im, roi, grid, params)
         im.prefetch(*speckle_job(*inputs))
@@ -315,7 +316,6 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
             _, grads, _, mask, x, y, subset, shape, jacobian = inputs
             im.prefetch(*probe_job(grads, mask, x, y, subset, shape, jacobian,
                                    ADMMLinearisation.seed, ADMMLinearisation.probes))
-    sub = split_subsets(roi, grid, params.subset, params.min_component)
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
                                                    validity, guess=guess)

@@ -238,28 +238,54 @@ def _lags_key(roi, params) -> tuple:
     return ("lags", array_digest(roi), params.subset, params.search)
 
 
-def prefetch_static(im, roi, params) -> None:
-    """Start the tests' work on the reference alone (the tiles' candidate
-    lags, the flat-pixel windows of ``f``) on ``im``'s background thread."""
-    im.prefetch(_lags_key(roi, params),
-                lambda: candidate_lags(im.f, roi, params.subset, params.search))
+def _peaks_key(roi, grid, sub, params) -> tuple:
+    return ("peaks", *_lags_key(roi, params)[1:], array_digest(grid.x), array_digest(grid.y),
+            array_digest(sub.slot), array_digest(sub.masks), array_digest(sub.reason))
+
+
+def prefetch_static(im, roi, grid, sub, params) -> None:
+    """Start the tests' work on the reference alone on ``im``'s background
+    thread: the flat-pixel windows of ``f``, and the tiles' candidate lags
+    with the autocorrelation peaks of every usable node's subset
+    (:func:`ambiguity` then reads those of the nodes it tests)."""
     im.prefetch(("flat_var",), lambda: _window_var(im.f))
+    im.prefetch(_peaks_key(roi, grid, sub, params),
+                lambda: _peak_heights(im, roi, grid, sub, sub.reason == Reason.OK, params,
+                                      serial=True))
 
 
-def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
-    """Per node (n,) the height of the highest isolated second peak of the
-    reference subset's autocorrelation within ``params.search`` (``-inf``
-    where there is none or the node is not ``active``)."""
+def _peak_heights(im, roi, grid, sub, active, params, serial: bool = False) -> np.ndarray:
+    """:func:`ambiguity` at the ``active`` nodes (``serial``: on this thread
+    only, for the background one)."""
     tile, ys, xs, lags = im.memo(_lags_key(roi, params),
                                  lambda: candidate_lags(im.f, roi, params.subset, params.search))
     if not lags.any():
         return np.full(grid.n, -np.inf)  # nothing repeats: no per-node search
     cand, ncand = _node_candidates(grid, tile, ys, xs, lags, np.asarray(active), params.half)
     out = np.empty((grid.n, 3))
-    in_threads(lag_peaks, grid.n, np.ascontiguousarray(im.f, np.float32),
-               grid.x.astype(np.int64), grid.y.astype(np.int64), sub.slot.astype(np.int32),
-               sub.masks, int(params.half), cand, ncand, _BLOCK, out, grain=64)
+    args = (np.ascontiguousarray(im.f, np.float32), grid.x.astype(np.int64),
+            grid.y.astype(np.int64), sub.slot.astype(np.int32), sub.masks, int(params.half),
+            cand, ncand, _BLOCK, out)
+    if serial:
+        lag_peaks(0, grid.n, *args)
+    else:
+        in_threads(lag_peaks, grid.n, *args, grain=64)
     return out[:, 0]
+
+
+def ambiguity(im, roi, grid, sub, active, params) -> np.ndarray:
+    """Per node (n,) the height of the highest isolated second peak of the
+    reference subset's autocorrelation within ``params.search`` (``-inf``
+    where there is none or the node is not ``active``; ``active`` nodes are
+    usable ones). Each node's peak is its own reference subset's: those of
+    every usable node, started ahead (:func:`prefetch_static`) or kept for
+    the next pair with this reference, serve any ``active`` set."""
+    key = _peaks_key(roi, grid, sub, params)
+    if key in im.pending or im.ref_cache is not None:
+        usable = sub.reason == Reason.OK
+        peaks = im.memo(key, lambda: _peak_heights(im, roi, grid, sub, usable, params))
+        return np.where(np.asarray(active) & usable, peaks, -np.inf)
+    return _peak_heights(im, roi, grid, sub, active, params)
 
 
 def _window_var(a: np.ndarray, tile: int = 120) -> np.ndarray:
