@@ -4,6 +4,8 @@ it in place, and a job not finished when it is needed is computed there and
 then rather than waited for (a loaded machine starves the low-priority
 thread; the analysis must never wait on it)."""
 
+import os
+import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -95,3 +97,16 @@ def test_a_done_job_is_used_and_kept_for_the_next_pair():
         assert im.memo(("k",), lambda: calls.append(2) or -1) == 42
         im.prefetch(("k",), lambda: calls.append(3) or -1)  # kept: not started again
     assert calls == [1] and cache[("k",)] == 42 and im.pending == {}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values: Linux")
+def test_the_background_thread_runs_at_a_low_priority():
+    from napari_aldic.engine.dic.correlate import _yielding
+
+    def nice_of_this_thread():
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    with ThreadPoolExecutor(1, initializer=_yielding) as pool:
+        background = pool.submit(nice_of_this_thread).result()
+    here = nice_of_this_thread()
+    assert background >= min(here + 15, 19)
+    assert here == os.getpriority(os.PRIO_PROCESS, 0)  # this thread left as it was

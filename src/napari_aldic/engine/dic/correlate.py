@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -157,10 +158,15 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
 def _yielding() -> None:
     """Lower this thread's priority (Linux; elsewhere nothing): the work it
     runs ahead should fill the cores the analysis leaves idle, not slow the
-    analysis down."""
+    analysis down (paired runs at 1024²: 0.73 -> 0.57 s with it, 0.70 s
+    without)."""
+    # only Linux keeps a nice value per thread (setpriority(2)); elsewhere a
+    # thread id given as a process id could name another process
+    if not sys.platform.startswith("linux"):
+        return
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 15)
-    except (AttributeError, OSError):  # not Linux, or not allowed
+    except OSError:  # not allowed
         pass
 
 
