@@ -1,14 +1,16 @@
-"""The per-node matrix and uncertainty kernels against plain NumPy."""
+"""The per-node matrices and uncertainty (``dic.covariance``, batched
+NumPy) against the model written out node by node, and the noise-factor
+kernel against ``np.interp``."""
 
 import numpy as np
 import pytest
 
-from napari_aldic.engine.kernels.covariance import (
+from napari_aldic.engine.dic.covariance import (
     MIN_SPECKLE_FRACTION,
     covariance_diag,
     gather_matrices,
-    mean_noise_factor,
 )
+from napari_aldic.engine.kernels.covariance import mean_noise_factor
 
 
 def _reference(a, ea, c, ec, var, m):
@@ -33,13 +35,14 @@ def _reference(a, ea, c, ec, var, m):
     return out
 
 
-def _packed(a, ea, c, ec, var, m):
-    """The kernel's arguments for four explicit matrices: their entries side
-    by side in one array, gathered back by the tables."""
+def _packed(a, ea, c, ec, var, m, chunk=64):
+    """``covariance_diag`` of four explicit matrices: their entries side by
+    side in one array, gathered back by the tables, a few nodes at a time
+    (the chunks' seams are crossed)."""
     n, s = a.shape[:2]
     flat = np.concatenate([v.reshape(n, s * s) for v in (a, ea, c, ec)], axis=1)
     col = np.arange(4 * s * s).reshape(4, s, s)
-    return covariance_diag(flat, flat, np.zeros_like(col), col, np.ones(4), var, m)
+    return covariance_diag((flat,), np.zeros_like(col), col, np.ones(4), var, m, chunk=chunk)
 
 
 def _nodes(rng, n, s):
@@ -115,7 +118,9 @@ def test_gather_matrices_picks_moments_and_scales():
     m0, m1 = rng.normal(size=(7, 15)), rng.normal(size=(7, 6))
     src = np.array([[0, 1, -1], [1, 0, -1], [-1, -1, 0]])
     col = np.array([[0, 3, 0], [3, 14, 0], [0, 0, 5]])
-    got = gather_matrices(m0, m1, src, col, 2.5)
+    got = gather_matrices((m0, m1), src, col, 2.5)
+    np.testing.assert_array_equal(gather_matrices((m0, m1), src, col, 2.5, slice(2, 5)),
+                                  got[2:5])
     for i in range(7):
         want = np.array([[m0[i, 0], m1[i, 3], 0], [m1[i, 3], m0[i, 14], 0],
                          [0, 0, m0[i, 5]]]) * 2.5
@@ -132,5 +137,5 @@ def test_scaled_tables_are_the_scaled_matrices():
     flat = np.concatenate([v.reshape(n, s * s) for v in (a, ea, c, ec)], axis=1)
     col = np.arange(4 * s * s).reshape(4, s, s)
     scale = np.array([1.0, 0.3, 1.0, 0.7])
-    got = covariance_diag(flat, flat, np.zeros_like(col), col, scale, var, m)
+    got = covariance_diag((flat,), np.zeros_like(col), col, scale, var, m)
     np.testing.assert_allclose(got, _packed(a, 0.3 * ea, c, 0.7 * ec, var, m), rtol=1e-13)

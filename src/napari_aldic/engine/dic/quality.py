@@ -42,8 +42,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ..kernels.covariance import covariance_diag, gather_matrices, mean_noise_factor
+from ..kernels.covariance import mean_noise_factor
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms
+from .covariance import covariance_diag, gather_matrices
 from .interpolation import (
     jacobian_smoothing,
     prefilter,
@@ -86,7 +87,7 @@ def _table(layout, terms, order: int) -> tuple[np.ndarray, np.ndarray]:
     ``(i, j)`` is ``Σ a t tᵀ`` of the monomials ``terms``, ``a``'s centred
     moments (in ``moment_terms(order)`` order) starting at column ``c`` of
     array ``s`` for ``layout[i][j] = (s, c)`` (None: a zero block). Returns
-    ``(src, col)`` as :func:`~napari_aldic.engine.kernels.covariance.gather_matrices`
+    ``(src, col)`` as :func:`~.covariance.gather_matrices`
     takes them."""
     col = {pq: c for c, pq in enumerate(moment_terms(order))}
     k = len(terms)
@@ -125,7 +126,7 @@ class _NormalSums:
     def matrix(self, j: int) -> np.ndarray | None:
         if j >= 2 and not self.has_cross:
             return None
-        return gather_matrices(*self.arrays, self.src[j], self.col[j], float(self.scale[j]))
+        return gather_matrices(self.arrays, self.src[j], self.col[j], float(self.scale[j]))
 
 
 class _Matrix:
@@ -325,8 +326,8 @@ def _covariance_diag(q: SpeckleQuality, var_e: np.ndarray) -> np.ndarray:
     """``diag(2 var_e M⁻¹ (A - E_J / 2) M⁻ᵀ)`` at the u and v entries, ``(n, 2)``
     px²: ``A = Σ J Jᵀ`` with noise part ``E_J``, ``M = Σ J ∇fᵀ`` less its noise
     part (for plain gradients ``M = S = H - E`` and the middle is ``S + E/2``;
-    :func:`~napari_aldic.engine.kernels.covariance.covariance_diag`). Straight
-    from the window moments unless a matrix was built or assigned."""
+    :func:`~.covariance.covariance_diag`). Straight from the window moments
+    unless a matrix was built or assigned."""
     sums = q.sums
     if sums is None or any(name in q.__dict__ for name in MATRICES):
         a, ea = q.hessian, q.noise
@@ -336,10 +337,8 @@ def _covariance_diag(q: SpeckleQuality, var_e: np.ndarray) -> np.ndarray:
                               axis=1).astype(np.float64)
         col = np.arange(4 * size * size).reshape(4, size, size)
         sums = _NormalSums((flat, flat), np.zeros_like(col), col, np.ones(4), True)
-    arrays = tuple(np.ascontiguousarray(v, np.float64) for v in sums.arrays)
-    return covariance_diag(*arrays, sums.src, sums.col, sums.scale,
-                           np.ascontiguousarray(var_e, np.float64),
-                           np.ascontiguousarray(q.m, np.float64))
+    arrays = tuple(np.asarray(v, np.float64) for v in sums.arrays)
+    return covariance_diag(arrays, sums.src, sums.col, sums.scale, var_e, q.m)
 
 
 @functools.lru_cache(maxsize=4)

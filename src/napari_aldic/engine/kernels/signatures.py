@@ -56,8 +56,6 @@ KERNELS: dict[str, tuple[str, ...]] = {
     "moments.centre_moments": (_sig(_F64_2, _F64_1, _F64_1, "int64"),),
     "covariance.mean_noise_factor": (_sig(
         _F64_1, _F64_1, _F64_2, _F64_1, _F64_1, _F64_1, _F64_1),),
-    "covariance.covariance_diag": (_sig(
-        _F64_2, _F64_2, "int64[:, :, ::1]", "int64[:, :, ::1]", _F64_1, _F64_1, _F64_1),),
     "static.lag_peaks": (_sig(
         "int64", "int64", _F32_2, _I64_1, _I64_1, _I32_1, "uint8[:, :, ::1]", "int64",
         "int64[:, :, ::1]", _I64_1, "int64", _F64_2),),
@@ -66,8 +64,6 @@ KERNELS: dict[str, tuple[str, ...]] = {
         "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
         _I64_1, _F64_2, _F64_2, _F64_2, _F64_2, "float64", "boolean[::1]", _I32_1,
         "uint8[:, :, ::1]", "int64", "int64", "float64", _F64_2, _F64_1, _I32_1, "int8[::1]"),),
-    "covariance.gather_matrices": (_sig(
-        _F64_2, _F64_2, "int64[:, ::1]", "int64[:, ::1]", "float64"),),
     "cg.jacobi_cg": (_sig(_I32_1, _I32_1, _F64_1, _F64_1, _F64_1, _F64_1, "float64", "int64"),),
     "cg.triangular_solve": (_sig(_I32_1, _I32_1, _F64_1, _F64_2, "boolean"),),
     # strain (plane fit)
@@ -85,9 +81,8 @@ KERNELS: dict[str, tuple[str, ...]] = {
 GROUPS: dict[str, tuple[str, ...]] = {
     "local": ("bspline.spline_gradients", "sums.window_sums", "icgn.icgn_affine",
               "lattice.median_flags", "moments.moments_kernel", "moments.centre_moments",
-              "covariance.mean_noise_factor", "covariance.covariance_diag", "static.lag_peaks"),
-    "aldic": ("icgn.icgn_translation", "covariance.gather_matrices", "cg.jacobi_cg",
-              "cg.triangular_solve"),
+              "covariance.mean_noise_factor", "static.lag_peaks"),
+    "aldic": ("icgn.icgn_translation", "cg.jacobi_cg", "cg.triangular_solve"),
     "strain": ("lattice.plane_fit",),
     "synthetic": ("speckle.speckle_intensity",),
 }
@@ -100,9 +95,9 @@ GROUPS: dict[str, tuple[str, ...]] = {
 #: unlisted: 1 s
 COST: dict[str, float] = {
     "icgn.icgn_affine": 6.0, "moments.moments_kernel": 4.6, "icgn.icgn_translation": 3.4,
-    "covariance.covariance_diag": 2.45, "static.lag_peaks": 1.65, "lattice.median_flags": 0.7,
+    "static.lag_peaks": 1.65, "lattice.median_flags": 0.7,
     "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.78,
-    "speckle.speckle_intensity": 1.0, "covariance.gather_matrices": 0.75,
+    "speckle.speckle_intensity": 1.0,
     "bspline.spline_gradients": 0.22, "sums.window_sums": 0.55,
     "moments.centre_moments": 0.68, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
 }
