@@ -96,7 +96,7 @@ def test_precompiled_kernels_load_from_the_cache_in_a_new_process(tmp_path, fork
         pytest.skip("workers are forked on Linux only")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"),
                NAPARI_ALDIC_PRECOMPILE_FORK=fork)
-    groups = ("static.lag_peaks", "covariance.mean_noise_factor", "lattice.plane_fit",
+    groups = ("static.lag_peaks", "lattice.median_flags", "lattice.plane_fit",
               "speckle.speckle_intensity")  # enough work to share between two processes
     code = ("from napari_aldic.engine import precompile_kernels as p; import json; "
             f"r = p({groups!r}, workers=2); "
@@ -183,7 +183,7 @@ def test_background_precompile_is_collected_by_the_next_call(tmp_path, fork):
         pytest.skip("workers are forked on Linux only")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"),
                NAPARI_ALDIC_PRECOMPILE_FORK=fork)
-    first = ("static.lag_peaks", "covariance.mean_noise_factor")
+    first = ("static.lag_peaks", "lattice.median_flags")
     code = ("import json, time; from napari_aldic.engine import precompile_kernels as p\n"
             "from napari_aldic.engine.workflow.precompile import kernels_to_compile as k\n"
             f"t = time.perf_counter(); b = p({first!r}, workers=2, background=True)\n"
@@ -211,7 +211,7 @@ def test_one_call_collects_every_background_run(tmp_path):
     if not sys.platform.startswith("linux"):
         pytest.skip("workers are forked on Linux only")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    both = ("static.lag_peaks", "covariance.mean_noise_factor")
+    both = ("static.lag_peaks", "lattice.median_flags")
     code = ("import json; from napari_aldic.engine import precompile_kernels as p\n"
             "from napari_aldic.engine.workflow import precompile as m\n"
             f"a = p({both[:1]!r}, workers=1, background=True)\n"
@@ -233,7 +233,7 @@ def test_uncollected_background_workers_are_stopped_at_exit(tmp_path):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     code = ("from napari_aldic.engine import precompile_kernels as p\n"
             "from napari_aldic.engine.workflow import precompile as m\n"
-            "p(('static.lag_peaks', 'covariance.mean_noise_factor'), workers=2, "
+            "p(('static.lag_peaks', 'lattice.median_flags'), workers=2, "
             "background=True)\n"
             "print(' '.join(str(w.pid) for r in m._RUNNING for w, _ in r.procs))")
     pids = [int(x) for x in _python(code, env).split()]

@@ -10,11 +10,15 @@ matches, batched in NumPy (the model of :mod:`.quality`).
   ``M = C - t E_C``. Only rows ``0`` and ``k`` of ``M⁻¹`` are needed: two
   solves with ``Mᵀ`` instead of an inverse and two matrix products. The
   nodes' four matrices are gathered :data:`CHUNK` nodes at a time, so they
-  are never all held (at 4096², quadratic, that would be 1.2 GB).
+  are never all held (at 4096², quadratic, that would be 1.2 GB);
+* :func:`mean_noise_factor` -- the variance that is left of unit white noise
+  after B-spline interpolation at a match's sub-pixel position, averaged over
+  a grid of offsets across the subset.
 
-This replaced a compiled kernel of the same model (issue 25, the first run):
-batched LAPACK solves are as fast as it was at 15k nodes, and it cost 2.45 s
-of compiling on every first run.
+These replaced compiled kernels of the same models (issue 25, the first run):
+batched LAPACK solves are as fast as the covariance kernel was at 15k nodes,
+and the three kernels cost ~3.2 s of compiling on every first run (the noise
+factor 0.78 s, for ~2 ms more per 15k nodes).
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["MIN_SPECKLE_FRACTION", "CHUNK", "gather_matrices", "covariance_from_matrices",
-           "covariance_diag"]
+           "covariance_diag", "mean_noise_factor"]
 
 #: the speckle part ``M`` keeps at least this fraction of each diagonal
 #: entry of ``C`` (extreme noise would otherwise make it singular)
@@ -139,4 +143,64 @@ def covariance_diag(arrays, src, col, scale, var, m, chunk: int = CHUNK) -> np.n
         mats = [gather_matrices(arrays, src[j], col[j], float(scale[j]), nodes)
                 for j in range(4)]
         out[nodes] = covariance_from_matrices(*mats, var[nodes], np.asarray(m)[nodes])
+    return out
+
+
+def mean_noise_factor(u, v, grad, half, offsets, t, rho, chunk: int = CHUNK) -> np.ndarray:
+    """Mean over a grid of subset offsets of the interpolated-noise factor.
+
+    Parameters
+    ----------
+    u, v : (N,) float64
+        Displacements (px).
+    grad : (N, 4) float64
+        Displacement gradient ``(du/dx, du/dy, dv/dx, dv/dy)`` (finite).
+    half : (N,) float64
+        Half-width of the offset grid per node (px).
+    offsets : (K,) float64
+        Offsets in units of ``half``; the grid is ``offsets x offsets``.
+    t, rho : (T,) float64
+        The 1-D factor ``rho(t)`` tabulated at evenly spaced fractional
+        offsets ``t`` from 0 to 1, interpolated linearly (as ``np.interp``).
+    chunk : int
+        Nodes evaluated at once (``chunk * K²`` values are held).
+
+    Returns
+    -------
+    (N,) float64
+        ``mean_ij rho(frac(u_ij)) rho(frac(v_ij))``, ``u_ij = u + u_x o_i +
+        u_y o_j`` (``o = offsets * half``), the same for ``v``; NaN where a
+        ``u_ij`` or ``v_ij`` is not finite.
+    """
+    u, v, half = (np.asarray(a, np.float64) for a in (u, v, half))
+    grad = np.asarray(grad, np.float64)
+    offsets = np.asarray(offsets, np.float64)
+    t, rho = np.asarray(t, np.float64), np.asarray(rho, np.float64)
+    # the table is evenly spaced: the interval is an index, not a search;
+    # frac = 1 (rounding of a tiny negative) reads the last entry, slope 0
+    scale = (t.size - 1) / (t[-1] - t[0])
+    slope = np.append(np.diff(rho), 0.0)
+    oa = np.repeat(offsets, offsets.size)  # the grid, flattened
+    ob = np.tile(offsets, offsets.size)
+
+    def factor(x):  # rho(frac(x)), in place of x; NaN rows read entry 0, marked after
+        bad = ~np.isfinite(x).all(axis=1)
+        x[bad] = 0.0
+        x -= np.floor(x)
+        x *= scale
+        j = x.astype(np.intp)
+        x -= j
+        out = rho[j] + slope[j] * x
+        out[bad] = np.nan
+        return out
+
+    n = u.size
+    out = np.empty(n)
+    for i0 in range(0, n, chunk):
+        s = slice(i0, min(n, i0 + chunk))
+        a, b = oa * half[s, None], ob * half[s, None]
+        g = grad[s]
+        x = u[s, None] + g[:, 0:1] * a + g[:, 1:2] * b
+        y = v[s, None] + g[:, 2:3] * a + g[:, 3:4] * b
+        out[s] = np.einsum("ij,ij->i", factor(x), factor(y)) / oa.size
     return out

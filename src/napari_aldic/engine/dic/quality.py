@@ -42,9 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ..kernels.covariance import mean_noise_factor
 from ..kernels.moments import HYPOT, ONES, centre_moments, moment_terms
-from .covariance import covariance_diag, gather_matrices
+from .covariance import covariance_diag, gather_matrices, mean_noise_factor
 from .interpolation import (
     jacobian_smoothing,
     prefilter,
@@ -369,11 +368,7 @@ def _mean_noise_factor(u, v, grad, half, offsets, order: int) -> np.ndarray:
     offsets`` (times ``half`` px) of positions in each subset, the
     displacement moved there by the gradient ``grad`` (n, 4)."""
     t, rho = _interp_variance_table(int(order))
-    return mean_noise_factor(np.ascontiguousarray(u, np.float64),
-                             np.ascontiguousarray(v, np.float64),
-                             np.ascontiguousarray(grad, np.float64),
-                             np.ascontiguousarray(half, np.float64),
-                             np.asarray(offsets, np.float64), t, rho)
+    return mean_noise_factor(u, v, grad, half, offsets, t, rho)
 
 
 def node_uncertainty(q: SpeckleQuality, zncc, u, v, grad=None, order: int = 3) -> np.ndarray:

@@ -14,9 +14,8 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
   work buffers, starting a node, the step verdict);
 * ``icgn``     the affine and the penalised-translation IC-GN solvers;
 * ``icgn_quadratic`` the 12-parameter (second-order) IC-GN solver;
-* ``moments``  streaming window moments of the speckle-quality maps;
-* ``covariance`` per-node uncertainty from those moments (covariance diagonal,
-  interpolated-noise factors);
+* ``moments``  streaming window moments of the speckle-quality maps (the per-node
+  uncertainty from them is batched NumPy, ``dic/covariance``);
 * ``sums``     integral images and window sums;
 * ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
 * ``cg``       Jacobi-preconditioned conjugate gradients (the curvature smoother);

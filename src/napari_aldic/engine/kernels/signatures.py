@@ -54,8 +54,6 @@ KERNELS: dict[str, tuple[str, ...]] = {
         "int64[:, ::1]", _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _F64_1,
         _F64_1, _I64_1, _I64_1, "int64", "int64", _F64_1, _F64_1, _F64_2),),
     "moments.centre_moments": (_sig(_F64_2, _F64_1, _F64_1, "int64"),),
-    "covariance.mean_noise_factor": (_sig(
-        _F64_1, _F64_1, _F64_2, _F64_1, _F64_1, _F64_1, _F64_1),),
     "static.lag_peaks": (_sig(
         "int64", "int64", _F32_2, _I64_1, _I64_1, _I32_1, "uint8[:, :, ::1]", "int64",
         "int64[:, :, ::1]", _I64_1, "int64", _F64_2),),
@@ -81,7 +79,7 @@ KERNELS: dict[str, tuple[str, ...]] = {
 GROUPS: dict[str, tuple[str, ...]] = {
     "local": ("bspline.spline_gradients", "sums.window_sums", "icgn.icgn_affine",
               "lattice.median_flags", "moments.moments_kernel", "moments.centre_moments",
-              "covariance.mean_noise_factor", "static.lag_peaks"),
+              "static.lag_peaks"),
     "aldic": ("icgn.icgn_translation", "cg.jacobi_cg", "cg.triangular_solve"),
     "strain": ("lattice.plane_fit",),
     "synthetic": ("speckle.speckle_intensity",),
@@ -96,7 +94,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
 COST: dict[str, float] = {
     "icgn.icgn_affine": 6.0, "moments.moments_kernel": 4.6, "icgn.icgn_translation": 3.4,
     "static.lag_peaks": 1.65, "lattice.median_flags": 0.7,
-    "cg.jacobi_cg": 0.8, "covariance.mean_noise_factor": 0.78,
+    "cg.jacobi_cg": 0.8,
     "speckle.speckle_intensity": 1.0,
     "bspline.spline_gradients": 0.22, "sums.window_sums": 0.55,
     "moments.centre_moments": 0.68, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
