@@ -223,3 +223,20 @@ def test_curvature_is_not_estimated_across_level_transitions():
     ok = ~trans & hx & hy & solver.covered
     np.testing.assert_allclose(curv[ok, 0], 2e-3, rtol=1e-3)
     np.testing.assert_allclose(curv[ok, 2], 4e-3, rtol=1e-3)
+
+
+def test_a_node_in_no_element_is_no_level_transition_and_warns_nothing():
+    """A node with no edge neighbour (a lone node of the ROI, as on the open-hole
+    coupon) is no level transition, and finding that raises no NumPy warning
+    (AL-DIC on the shipped sample printed 'All-NaN slice encountered')."""
+    import warnings
+
+    from napari_aldic.engine.dic.global_solve import Q4Mesh, level_transition_nodes
+
+    x = np.array([0.0, 8.0, 16.0, 16.0, 8.0, 0.0, 48.0])
+    y = np.array([0.0, 0.0, 0.0, 8.0, 8.0, 8.0, 48.0])
+    mesh = Q4Mesh(x, y, np.array([[0, 1, 4, 5], [1, 2, 3, 4]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        trans = level_transition_nodes(mesh)
+    assert not trans.any()

@@ -293,9 +293,10 @@ def level_transition_nodes(mesh: Q4Mesh) -> np.ndarray:
         hang[m.hanging[:, 0]] = True
         present = nb >= 0
         nbc = np.maximum(nb, 0)
-        dist = np.where(present, np.abs(m.x[nbc] - m.x[:, None]) + np.abs(m.y[nbc] - m.y[:, None]),
-                        np.nan)
-        spread = np.nanmax(dist, axis=1) - np.nanmin(dist, axis=1)
+        dist = np.abs(m.x[nbc] - m.x[:, None]) + np.abs(m.y[nbc] - m.y[:, None])
+        # a node without edge neighbours (in no element) has no spread: -inf
+        spread = (np.where(present, dist, -np.inf).max(axis=1)
+                  - np.where(present, dist, np.inf).min(axis=1))
         out = hang | (present & hang[nbc]).any(axis=1) | (spread > 0)
         return out
 
