@@ -31,3 +31,32 @@ def test_flat_reference_subsets_are_not_searched_again():
     err = np.hypot(res.u - ut, res.v - vt)
     assert res.valid[moving].mean() > 0.9
     assert np.all(err[res.valid] < 0.05)
+
+
+def test_widening_search_settles_flat_subsets_without_searching_wider(monkeypatch):
+    """A flat subset has no valid shift at any range: the widening search gives
+    it the widest range's verdict (no peak, range = search_max) without FFTs at
+    every doubling (18 s per crack frame before), and leaves the others as they
+    were (a node whose motion is beyond the first range is still found)."""
+    from napari_aldic.engine.dic import init_guess
+
+    f, r, d = _pair_with_a_saturated_band()
+    r, d = r.astype(np.float32), d.astype(np.float32)
+    d = np.roll(d, (0, 30), axis=(0, 1))  # the speckle moves 30 px: beyond ±20
+    xs = np.array([60, 80, 220, 230])
+    ys = np.array([100, 140, 100, 150])  # the last two in the saturated band
+    searched = []
+    real = init_guess.ncc_search
+
+    def spy(f_, g_, xs_, ys_, half, R, *a, **k):
+        searched.append((R, set(zip(xs_.tolist(), ys_.tolist()))))
+        return real(f_, g_, xs_, ys_, half, R, *a, **k)
+
+    monkeypatch.setattr(init_guess, "ncc_search", spy)
+    res = init_guess.ncc_search_widening(r, d, xs, ys, 15, 20, 80, accept=0.5)
+    assert [R for R, _ in searched] == [20, 40]  # the moving nodes need one doubling
+    assert all((220, 100) not in nodes and (230, 150) not in nodes for _, nodes in searched[1:])
+    assert np.all(np.isnan(res.peak[2:])) and np.all(res.search[2:] == 80)
+    assert np.all(res.u[2:] == 0) and not res.on_border[2:].any()
+    assert np.all(res.peak[:2] > 0.9) and np.all(np.abs(res.u[:2] - 30 - f.displacement(
+        xs[:2], ys[:2])[0]) < 0.6)

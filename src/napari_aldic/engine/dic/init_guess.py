@@ -193,6 +193,23 @@ def _ncc_peak(c: np.ndarray, R: int, cu, cv):
     return u, v, peak, on_border
 
 
+def _flat_templates(f, xs, ys, half: int, masks=None, templates=None) -> np.ndarray:
+    """Whether each node's subset (its ``templates`` when given; the pixels
+    of ``masks``) is one grey level: :func:`_ncc_surface` gives it no valid
+    shift, whatever the window."""
+    if templates is None:
+        off = np.arange(-half, half + 1)
+        templates = f[ys[:, None, None] + off[None, :, None],
+                      xs[:, None, None] + off[None, None, :]]
+    t = np.asarray(templates, np.float64)
+    if masks is None:
+        return np.ptp(t, axis=(1, 2)) == 0
+    use = np.asarray(masks, bool)
+    hi = np.where(use, t, -np.inf).max(axis=(1, 2))
+    lo = np.where(use, t, np.inf).min(axis=(1, 2))
+    return ~(hi > lo)
+
+
 def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
                         accept=0.5, workers: int = -1, templates=None,
                         cu=None, cv=None) -> NCCResult:
@@ -208,8 +225,17 @@ def ncc_search_widening(f, g, xs, ys, half, search, search_max, masks=None,
     res = ncc_search(f, g, xs, ys, half, search, masks, cu, cv, workers=workers,
                      templates=templates)
     R = search
+    # a flat subset has no peak at any range: it is settled at the widest one
+    # without searching it there (a saturated region of the crack sample)
+    flat = np.zeros(xs.size, bool)
+    if R < search_max:
+        nan = np.nonzero(~np.isfinite(res.peak))[0]
+        flat[nan] = _flat_templates(f, xs[nan], ys[nan], half,
+                                    None if masks is None else masks[nan],
+                                    None if templates is None else templates[nan])
+        res.search[flat] = search_max
     while R < search_max:
-        redo = np.nonzero(res.on_border | ~(res.peak >= accept))[0]
+        redo = np.nonzero((res.on_border | ~(res.peak >= accept)) & ~flat)[0]
         if redo.size == 0:
             break
         R = min(2 * R, search_max)
