@@ -96,10 +96,9 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
         Refined nodes are extra DIC points; with ``method="aldic"`` the
         global solve constrains hanging nodes.
     guess : DICResult, optional
-        A previous result whose displacements (extrapolated from its nearest
-        trusted node with its gradient) start every node, instead of the
-        cross-correlation or seed guess; nodes that then fail are rescued as
-        usual. ``track`` passes the previous frame.
+        A previous result whose displacements (extrapolated from its nearest trusted
+        node with its gradient) start every node instead of the cross-correlation or
+        seed guess; nodes that then fail are rescued as usual (``track`` passes one).
     progress : callable(ProgressEvent), optional
         Called as the analysis advances (``str(event)`` is its text); a 0.1
         callback ``(fraction, message)`` still works (deprecated).
@@ -137,22 +136,30 @@ def correlate(reference, deformed, roi=None, subset: int | None = None,
                                      _reference_cache(solver_cache, reference))
     meta = {"versions": _versions(),
             "interpolation": "cubic" if im.g_spline.order == 3 else "quintic"}
-    # one thread for work on the reference alone, started ahead (Images.prefetch)
-    im.background = ThreadPoolExecutor(1, initializer=_yielding)
-    try:
+    with _background(im):
         with _numba_threads(params.n_threads):
             sol = _analyse(im, mask, grid, qmesh, params, timing, report, guess, solver_cache)
             if ref_spec is not None and ref_spec.error:
                 grid, qmesh, sol = _refine_by_error(im, mask, base, grid, qmesh, sol, ref_spec,
                                                     params, timing, report, solver_cache, meta)
         quality = _quality(im, mask, grid, sol, params, timing, meta)
-    finally:  # what is still running finishes on its own (Images.memo did not wait)
-        im.background.shutdown(wait=False, cancel_futures=True)
-        im.background, im.pending = None, {}
     sol.reason = _uncertain_as_exported(sol, quality, params)
     _record(meta, sol, ref_spec, grid, params, timing, (t_start, c_start), im.j_sigma)
     report("done", 1.0, "done")
     return _assemble(sol, grid, f.shape, params, meta, mask, quality)
+
+
+@contextmanager
+def _background(im: Images):
+    """One thread for work on the reference alone, started ahead
+    (``Images.prefetch``); what still runs at the end finishes on its own
+    (``Images.memo`` did not wait for it)."""
+    im.background = ThreadPoolExecutor(1, initializer=_yielding)
+    try:
+        yield
+    finally:
+        im.background.shutdown(wait=False, cancel_futures=True)
+        im.background, im.pending = None, {}
 
 
 def _yielding() -> None:
