@@ -16,9 +16,10 @@ matches, batched in NumPy (the model of :mod:`.quality`).
   a grid of offsets across the subset.
 
 These replaced compiled kernels of the same models (issue 25, the first run):
-batched LAPACK solves are as fast as the covariance kernel was at 15k nodes,
-and the three kernels cost ~3.2 s of compiling on every first run (the noise
-factor 0.78 s, for ~2 ms more per 15k nodes).
+batched LAPACK solves are as fast as the covariance kernel was at 15k nodes;
+the kernels cost 2.45 s (covariance), 0.75 s (matrix gathering, AL-DIC) and
+0.78 s (noise factor, now ~2 ms slower per 15k nodes) of compiling on every
+first run.
 """
 
 from __future__ import annotations
