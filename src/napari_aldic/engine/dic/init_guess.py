@@ -124,10 +124,7 @@ def _ncc_surface(f, g, bx, by, cu, cv, masks, half: int, R: int, N: int,
     images (full squares) or from FFT correlations with the mask."""
     S = 2 * half + 1
     nshift = 2 * R + 1
-    if T is None:
-        off = np.arange(-half, half + 1)
-        T = f[(by[:, None, None] + off[None, :, None]), (bx[:, None, None] + off[None, None, :])]
-    T = T.astype(np.float32)
+    T = (_templates(f, bx, by, half) if T is None else T).astype(np.float32)
     M = None if masks is None else masks.astype(np.float32)
     W, ok = _search_windows(g, bx, by, cu, cv, half, R)
     if M is None:
@@ -193,15 +190,18 @@ def _ncc_peak(c: np.ndarray, R: int, cu, cv):
     return u, v, peak, on_border
 
 
+def _templates(f, xs, ys, half: int) -> np.ndarray:
+    """The nodes' square subsets ``(n, 2 half + 1, 2 half + 1)`` of ``f``."""
+    off = np.arange(-half, half + 1)
+    return f[ys[:, None, None] + off[None, :, None], xs[:, None, None] + off[None, None, :]]
+
+
 def _flat_templates(f, xs, ys, half: int, masks=None, templates=None) -> np.ndarray:
     """Whether each node's subset (its ``templates`` when given; the pixels
     of ``masks``) is one grey level: :func:`_ncc_surface` gives it no valid
     shift, whatever the window."""
-    if templates is None:
-        off = np.arange(-half, half + 1)
-        templates = f[ys[:, None, None] + off[None, :, None],
-                      xs[:, None, None] + off[None, None, :]]
-    t = np.asarray(templates, np.float64)
+    t = np.asarray(_templates(f, xs, ys, half) if templates is None else templates,
+                   np.float64)
     if masks is None:
         return np.ptp(t, axis=(1, 2)) == 0
     use = np.asarray(masks, bool)
