@@ -57,19 +57,9 @@ def gather_matrices(arrays, src, col, scale: float, nodes=slice(None)) -> np.nda
     -------
     (n, S, S) float64
     """
-    s = src.shape[0]
-    rows = [np.asarray(a)[nodes] for a in arrays]
-    src, col = src.ravel(), col.ravel()
-    if np.all(src == 0):  # one array holds every entry: one fancy index
-        out = rows[0][:, col]
-    else:
-        out = np.zeros((rows[0].shape[0], s * s))
-        for j, a in enumerate(rows):
-            pick = np.flatnonzero(src == j)
-            if pick.size:
-                out[:, pick] = a[:, col[pick]]
-    out *= scale
-    return out.reshape(-1, s, s)
+    # one gather: the node-last one, transposed
+    return np.ascontiguousarray(_gather_node_last(arrays, src, col, scale, nodes)
+                                .transpose(2, 0, 1))
 
 
 def covariance_from_matrices(a, ea, c, ec, var, m) -> np.ndarray:
