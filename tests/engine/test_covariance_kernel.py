@@ -84,26 +84,32 @@ def test_covariance_matches_numpy(s):
 
 @pytest.mark.parametrize("s", [6, 12])
 def test_covariance_needs_and_gets_pivoting(s):
-    """Matrices with a zero leading entry (elimination without row swaps
-    divides by zero) are solved, and the determinant's sign counts the
-    swaps: two swapped rows (det < 0) leave the node out, three rows in a
-    cycle (det > 0) keep it."""
+    """``M`` with a zero leading entry in ``Mᵀ`` (elimination without row
+    swaps divides by zero) is solved, and the sign of ``det M`` follows the
+    row swaps: rows 0 and 1 swapped (det < 0) leave every such node out,
+    rows 0, 1, 2 in a cycle (det > 0) keep every one."""
     rng = np.random.default_rng(40 + s)
     n = 60
-    a, ea, c, ec = _nodes(rng, n, s)
+    j = rng.normal(size=(n, s, 3 * s))
+    a = j @ j.transpose(0, 2, 1)
+    # diagonally dominant (det > 0, and still so with entry (1, 0) zeroed)
+    c = a + np.eye(s) * 4 * np.abs(a).sum(axis=2)[:, :, None]
+    c[:, 1, 0] = 0.0  # after the row swaps below this is M[0, 0]: Mᵀ's first pivot
+    c[:20] = c[:20][:, [1, 0, *range(2, s)]]
+    c[20:40] = c[20:40][:, [1, 2, 0, *range(3, s)]]
+    c[40:] = c[40:][:, [1, 2, 0, *range(3, s)]]
+    assert (c[:, 0, 0] == 0).all()
+    det = np.linalg.det(c)
+    assert (det[:20] < 0).all() and (det[20:] > 0).all()
+    ea = np.zeros_like(a)  # no noise part: M = C exactly
     var = rng.uniform(0.1, 1.0, n)
     m = np.full(n, 10.0 * s)
-    c[:20] = c[:20][:, [1, 0, *range(2, s)]]  # rows 0, 1 swapped: det < 0
-    c[20:40] = c[20:40][:, [1, 2, 0, *range(3, s)]]  # a 3-cycle: det > 0
-    ec[:40] = 0.0  # the noise part would change the leading entries
-    c[:40, 0, 0] = 0.0  # the first pivot of Mᵀ without row swaps is zero
-    ref = _reference(a, ea, c, ec, var, m)
-    got = _packed(a, ea, c, ec, var, m)
-    assert np.array_equal(np.isfinite(ref), np.isfinite(got))
-    assert not np.isfinite(got[:20]).any()
-    ok = np.isfinite(ref)
-    assert ok[20:].sum() > 30
-    np.testing.assert_allclose(got[ok], ref[ok], rtol=1e-10)
+    ref = _reference(a, ea, c, ea, var, m)
+    got = _packed(a, ea, c, ea, var, m)
+    assert np.isnan(got[:20]).all() and np.isnan(ref[:20]).all()
+    assert np.isfinite(got[20:]).all()
+    np.testing.assert_allclose(got[20:], ref[20:], rtol=1e-11)
+
 
 def test_covariance_of_a_translation_is_pans_rule():
     """2 x 2, no gradient noise: 2 σ² H⁻¹ H H⁻¹ = 2 σ² H⁻¹."""

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["MIN_SPECKLE_FRACTION", "CHUNK", "gather_matrices", "covariance_from_matrices",
-           "covariance_diag", "mean_noise_factor", "solve_batched"]
+           "covariance_diag", "mean_noise_factor"]
 
 #: the speckle part ``M`` keeps at least this fraction of each diagonal
 #: entry of ``C`` (extreme noise would otherwise make it singular)
@@ -121,7 +121,7 @@ def _variances(a, ea, c, ec, var, m) -> np.ndarray:
     e = np.zeros((s, 2, n))
     e[0, 0] = e[k, 1] = 1.0
     # rows 0 and k of M⁻¹ (Mᵀ z = e; det Mᵀ = det M)
-    z, positive = solve_batched(spk.transpose(1, 0, 2), e)
+    z, positive = _solve_batched(spk.transpose(1, 0, 2), e)
     ok &= positive
     q = np.einsum("ian,ian->an", z, np.einsum("ijn,jan->ian", mid, z))
     with np.errstate(invalid="ignore", over="ignore"):
@@ -129,7 +129,7 @@ def _variances(a, ea, c, ec, var, m) -> np.ndarray:
     return out
 
 
-def solve_batched(mats: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _solve_batched(mats: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``M x = b`` for many small matrices at once, laid out node-last.
 
     Gaussian elimination with partial pivoting (LAPACK's pivots), a step at a
@@ -183,18 +183,11 @@ def _gather_node_last(arrays, src, col, scale: float, nodes: slice) -> np.ndarra
     contiguous row of the transposed moment arrays."""
     s = src.shape[0]
     src, col = src.ravel(), col.ravel()
-    out = None
+    out = np.zeros((s * s, np.asarray(arrays[0])[nodes].shape[0]))  # src < 0: zero
     for j, arr in enumerate(arrays):
         pick = np.flatnonzero(src == j)
-        if not pick.size:
-            continue
-        rows = np.asarray(arr)[nodes][:, col[pick]].T
-        if out is None:
-            out = np.zeros((s * s, rows.shape[1]))
-        out[pick] = rows
-    if out is None:
-        n = np.asarray(arrays[0])[nodes].shape[0]
-        out = np.zeros((s * s, n))
+        if pick.size:
+            out[pick] = np.asarray(arr)[nodes][:, col[pick]].T
     out *= scale
     return out.reshape(s, s, -1)
 
