@@ -375,13 +375,20 @@ class CurvatureEstimator:
         self._Dxy = twist_to_nodes @ Dxy
         self._zero = (np.bincount(e.ravel(), minlength=n) == 0) | level_transition_nodes(mesh)
 
-    def __call__(self, uh: np.ndarray, vh: np.ndarray, direct: bool = False) -> np.ndarray:
+    @property
+    def matrix(self) -> sp.csc_matrix:
+        """The smoother's SPD matrix (free nodes)."""
+        return self._smoother.A
+
+    def __call__(self, uh: np.ndarray, vh: np.ndarray, direct: bool = False,
+                 solver=None) -> np.ndarray:
         """(N, 6) ``uxx, uxy, uyy, vxx, vxy, vyy`` in 1/px, (N, 6, K) for K fields (N, K);
         ``direct``: smoothed by a factor of the smoother's matrix (built once,
-        :class:`~.linear_solvers.TriangularSolver`), not CG: for many columns (noise probes)."""
-        if direct and self._factor is None:
+        :class:`~.linear_solvers.TriangularSolver`), not CG: for many columns (noise probes);
+        ``solver``: an object whose ``solve(rhs, guess)`` solves with :attr:`matrix` instead."""
+        if direct and solver is None and self._factor is None:
             self._factor = SPDSolver(self._smoother.A, "direct", 0.0).triangular()
-        solve = (self._factor if direct else self._smoother).solve
+        solve = (solver or (self._factor if direct else self._smoother)).solve
         uv = np.column_stack([uh, vh])  # the u columns, then the v columns
         sm = self.T @ solve(self._Wd @ uv, uv[self.free])
         out = np.stack([D @ s for s in np.split(sm, 2, axis=1)

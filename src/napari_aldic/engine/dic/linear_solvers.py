@@ -13,8 +13,8 @@ import scipy.sparse.linalg as spla
 from ..kernels.cg import jacobi_cg, triangular_solve
 from .threads import side_by_side
 
-__all__ = ["SPDSolver", "TriangularSolver", "solver_method", "DIRECT_MAX_UNKNOWNS",
-           "SOLVER_METHODS"]
+__all__ = ["SPDSolver", "TriangularSolver", "solver_method", "cg_tolerances",
+           "DIRECT_MAX_UNKNOWNS", "SOLVER_METHODS"]
 
 # up to this many unknowns the SuperLU factor is used: measured (RESULTS.md,
 # benchmarks/bench_smoothing.py solver) it beats AMG-CG in time up to at least
@@ -112,26 +112,30 @@ class SPDSolver:
         return TriangularSolver(self._lu)
 
     def _jacobi_cg(self, rhs: np.ndarray, start: np.ndarray) -> np.ndarray:
-        """Jacobi-preconditioned CG per column (``scipy.sparse.linalg.cg``'s
-        iteration with ``M = diag(A)⁻¹``, compiled and single-threaded)."""
+        """Jacobi-preconditioned CG for every column (``scipy.sparse.linalg.cg``'s
+        iteration with ``M = diag(A)⁻¹``, compiled and single-threaded, the
+        columns sharing each pass over ``A``)."""
         A = self._csr
-        sol = np.empty(rhs.shape)
-        for c in range(rhs.shape[1]):
-            b = np.ascontiguousarray(rhs[:, c], np.float64)
-            # not np.linalg.norm: a 1-D norm is a BLAS dot product, which on
-            # vectors this long OpenBLAS splits between threads (18 ms a call
-            # measured at load 7 on 2 cores, 6 calls in a smoothing choice)
-            bnorm = float(np.sqrt(np.sum(b * b)))
-            x = np.array(start[:, c], np.float64)
-            its = 0
-            if bnorm == 0:
-                x[:] = 0.0
-            else:
-                its = jacobi_cg(A.indptr, A.indices, A.data, self._dinv, b, x,
-                                self.rtol * bnorm, 5000)
-            self.iterations.append(int(its))
-            sol[:, c] = x
-        return sol
+        b = np.ascontiguousarray(rhs, np.float64).reshape(rhs.shape[0], -1)
+        x = np.array(start, np.float64).reshape(b.shape)
+        # not np.linalg.norm: a 1-D norm is a BLAS dot product, which on
+        # vectors this long OpenBLAS splits between threads (18 ms a call
+        # measured at load 7 on 2 cores, 6 calls in a smoothing choice)
+        atol, zero = cg_tolerances(b, self.rtol)
+        x[:, zero] = 0.0
+        its = np.zeros(b.shape[1], np.int64)
+        jacobi_cg(A.indptr, A.indices, A.data, self._dinv, b, x, atol, 5000, its)
+        self.iterations.extend(int(i) for i in its)
+        return x.reshape(rhs.shape)
+
+
+def cg_tolerances(b: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(atol, zero)`` of :func:`~..kernels.cg.jacobi_cg` for the columns of
+    ``b``: ``rtol`` times each column's norm, and the columns that are zero
+    (their solution is 0; an infinite tolerance stops them at once)."""
+    norm = np.sqrt(np.einsum("ij,ij->j", b, b))
+    zero = norm == 0
+    return np.where(zero, np.inf, rtol * norm), zero
 
 
 class TriangularSolver:

@@ -52,6 +52,7 @@ import scipy.ndimage as ndi
 import scipy.sparse as sp
 
 from ..core.params import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
+from ..kernels.cg import jacobi_cg
 from .global_solve import (
     UNTRUSTED_WEIGHT,
     CurvatureEstimator,
@@ -62,6 +63,7 @@ from .global_solve import (
     second_difference_operators,
     solver_method,
 )
+from .linear_solvers import cg_tolerances
 from .reliability import displacement_variance, subset_statistics
 from .threads import side_by_side
 
@@ -83,6 +85,14 @@ WARP_LENGTH_CAP = True
 DECONVOLUTION_STEPS = 3
 # trial smoothers factorised at once (the machines this targets have 2+ cores)
 SMOOTHING_THREADS = 2
+# trial lengths up to this many node spacings are solved by Jacobi CG (relative
+# tolerance CG_RTOL on the smoother's correction; past CG_MAX_ITER iterations a
+# factor instead); the off-data nodes start from the fields' window mean of
+# FILL_SIGMA node spacings
+CG_MAX_LENGTH = 1.0
+CG_RTOL = 1e-4
+CG_MAX_ITER = 200
+FILL_SIGMA = 2.0
 
 
 def gradient_noise_gain(order: int) -> float:
@@ -310,7 +320,8 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     # while this thread estimates the bias, their third field
     late = Future()
     with ThreadPoolExecutor(1) as aside:
-        job = aside.submit(_residuals, mesh, np.column_stack([u, v]), keep, lengths, late)
+        job = aside.submit(_residuals, mesh, np.column_stack([u, v]), keep, lengths, step,
+                           late)
         try:
             lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset,
                                             bias_length)
@@ -346,43 +357,134 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     return plain, warp, gain
 
 
-def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths,
+def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
                late: Future | None = None) -> np.ndarray:
     """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
     ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes.
     ``late``: a future of more columns of ``fields``, waited for only once a
-    smoother is factorised (the caller computes them meanwhile)."""
-    T, _ = mesh.prolongation()
+    smoother is ready for them (the caller computes them meanwhile).
+
+    Lengths up to ``CG_MAX_LENGTH`` node spacings are solved by Jacobi CG for
+    the correction ``S_ℓ f - f`` itself (:class:`_ShortSmoother`); longer ones
+    (and short ones whose CG stalls) by a factor like the global matrix's, or
+    on meshes too large for a factor by AMG-CG warm-started from the previous
+    length (4 digits suffice)."""
+    T, free = mesh.prolongation()
     KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
     Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
     diag = np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
     trials = [k for k, ell in enumerate(lengths) if ell != 0]
+    first = np.where(keep[:, None], fields, np.nan)
 
     def data():  # the fields, the late columns with them, 0 off keep
         more = () if late is None else (late.result(),)
         return np.where(keep[:, None], np.column_stack([fields, *more]), 0.0)
 
-    def smooth(k, start):
-        # factorised like the global matrix (measured: a factor per length is
-        # ~8x faster than CG at 22k nodes); AMG-CG, warm-started from the
-        # previous length, on meshes too large for a factor (4 digits suffice)
+    def factor(k, start=None):
         solver = SPDSolver((Wd + lengths[k] ** 4 * KtK).tocsc(), "auto", rtol=1e-5)
         b = T.T @ data()
         return solver.solve(b, b / diag if start is None else start)
+
     if solver_method(Wd.shape[0]) == "direct":
-        # the factors are independent and SuperLU releases the GIL: two at a
-        # time on the two cores (each factor freed once its solve is done)
-        sols = side_by_side(lambda k: smooth(k, None), trials, SMOOTHING_THREADS)
+        short = [k for k in trials if lengths[k] <= CG_MAX_LENGTH * step]
+        long = [k for k in trials if k not in short]
+        # CG starts from the fields, filled off the data by their window mean
+        fill = np.nan_to_num(window_mean(mesh, first, step, FILL_SIGMA * step))
+
+        def columns(late_ones: bool):  # (right-hand sides, starts) on the free nodes
+            f = late.result() if late_ones else fields
+            start = np.where(keep[:, None], f, 0.0 if late_ones else fill)[free]
+            return T.T @ np.where(keep[:, None], f, 0.0), start
+        cg = _ShortSmoother(Wd, KtK, columns, late is not None)
+
+        def job(k):
+            if k < 0:  # the short lengths, one after the other on one thread
+                return cg.run([lengths[j] for j in short], lambda i: factor(short[i]))
+            return [factor(k)]
+        # the long lengths' factors are independent and SuperLU releases the GIL:
+        # two at a time on the two cores (each freed once its solve is done),
+        # the short lengths' CG beside them
+        parts = side_by_side(job, ([-1] if short else []) + long, SMOOTHING_THREADS)
+        found = dict(zip(short + long, [s for part in parts for s in part]))
+        sols = [found[k] for k in trials]
     else:
         sols = []
         for k in trials:
-            sols.append(smooth(k, sols[-1] if sols else None))
+            sols.append(factor(k, sols[-1] if sols else None))
     full = data()
     out = np.full((mesh.n_nodes, len(lengths), full.shape[1]), np.nan)
     out[keep] = 0.0
     for k, sol in zip(trials, sols):
         out[keep, k] = ((T @ sol) - full)[keep]
     return out
+
+
+class _ShortSmoother:
+    """The trial smoothers of short lengths by Jacobi CG on the correction.
+
+    With ``x0`` the fields (filled off the data), ``(Wd + ℓ⁴ KᵀK) x = b`` is
+    solved as ``x = x0 + e``, ``(Wd + ℓ⁴ KᵀK) e = b - (Wd + ℓ⁴ KᵀK) x0``: ``e`` is
+    the smoother's correction, the risk's residual, so CG's relative tolerance
+    applies to it, not to the field (a rigid shift of 50 px would otherwise
+    need 1e-8). Short lengths are well conditioned (κ ≲ 1 + 64 (ℓ/step)⁴):
+    10-40 iterations, a fraction of a factor's cost. A column that stalls
+    (many untrusted nodes make the system nearly singular there) hands its
+    length, and the longer ones, to the fallback.
+
+    ``columns(late)``: ``(b, x0)`` of the first columns (``late=False``) or,
+    with ``has_late``, of the late ones."""
+
+    def __init__(self, Wd, KtK, columns, has_late: bool):
+        self.Wd, self.KtK, self.columns, self.has_late = Wd, KtK, columns, has_late
+
+    def run(self, lengths, fallback) -> list:
+        """Solutions (free nodes x columns) for each of ``lengths`` in order;
+        ``fallback(i)`` solves length ``i`` (every column) when CG does not."""
+        mats = [(self.Wd + ell**4 * self.KtK).tocsr() for ell in lengths]
+        b, x0 = self.columns(False)
+        out, whole = [], []  # whole: solved in every column (by the fallback)
+        for i, A in enumerate(mats):
+            # a longer length stalls too once a shorter one has
+            x = None if any(whole) else _cg_columns(A, b, x0)
+            whole.append(x is None)
+            out.append(fallback(i) if x is None else x)
+        if self.has_late:
+            b, x0 = self.columns(True)
+            for i, A in enumerate(mats):
+                x = None if whole[i] else _cg_columns(A, b, x0)
+                if not whole[i]:
+                    out[i] = fallback(i) if x is None else np.column_stack([out[i], x])
+        return out
+
+
+class _CGFirst:
+    """``solve(rhs, guess)`` with one SPD matrix, warm-started from the last
+    solution (the first from ``start``): :func:`_cg_columns`, and once CG
+    stalls a factor for this and every later solve."""
+
+    def __init__(self, A, start: np.ndarray):
+        self.A, self._last, self._factor = A.tocsr(), start, None
+
+    def solve(self, rhs: np.ndarray, guess=None) -> np.ndarray:
+        x = None if self._factor is not None else _cg_columns(self.A, rhs, self._last)
+        if x is None:
+            if self._factor is None:
+                self._factor = SPDSolver(self.A.tocsc(), "direct", 0.0)
+            x = self._factor.solve(rhs, None)
+        self._last = x
+        return x
+
+
+def _cg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray) -> np.ndarray | None:
+    """``A⁻¹ b`` as ``x0`` plus a correction solved by Jacobi CG to ``CG_RTOL`` of
+    its right-hand side, all columns at once; None if a column needs more than
+    ``CG_MAX_ITER`` iterations."""
+    rhs = np.ascontiguousarray(b - A @ x0)
+    atol, _ = cg_tolerances(rhs, CG_RTOL)
+    e = np.zeros(rhs.shape)
+    its = np.zeros(rhs.shape[1], np.int64)
+    jacobi_cg(A.indptr, A.indices, A.data, 1.0 / A.diagonal(), rhs, e, atol, CG_MAX_ITER, its)
+    return None if (its >= CG_MAX_ITER).any() else x0 + e
 
 
 def _adaptive_choice(mesh: Q4Mesh, risk, step, sigma_px, i_global) -> np.ndarray:
@@ -439,14 +541,19 @@ def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
         return bias, gain
     T, free = mesh.prolongation()
     estimate = CurvatureEstimator(mesh, length, keep, T, free)
-    # a factor when the trial smoothers use them too: with many untrusted nodes
-    # (weight UNTRUSTED_WEIGHT) Jacobi CG needs thousands of iterations (crack
-    # sample: 2,000 per column, 2.7 s, against ~40 when nearly all are data)
-    direct = solver_method(mesh.n_nodes) == "direct"
     uv = np.column_stack([u, v])
+    solver = None
+    if solver_method(mesh.n_nodes) == "direct":
+        # as the short trial smoothers: CG on the correction, from the field
+        # filled off the data, and a factor if CG stalls (with many untrusted
+        # nodes, weight UNTRUSTED_WEIGHT, Jacobi CG needs thousands of
+        # iterations: crack sample 2,000 per column, against ~40 when nearly
+        # all nodes are data)
+        fill = window_mean(mesh, np.where(keep[:, None], uv, np.nan), step, FILL_SIGMA * step)
+        solver = _CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free])
     d = uv
     for _ in range(DECONVOLUTION_STEPS):
-        curv = estimate(d[:, 0], d[:, 1], direct=direct)
+        curv = estimate(d[:, 0], d[:, 1], solver=solver)
         d = uv - _subset_gamma(subset) * np.column_stack([curv[:, 0] + curv[:, 2],
                                                           curv[:, 3] + curv[:, 5]])
     bias[inner] = (uv - d)[inner]
