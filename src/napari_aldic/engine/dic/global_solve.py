@@ -375,6 +375,12 @@ class CurvatureEstimator:
         self._Dxy = twist_to_nodes @ Dxy
         self._zero = (np.bincount(e.ravel(), minlength=n) == 0) | level_transition_nodes(mesh)
 
+    def factorise(self) -> None:
+        """Build the factor that ``direct`` calls use (once; call it before
+        using the estimator from several threads)."""
+        if self._factor is None:
+            self._factor = SPDSolver(self._smoother.A, "direct", 0.0).triangular()
+
     @property
     def matrix(self) -> sp.csc_matrix:
         """The smoother's SPD matrix (free nodes)."""
@@ -386,8 +392,8 @@ class CurvatureEstimator:
         ``direct``: smoothed by a factor of the smoother's matrix (built once,
         :class:`~.linear_solvers.TriangularSolver`), not CG: for many columns (noise probes);
         ``solver``: an object whose ``solve(rhs, guess)`` solves with :attr:`matrix` instead."""
-        if direct and solver is None and self._factor is None:
-            self._factor = SPDSolver(self._smoother.A, "direct", 0.0).triangular()
+        if direct and solver is None:
+            self.factorise()
         solve = (solver or (self._factor if direct else self._smoother)).solve
         uv = np.column_stack([uh, vh])  # the u columns, then the v columns
         sm = self.T @ solve(self._Wd @ uv, uv[self.free])

@@ -90,7 +90,7 @@ SMOOTHING_THREADS = 2
 # factor instead); the off-data nodes start from the fields' window mean of
 # FILL_SIGMA node spacings
 CG_MAX_LENGTH = 1.0
-CG_RTOL = 1e-4
+CG_RTOL = 1e-6
 CG_MAX_ITER = 200
 FILL_SIGMA = 2.0
 
@@ -403,9 +403,9 @@ def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
             return [factor(k)]
         # the long lengths' factors are independent and SuperLU releases the GIL:
         # two at a time on the two cores (each freed once its solve is done),
-        # the short lengths' CG beside them
-        parts = side_by_side(job, ([-1] if short else []) + long, SMOOTHING_THREADS)
-        found = dict(zip(short + long, [s for part in parts for s in part]))
+        # the short lengths' CG (its late columns come last) on the first core free
+        parts = side_by_side(job, long + ([-1] if short else []), SMOOTHING_THREADS)
+        found = dict(zip(long + short, [s for part in parts for s in part]))
         sols = [found[k] for k in trials]
     else:
         sols = []
@@ -543,7 +543,7 @@ def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
     estimate = CurvatureEstimator(mesh, length, keep, T, free)
     uv = np.column_stack([u, v])
     solver = None
-    if solver_method(mesh.n_nodes) == "direct":
+    if solver_method(mesh.n_nodes) == "direct" and length <= CG_MAX_LENGTH * step:
         # as the short trial smoothers: CG on the correction, from the field
         # filled off the data, and a factor if CG stalls (with many untrusted
         # nodes, weight UNTRUSTED_WEIGHT, Jacobi CG needs thousands of

@@ -204,12 +204,12 @@ def _curvature_change(fb: CurvatureFeedback, uh, vh) -> np.ndarray:
     return fb.factor[:, :, None] * fb.estimator(uh, vh, direct=True)
 
 
-def _propagate(lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray, cinv: np.ndarray,
-               pen: np.ndarray, k: int, coupling: np.ndarray | None, fcoupling: np.ndarray):
+def _propagate(solver: BatchSolver, lin: ADMMLinearisation, dp0: np.ndarray, b_t: np.ndarray,
+               cinv: np.ndarray, pen: np.ndarray, k: int, coupling: np.ndarray | None,
+               fcoupling: np.ndarray):
     """The linearised ADMM run for a batch of noise images (last axis): start
     ``dp0`` (n, 2k, K), local data ``b_t`` (n, 2, K); returns the errors of
     the global ``û``, ``v̂`` (n, K) each."""
-    solver = BatchSolver(lin.solver)
     u, v = dp0[:, 0].copy(), dp0[:, k].copy()
     g0 = dp0[:, [1, 2, k + 1, k + 2]]
     W = np.zeros_like(g0)
@@ -270,10 +270,19 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     # what the run did, and a huge sensitivity times a tiny weight would
     # still swamp the field
     data = active[:, None, None]
-    uh, vh = _propagate(lin, np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0),
-                        cinv, pen, k,
-                        None if lin.curvature is None else _curvature_coupling(m, k),
-                        _gradient_coupling(m, k))
+    start, b_t = np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0)
+    solver = BatchSolver(lin.solver)
+    if lin.curvature is not None:
+        lin.curvature.estimator.factorise()  # shared by both halves
+    maps = (cinv, pen, k, None if lin.curvature is None else _curvature_coupling(m, k),
+            _gradient_coupling(m, k))
+    # the probes are independent: two halves side by side (the propagation's
+    # NumPy and SciPy steps release the GIL but run on one thread each)
+    halves = np.array_split(np.arange(lin.probes), 2)
+    parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *maps),
+                         halves, 2)
+    uh = np.concatenate([p[0] for p in parts], axis=1)
+    vh = np.concatenate([p[1] for p in parts], axis=1)
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
     s_glob = np.stack([np.sum(uh**2, axis=1), np.sum(vh**2, axis=1)], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

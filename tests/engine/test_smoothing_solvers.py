@@ -1,0 +1,150 @@
+"""The linear solvers of the smoothing choice: the multi-column Jacobi CG kernel,
+the short trial smoothers solved by CG on their correction, and the factor
+they fall back to when CG stalls."""
+
+from concurrent.futures import Future
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from napari_aldic.engine.dic import regularise as R
+from napari_aldic.engine.dic.global_solve import curvature_operator, uniform_mesh
+from napari_aldic.engine.dic.linear_solvers import cg_tolerances
+from napari_aldic.engine.dic.mesh import make_grid
+from napari_aldic.engine.kernels.cg import jacobi_cg
+
+
+def _mesh(shape=(240, 280), subset=31, step=8):
+    roi = np.ones(shape, bool)
+    return uniform_mesh(make_grid(roi, subset, step), roi)
+
+
+def _fields(mesh, seed=0):
+    """A smooth field with detail and noise, and a second, smaller one."""
+    rng = np.random.default_rng(seed)
+    n = mesh.n_nodes
+    u = 3.0 + 2e-3 * mesh.x + 0.4 * np.sin(mesh.y / 19.0) + 0.01 * rng.standard_normal(n)
+    v = -1.0 + 1e-3 * mesh.y - 0.2 * np.cos(mesh.x / 27.0) + 0.01 * rng.standard_normal(n)
+    return np.column_stack([u, v])
+
+
+def test_cg_solves_each_column_as_alone_bit_for_bit():
+    """All columns in one pass over A give each column exactly what solving it
+    alone gives (and its own iteration count); a zero column stays zero."""
+    mesh = _mesh((160, 200), 15, 8)
+    K = curvature_operator(mesh).tocsr()
+    A = (sp.eye(mesh.n_nodes) + 3.0 * (K.T @ K)).tocsr()
+    rng = np.random.default_rng(1)
+    b = rng.standard_normal((mesh.n_nodes, 5))
+    b[:, 2] = 0.0
+    b[:, 4] *= 1e-3  # converges in a different number of iterations
+    dinv = 1.0 / A.diagonal()
+    atol, zero = cg_tolerances(b, 1e-8)
+    assert zero.tolist() == [False, False, True, False, False]
+    x = np.zeros_like(b)
+    its = np.zeros(5, np.int64)
+    jacobi_cg(A.indptr, A.indices, A.data, dinv, b, x, atol, 500, its)
+    for c in range(5):
+        xc = np.zeros((b.shape[0], 1))
+        ic = np.zeros(1, np.int64)
+        jacobi_cg(A.indptr, A.indices, A.data, dinv, np.ascontiguousarray(b[:, c:c + 1]), xc,
+                  atol[c:c + 1], 500, ic)
+        assert np.array_equal(x[:, c], xc[:, 0]) and its[c] == ic[0]
+    assert its[2] == 0 and not x[:, 2].any()
+    assert 0 < its.max() < 500
+    res = np.sqrt(np.sum((b - A @ x) ** 2, axis=0))
+    assert np.all(res[~zero] < atol[~zero])
+
+
+class _Count:
+    """Counts the factors SPDSolver builds in the smoothing choice."""
+
+    def __init__(self, monkeypatch):
+        self.n = 0
+        real = R.SPDSolver
+
+        def spy(A, method, rtol):
+            s = real(A, method, rtol)
+            self.n += s.method == "direct"
+            return s
+        monkeypatch.setattr(R, "SPDSolver", spy)
+
+
+def _residuals(mesh, fields, keep, late=True):
+    lengths = [float(c) * 31 for c in R.SMOOTH_CANDIDATES]
+    fut = None
+    if late:  # the bias columns arrive late, as in choose_smoothing
+        fut = Future()
+        fut.set_result(0.01 * np.sin(fields[:, ::-1] / 7.0))
+    return R._residuals(mesh, fields, keep, lengths, 8.0, fut)
+
+
+def _factored(monkeypatch, mesh, fields, keep):
+    with monkeypatch.context() as m:
+        m.setattr(R, "CG_MAX_LENGTH", 0.0)  # every trial length by a factor
+        return _residuals(mesh, fields, keep)
+
+
+def test_short_trial_smoothers_by_cg_agree_with_factors(monkeypatch):
+    """The short lengths are solved by CG on the correction S f - f, without a
+    factor, and agree with the factored smoother far below the noise the risk
+    weighs (rigid offset of 3 px in the fields: the tolerance is the correction's)."""
+    mesh = _mesh()
+    fields = _fields(mesh)
+    keep = mesh.y > mesh.y.min()  # an untrusted first row, as in the 1024² benchmark
+    ref = _factored(monkeypatch, mesh, fields, keep)
+    count = _Count(monkeypatch)
+    got = _residuals(mesh, fields, keep)
+    lengths = np.array(R.SMOOTH_CANDIDATES) * 31
+    assert count.n == int(np.sum(lengths > R.CG_MAX_LENGTH * 8))  # factors: long lengths only
+    assert np.isfinite(got[keep]).all() and np.isnan(got[~keep]).all()
+    # per length and column (u, v, then the late ones): 1e-6 of CG's first
+    # residual leaves ~1e-5 of the correction; the risk weighs its square
+    err = np.abs(got[keep] - ref[keep]).max(axis=0)[1:]
+    scale = np.abs(ref[keep]).max(axis=0)[1:]
+    assert np.all(scale > 5e-6)
+    assert np.all(err < 2e-4 * scale)
+
+
+@pytest.mark.parametrize("cap", [R.CG_MAX_ITER, 40])
+def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, cap):
+    """A 40 % untrusted block makes CG stall (default cap: at the first length,
+    every length then factored); a low cap stalls it partway along the lengths,
+    whose late columns must still be solved. Either way: the factored result."""
+    mesh = _mesh((320, 320))
+    fields = _fields(mesh, 2)
+    keep = mesh.x < 200
+    ref = _factored(monkeypatch, mesh, fields, keep)
+    monkeypatch.setattr(R, "CG_MAX_ITER", cap)
+    count = _Count(monkeypatch)
+    got = _residuals(mesh, fields, keep)
+    assert count.n >= 3
+    assert got.shape == ref.shape and np.isfinite(got[keep]).all()
+    scale = np.abs(ref[keep]).max()
+    assert np.abs(got[keep] - ref[keep]).max() < 1e-5 * scale
+
+
+def test_cg_first_solver_factors_after_a_stall(monkeypatch):
+    """_CGFirst: CG from the start it is given, warm-started after, and a factor
+    for good once CG stalls (the bias smoother of the 40 % untrusted block)."""
+    from napari_aldic.engine.dic.global_solve import UNTRUSTED_WEIGHT
+
+    mesh = _mesh((320, 320))
+    keep = mesh.x < 200
+    KtK = (curvature_operator(mesh).T @ curvature_operator(mesh)).tocsr()
+    for wd, stalls in ((np.ones(mesh.n_nodes), False),
+                       (np.where(keep, 1.0, UNTRUSTED_WEIGHT), True)):
+        count = _Count(monkeypatch)
+        A = (sp.diags(wd) + 7.5**4 * KtK).tocsc()
+        f = _fields(mesh, 4)
+        # all data: started from the field; the block: filled off the data
+        s = R._CGFirst(A, f if not stalls else np.where(keep[:, None], f, f.mean(axis=0)))
+        b = sp.diags(wd) @ f
+        x1 = s.solve(b)
+        x2 = s.solve(b * 1.01)
+        assert count.n == int(stalls)
+        exact = sp.linalg.spsolve(A, b)
+        scale = np.abs(exact - f)[keep].max()
+        assert np.abs(x1 - exact)[keep].max() < 2e-4 * scale
+        assert np.abs(x2 - 1.01 * exact)[keep].max() < 2e-4 * scale
