@@ -60,9 +60,9 @@ def _captured_gain_inputs(monkeypatch, ref, dfm, **kw):
     seen = {}
     real = Q.aldic_gain
 
-    def spy(q, project, lin):
+    def spy(q, project, lin, maps=None):
         seen["args"] = (q, project, lin)
-        return real(q, project, lin)
+        return real(q, project, lin, maps)
 
     monkeypatch.setattr(Q, "aldic_gain", spy)
     correlate(ref, dfm, method="aldic", max_uncertainty=None, **kw)

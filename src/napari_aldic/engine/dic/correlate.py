@@ -33,7 +33,7 @@ from .mesh import NodeGrid, make_grid
 from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .regularise import gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
-from .result_quality import probe_job, result_quality, speckle_job
+from .result_quality import maps_job, probe_job, result_quality, speckle_job
 from .static import flag_static_features, prefetch_static
 from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
@@ -324,11 +324,18 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     prefetch_static(im, roi, grid, sub, params)
     if params.extra.get("quality", True):
         inputs = _quality_inputs(im, roi, grid, params)
-        im.prefetch(*speckle_job(*inputs))
+        speckle = speckle_job(*inputs)
+        im.prefetch(*speckle)
         if params.method == "aldic":  # the noise probes of its u_std propagation
             _, grads, _, mask, x, y, subset, shape, jacobian = inputs
-            im.prefetch(*probe_job(grads, mask, x, y, subset, shape, jacobian,
-                                   ADMMLinearisation.seed, ADMMLinearisation.probes))
+            probes = probe_job(grads, mask, x, y, subset, shape, jacobian,
+                               ADMMLinearisation.seed, ADMMLinearisation.probes)
+            im.prefetch(*probes)
+            # and what the propagation makes of them before the run (on the
+            # core the global factorisation leaves idle)
+            jobs = [im.pending.get(speckle[0]), im.pending.get(probes[0])]
+            if None not in jobs:
+                im.prefetch(*maps_job((speckle[0], jobs[0]), (probes[0], jobs[1]), params.mu))
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
                                                    validity, guess=guess)

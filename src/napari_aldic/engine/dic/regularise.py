@@ -395,17 +395,18 @@ def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
             f = late.result() if late_ones else fields
             start = np.where(keep[:, None], f, 0.0 if late_ones else fill)[free]
             return T.T @ np.where(keep[:, None], f, 0.0), start
-        cg = _ShortSmoother(Wd, KtK, columns, late is not None)
-
-        def job(k):
-            if k < 0:  # the short lengths, one after the other on one thread
-                return cg.run([lengths[j] for j in short], lambda i: factor(short[i]))
-            return [factor(k)]
+        cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor,
+                            short[0] if short else None)
         # the long lengths' factors are independent and SuperLU releases the GIL:
-        # two at a time on the two cores (each freed once its solve is done),
-        # the short lengths' CG (its late columns come last) on the first core free
-        parts = side_by_side(job, long + ([-1] if short else []), SMOOTHING_THREADS)
-        found = dict(zip(long + short, [s for part in parts for s in part]))
+        # two at a time on the two cores (each freed once its solve is done);
+        # the shortest length's CG goes first (it tells whether CG converges
+        # here), the other short lengths' CG fills the cores after the factors,
+        # their late columns last (no core waits for them while work is left)
+        jobs = ([("cg", k) for k in short[:1]] + [("factor", k) for k in long]
+                + [("cg", k) for k in short[:0:-1]] + [("late", k) for k in short[::-1]])
+        run = {"cg": cg.first_columns, "factor": factor, "late": cg.late_columns}
+        done = side_by_side(lambda job: run[job[0]](job[1]), jobs, SMOOTHING_THREADS)
+        found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
         sols = [found[k] for k in trials]
     else:
         sols = []
@@ -420,41 +421,72 @@ def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
 
 
 class _ShortSmoother:
-    """The trial smoothers of short lengths by Jacobi CG on the correction.
+    """A short trial smoother by Jacobi CG on its correction.
 
     With ``x0`` the fields (filled off the data), ``(Wd + ℓ⁴ KᵀK) x = b`` is
     solved as ``x = x0 + e``, ``(Wd + ℓ⁴ KᵀK) e = b - (Wd + ℓ⁴ KᵀK) x0``: ``e`` is
     the smoother's correction, the risk's residual, so CG's relative tolerance
     applies to it, not to the field (a rigid shift of 50 px would otherwise
     need 1e-8). Short lengths are well conditioned (κ ≲ 1 + 64 (ℓ/step)⁴):
-    10-40 iterations, a fraction of a factor's cost. A column that stalls
-    (many untrusted nodes make the system nearly singular there) hands its
-    length, and the longer ones, to the fallback.
+    10-70 iterations, a fraction of a factor's cost. Where CG stalls (many
+    untrusted nodes make the system nearly singular there) ``factor(k)``
+    solves the length instead. Whether CG converges on the ``first`` (the
+    shortest) length decides for the others: past a stall there, they are
+    factorised without trying (a decision that does not depend on timing).
 
     ``columns(late)``: ``(b, x0)`` of the first columns (``late=False``) or,
-    with ``has_late``, of the late ones."""
+    with ``has_late``, of the late ones (waited for after the first)."""
 
-    def __init__(self, Wd, KtK, columns, has_late: bool):
-        self.Wd, self.KtK, self.columns, self.has_late = Wd, KtK, columns, has_late
+    def __init__(self, Wd, KtK, lengths, columns, has_late: bool, factor, first):
+        self.Wd, self.KtK, self.lengths, self.columns = Wd, KtK, lengths, columns
+        self.has_late, self.factor, self.first = has_late, factor, first
+        self._converges = Future()
+        # length -> Future of its first columns by CG (None: solved whole)
+        self._firsts: dict[int, Future] = {}
 
-    def run(self, lengths, fallback) -> list:
-        """Solutions (free nodes x columns) for each of ``lengths`` in order;
-        ``fallback(i)`` solves length ``i`` (every column) when CG does not."""
-        mats = [(self.Wd + ell**4 * self.KtK).tocsr() for ell in lengths]
-        b, x0 = self.columns(False)
-        out, whole = [], []  # whole: solved in every column (by the fallback)
-        for i, A in enumerate(mats):
-            # a longer length stalls too once a shorter one has
-            x = None if any(whole) else _cg_columns(A, b, x0)
-            whole.append(x is None)
-            out.append(fallback(i) if x is None else x)
-        if self.has_late:
-            b, x0 = self.columns(True)
-            for i, A in enumerate(mats):
-                x = None if whole[i] else _cg_columns(A, b, x0)
-                if not whole[i]:
-                    out[i] = fallback(i) if x is None else np.column_stack([out[i], x])
-        return out
+    def first_columns(self, k: int) -> np.ndarray | None:
+        """Length ``k``'s solution in every column (by its factor if CG stalls,
+        or stalled on the first length; by CG without late columns), or None
+        when its late columns are left to :meth:`late_columns`."""
+        done = self._firsts.setdefault(k, Future())
+        try:
+            x = self._cg_first(k)
+        except BaseException as exc:
+            done.set_exception(exc)
+            raise
+        partial = x is not None and self.has_late
+        done.set_result(x if partial else None)
+        if x is None:
+            return self.factor(k)
+        return None if partial else x
+
+    def late_columns(self, k: int) -> np.ndarray | None:
+        """Length ``k``'s solution in every column, its late columns by CG after
+        the first ones (by its factor if CG stalls there); None if
+        :meth:`first_columns` solved it whole. Run after ``first_columns(k)``
+        has started."""
+        first = self._firsts[k].result()
+        if first is None:
+            return None
+        more = _cg_columns(self._matrix(k), *self.columns(True))
+        return self.factor(k) if more is None else np.column_stack([first, more])
+
+    def _cg_first(self, k: int) -> np.ndarray | None:
+        """The first columns by CG, or None (stalled here or on the first length)."""
+        if k != self.first and not self._converges.result():
+            return None
+        try:
+            x = _cg_columns(self._matrix(k), *self.columns(False))
+        except BaseException as exc:
+            if k == self.first:
+                self._converges.set_exception(exc)
+            raise
+        if k == self.first:
+            self._converges.set_result(x is not None)
+        return x
+
+    def _matrix(self, k: int) -> sp.csr_matrix:
+        return (self.Wd + self.lengths[k] ** 4 * self.KtK).tocsr()
 
 
 class _CGFirst:

@@ -2,8 +2,9 @@
 ``v_std``: :mod:`.quality`, and for AL-DIC :mod:`.uncertainty_aldic`), and
 the parts of them that depend on the reference alone as jobs that
 ``correlate`` starts ahead on a background thread (``Images.prefetch``,
-read back through ``Images.memo``): the speckle quality of the nodes and
-the sums of AL-DIC's noise probes."""
+read back through ``Images.memo``): the speckle quality of the nodes, the
+sums of AL-DIC's noise probes and the local maps the propagation makes of
+them (:func:`~.uncertainty_aldic.probe_maps`)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import numpy as np
 
 from ..core.files import array_digest
 from .quality import SHAPE_TERMS, node_uncertainty, speckle_quality
-from .uncertainty_aldic import aldic_gain, noise_projector
+from .uncertainty_aldic import aldic_gain, noise_projector, probe_maps
 
-__all__ = ["result_quality", "speckle_job", "probe_job"]
+__all__ = ["result_quality", "speckle_job", "probe_job", "probes_key", "maps_key", "maps_job"]
 
 
 def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u, v, grad,
@@ -48,7 +49,13 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
                     return memo((*base, str(rng.bit_generator.state), count),
                                 lambda: plain(rng, count))
                 project.apply = plain.apply
-            s = s * aldic_gain(q, project, aldic)
+            pkey = probes_key(base, aldic.seed, aldic.probes)
+
+            def maps():
+                return probe_maps(q, project(np.random.default_rng(aldic.seed), aldic.probes),
+                                  aldic.mu)
+            mkey = maps_key(key, pkey, aldic.mu)
+            s = s * aldic_gain(q, project, aldic, maps() if memo is None else memo(mkey, maps))
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
 
@@ -90,4 +97,26 @@ def probe_job(gradients, roi, x, y, subset: int, shape_function="affine", jacobi
     base, project = _projector(jacobian if jacobian is not None else gradients, roi, xi, yi,
                                subset, shape_function)
     rng = np.random.default_rng(seed)
-    return (*base, str(rng.bit_generator.state), count), lambda: project(rng, count)
+    return probes_key(base, seed, count), lambda: project(rng, count)
+
+
+def probes_key(base: tuple, seed: int, count: int) -> tuple:
+    """The memo key of ``count`` probes' sums drawn from ``seed`` (``base``:
+    of the nodes and steepest-descent images, :func:`_projector`)."""
+    return (*base, str(np.random.default_rng(seed).bit_generator.state), count)
+
+
+def maps_key(speckle: tuple, probes: tuple, mu: float) -> tuple:
+    """The memo key of :func:`~.uncertainty_aldic.probe_maps` from the speckle
+    quality and probe sums of these keys (:func:`speckle_job`,
+    :func:`probe_job`) and the penalty ``mu``."""
+    return ("probe maps", speckle, probes, float(mu))
+
+
+def maps_job(speckle, probes, mu: float) -> tuple:
+    """``(key, compute)``: :func:`~.uncertainty_aldic.probe_maps` as a job for
+    ``Images.prefetch``, from the speckle quality and the probe sums as
+    ``(key, future)`` pairs (the prefetched jobs of :func:`speckle_job` and
+    :func:`probe_job`, taken before ``memo`` can claim them)."""
+    return (maps_key(speckle[0], probes[0], mu),
+            lambda: probe_maps(speckle[1].result(), probes[1].result(), mu))

@@ -40,7 +40,7 @@ from .threads import side_by_side
 from .window_moments import window_moments
 
 __all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver",
-           "noise_projector", "rademacher_images"]
+           "ProbeMaps", "probe_maps", "noise_projector", "rademacher_images"]
 
 
 @dataclass
@@ -235,7 +235,55 @@ def _propagate(solver: BatchSolver, lin: ADMMLinearisation, dp0: np.ndarray, b_t
     return uh, vh
 
 
-def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
+@dataclass
+class ProbeMaps:
+    """What the propagation needs that does not depend on the ADMM run (only
+    on the reference's speckle quality, the probes and ``mu``): computed by
+    :func:`probe_maps`, ahead of the run where a core is free.
+
+    Attributes
+    ----------
+    k : int
+        Shape-function terms per component.
+    m : (n, 2k, 2k)
+        The Local DIC step's matrices; ``ok`` (n,) where usable.
+    pen : (n,)
+        The local penalty stiffness (``mu`` included; 0 where not ``ok``).
+    cinv : (n, 2, 2)
+        Inverse of the penalised translation step's matrix; ``good`` (n,)
+        where it is positive definite.
+    b : (n, 2k, K)
+        The probes' subset sums; ``dp0`` (n, 2k, K) the Local start they make.
+    """
+
+    k: int
+    m: np.ndarray
+    ok: np.ndarray
+    pen: np.ndarray
+    cinv: np.ndarray
+    good: np.ndarray
+    b: np.ndarray
+    dp0: np.ndarray
+
+
+def probe_maps(q, b: np.ndarray, mu: float) -> ProbeMaps:
+    """:class:`ProbeMaps` of the nodes of ``q`` (SpeckleQuality, with the
+    run's steepest-descent images), the probes' subset sums ``b`` (n, 2k, K)
+    (``project(rng, K)``, see :func:`aldic_gain`) and the penalty ``mu``."""
+    k = q.hessian.shape[1] // 2
+    m, c, pen, ok = _local_maps(q, k)
+    minv = np.zeros_like(m)
+    minv[ok] = np.linalg.inv(m[ok])
+    pen = mu * np.where(ok, pen, 0.0)
+    cp = c + pen[:, None, None] * np.eye(2)
+    good = ok & (np.linalg.det(np.where(ok[:, None, None], cp, np.eye(2))) > 0)
+    cinv = np.zeros_like(cp)
+    cinv[good] = np.linalg.inv(cp[good])
+    b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
+    return ProbeMaps(k, m, ok, pen, cinv, good, b, np.einsum("nij,njk->nik", minv, b))
+
+
+def aldic_gain(q, project, lin: ADMMLinearisation, maps: ProbeMaps | None = None) -> np.ndarray:
     """Per node the ratio (n, 2) of the std of AL-DIC's ``u``, ``v`` to that
     of the Local DIC subset estimate under the same white image noise.
 
@@ -247,23 +295,17 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
         ``Σ_subset J t n`` per node for ``count`` fresh unit white noise
         images ``n`` drawn from ``rng`` (:func:`noise_projector`).
     lin : ADMMLinearisation
+    maps : the run-independent part, computed ahead (:func:`probe_maps` of
+        ``q``, ``project(np.random.default_rng(lin.seed), lin.probes)`` and
+        ``lin.mu``), or None.
     """
-    k = q.hessian.shape[1] // 2
-    m, c, pen, ok = _local_maps(q, k)
-    minv = np.zeros_like(m)
-    minv[ok] = np.linalg.inv(m[ok])
-    pen = lin.mu * np.where(ok, pen, 0.0)
-    cp = c + pen[:, None, None] * np.eye(2)
-    good = ok & (np.linalg.det(np.where(ok[:, None, None], cp, np.eye(2))) > 0)
-    cinv = np.zeros_like(cp)
-    cinv[good] = np.linalg.inv(cp[good])
-    active = lin.active & good
+    if maps is None:
+        maps = probe_maps(q, project(np.random.default_rng(lin.seed), lin.probes), lin.mu)
+    k, m, ok, pen, cinv, dp0 = maps.k, maps.m, maps.ok, maps.pen, maps.cinv, maps.dp0
+    active = lin.active & maps.good
     lin = ADMMLinearisation(lin.solver, lin.iterations, lin.mu, active, lin.probes, lin.seed,
                             lin.curvature)
-    rng = np.random.default_rng(lin.seed)
-    b = project(rng, lin.probes)
-    b = np.where(ok[:, None, None], np.nan_to_num(b), 0.0)
-    dp0 = np.einsum("nij,njk->nik", minv, b)
+    b = maps.b
     # only the nodes whose local result is data (trusted) carry noise into the
     # run: an untrusted node's value enters with a vanishing weight, but the
     # linearisation of its (nearly singular, e.g. textureless) subset is not
@@ -274,12 +316,12 @@ def aldic_gain(q, project, lin: ADMMLinearisation) -> np.ndarray:
     solver = BatchSolver(lin.solver)
     if lin.curvature is not None:
         lin.curvature.estimator.factorise()  # shared by both halves
-    maps = (cinv, pen, k, None if lin.curvature is None else _curvature_coupling(m, k),
-            _gradient_coupling(m, k))
+    consts = (cinv, pen, k, None if lin.curvature is None else _curvature_coupling(m, k),
+              _gradient_coupling(m, k))
     # the probes are independent: two halves side by side (the propagation's
     # NumPy and SciPy steps release the GIL but run on one thread each)
     halves = np.array_split(np.arange(lin.probes), 2)
-    parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *maps),
+    parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *consts),
                          halves, 2)
     uh = np.concatenate([p[0] for p in parts], axis=1)
     vh = np.concatenate([p[1] for p in parts], axis=1)
