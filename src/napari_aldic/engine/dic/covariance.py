@@ -26,7 +26,10 @@ first run.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+
+from .threads import side_by_side
 
 __all__ = ["MIN_SPECKLE_FRACTION", "CHUNK", "gather_matrices", "covariance_from_matrices",
            "covariance_diag", "mean_noise_factor"]
@@ -36,6 +39,8 @@ __all__ = ["MIN_SPECKLE_FRACTION", "CHUNK", "gather_matrices", "covariance_from_
 MIN_SPECKLE_FRACTION = 0.1
 #: nodes whose four matrices are gathered at once (quadratic: ~75 MB)
 CHUNK = 16384
+# from this many nodes on, the chunks run side by side, one per thread
+PARALLEL_NODES = 2048
 
 
 def gather_matrices(arrays, src, col, scale: float, nodes=slice(None)) -> np.ndarray:
@@ -200,12 +205,23 @@ def covariance_diag(arrays, src, col, scale, var, m, chunk: int = CHUNK) -> np.n
     var = np.asarray(var, np.float64)
     n = var.size
     out = np.empty((n, 2))
-    for i0 in range(0, n, chunk):
-        nodes = slice(i0, min(n, i0 + chunk))
+
+    def one(nodes):
         mats = [_gather_node_last(arrays, src[j], col[j], float(scale[j]), nodes)
                 for j in range(4)]
         out[nodes] = _variances(*mats, var[nodes], np.asarray(m)[nodes])
+    side_by_side(one, _node_slices(n, chunk))
     return out
+
+
+def _node_slices(n: int, chunk: int) -> list[slice]:
+    """Slices of at most ``chunk`` of ``n`` nodes, at least one per thread
+    (``numba.get_num_threads()``) once there are ``PARALLEL_NODES``: chunks
+    of NumPy work that run side by side (``threads.side_by_side``; NumPy
+    releases the GIL on arrays this long), each node's result the same."""
+    parts = max(-(-n // chunk), min(numba.get_num_threads(), n // PARALLEL_NODES), 1)
+    edges = np.linspace(0, n, parts + 1).astype(np.int64)
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def mean_noise_factor(u, v, grad, half, offsets, t, rho, chunk: int = CHUNK) -> np.ndarray:
@@ -256,13 +272,13 @@ def mean_noise_factor(u, v, grad, half, offsets, t, rho, chunk: int = CHUNK) -> 
         out[bad] = np.nan
         return out
 
-    n = u.size
-    out = np.empty(n)
-    for i0 in range(0, n, chunk):
-        s = slice(i0, min(n, i0 + chunk))
+    out = np.empty(u.size)
+
+    def one(s):
         a, b = oa * half[s, None], ob * half[s, None]
         g = grad[s]
         x = u[s, None] + g[:, 0:1] * a + g[:, 1:2] * b
         y = v[s, None] + g[:, 2:3] * a + g[:, 3:4] * b
         out[s] = np.einsum("ij,ij->i", factor(x), factor(y)) / oa.size
+    side_by_side(one, _node_slices(u.size, chunk))
     return out
