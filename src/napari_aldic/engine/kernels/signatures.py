@@ -89,13 +89,14 @@ GROUPS: dict[str, tuple[str, ...]] = {
 #: compile seconds of a kernel's signatures on one core (helpers included,
 #: each compiled alone in a fresh process after a trivial warm-up; measured
 #: 2026-12-04 on a 2-core EPYC, several runs each, the AL-DIC, strain and
-#: synthetic kernels 2026-12-03 on a 2-core Xeon; see benchmarks/RESULTS.md,
-#: issue 25): relative weights for sharing the work between processes;
+#: synthetic kernels 2026-12-03 on a 2-core Xeon, the multi-column jacobi_cg
+#: 2026-12-07 (2.1-2.4 s against the one-column kernel's 1.2 s on that EPYC VM);
+#: see benchmarks/RESULTS.md, issue 25): relative weights for sharing the work between processes;
 #: unlisted: 1 s
 COST: dict[str, float] = {
     "icgn.icgn_affine": 6.0, "moments.moments_kernel": 4.6, "icgn.icgn_translation": 3.4,
     "static.lag_peaks": 1.65, "lattice.median_flags": 0.7,
-    "cg.jacobi_cg": 0.8,
+    "cg.jacobi_cg": 1.6,
     "speckle.speckle_intensity": 1.0,
     "bspline.spline_gradients": 0.22, "sums.window_sums": 0.55,
     "moments.centre_moments": 0.68, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
