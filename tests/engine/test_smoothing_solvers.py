@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from napari_aldic.engine.dic import regularise as R
+from napari_aldic.engine.dic import trial_smoothers as TS
 from napari_aldic.engine.dic.global_solve import curvature_operator, uniform_mesh
 from napari_aldic.engine.dic.linear_solvers import cg_tolerances
 from napari_aldic.engine.dic.mesh import make_grid
+from napari_aldic.engine.dic.regularise import SMOOTH_CANDIDATES
 from napari_aldic.engine.kernels.cg import jacobi_cg
 
 
@@ -62,27 +63,27 @@ class _Count:
 
     def __init__(self, monkeypatch):
         self.n = 0
-        real = R.SPDSolver
+        real = TS.SPDSolver
 
         def spy(A, method, rtol):
             s = real(A, method, rtol)
             self.n += s.method == "direct"
             return s
-        monkeypatch.setattr(R, "SPDSolver", spy)
+        monkeypatch.setattr(TS, "SPDSolver", spy)
 
 
 def _residuals(mesh, fields, keep, late=True):
-    lengths = [float(c) * 31 for c in R.SMOOTH_CANDIDATES]
+    lengths = [float(c) * 31 for c in SMOOTH_CANDIDATES]
     fut = None
     if late:  # the bias columns arrive late, as in choose_smoothing
         fut = Future()
         fut.set_result(0.01 * np.sin(fields[:, ::-1] / 7.0))
-    return R._residuals(mesh, fields, keep, lengths, 8.0, fut)
+    return TS.trial_residuals(mesh, fields, keep, lengths, 8.0, fut)
 
 
 def _factored(monkeypatch, mesh, fields, keep):
     with monkeypatch.context() as m:
-        m.setattr(R, "CG_MAX_LENGTH", 0.0)  # every trial length by a factor
+        m.setattr(TS, "CG_MAX_LENGTH", 0.0)  # every trial length by a factor
         return _residuals(mesh, fields, keep)
 
 
@@ -96,8 +97,8 @@ def test_short_trial_smoothers_by_cg_agree_with_factors(monkeypatch):
     ref = _factored(monkeypatch, mesh, fields, keep)
     count = _Count(monkeypatch)
     got = _residuals(mesh, fields, keep)
-    lengths = np.array(R.SMOOTH_CANDIDATES) * 31
-    assert count.n == int(np.sum(lengths > R.CG_MAX_LENGTH * 8))  # factors: long lengths only
+    lengths = np.array(SMOOTH_CANDIDATES) * 31
+    assert count.n == int(np.sum(lengths > TS.CG_MAX_LENGTH * 8))  # factors: long lengths only
     assert np.isfinite(got[keep]).all() and np.isnan(got[~keep]).all()
     # per length and column (u, v, then the late ones): 1e-6 of CG's first
     # residual leaves ~1e-5 of the correction; the risk weighs its square
@@ -107,7 +108,7 @@ def test_short_trial_smoothers_by_cg_agree_with_factors(monkeypatch):
     assert np.all(err < 2e-4 * scale)
 
 
-@pytest.mark.parametrize("cap", [R.CG_MAX_ITER, 40])
+@pytest.mark.parametrize("cap", [TS.CG_MAX_ITER, 40])
 def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, cap):
     """A 40 % untrusted block makes CG stall (default cap: at the first length,
     every length then factored); a low cap stalls it partway along the lengths,
@@ -116,7 +117,7 @@ def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, cap):
     fields = _fields(mesh, 2)
     keep = mesh.x < 200
     ref = _factored(monkeypatch, mesh, fields, keep)
-    monkeypatch.setattr(R, "CG_MAX_ITER", cap)
+    monkeypatch.setattr(TS, "CG_MAX_ITER", cap)
     count = _Count(monkeypatch)
     got = _residuals(mesh, fields, keep)
     assert count.n >= 3
@@ -139,7 +140,7 @@ def test_cg_first_solver_factors_after_a_stall(monkeypatch):
         A = (sp.diags(wd) + 7.5**4 * KtK).tocsc()
         f = _fields(mesh, 4)
         # all data: started from the field; the block: filled off the data
-        s = R._CGFirst(A, f if not stalls else np.where(keep[:, None], f, f.mean(axis=0)))
+        s = TS.CGFirst(A, f if not stalls else np.where(keep[:, None], f, f.mean(axis=0)))
         b = sp.diags(wd) @ f
         x1 = s.solve(b)
         x2 = s.solve(b * 1.01)

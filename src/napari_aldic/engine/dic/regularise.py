@@ -48,24 +48,17 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.ndimage as ndi
-import scipy.sparse as sp
 
 from ..core.params import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
-from ..kernels.cg import jacobi_cg
 from .global_solve import (
-    UNTRUSTED_WEIGHT,
     CurvatureEstimator,
     Q4Mesh,
-    SPDSolver,
-    curvature_operator,
     level_transition_nodes,
     second_difference_operators,
     solver_method,
 )
-from .linear_solvers import cg_tolerances
 from .reliability import displacement_variance, subset_statistics
-from .threads import side_by_side
+from .trial_smoothers import CG_MAX_LENGTH, FILL_SIGMA, CGFirst, trial_residuals, window_mean
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
@@ -83,16 +76,6 @@ BIAS_SMOOTHING = 0.5
 WARP_LENGTH_CAP = True
 # fixed-point steps of that deconvolution (the warp's ADMM iterations run a few)
 DECONVOLUTION_STEPS = 3
-# trial smoothers factorised at once (the machines this targets have 2+ cores)
-SMOOTHING_THREADS = 2
-# trial lengths up to this many node spacings are solved by Jacobi CG (relative
-# tolerance CG_RTOL on the smoother's correction; past CG_MAX_ITER iterations a
-# factor instead); the off-data nodes start from the fields' window mean of
-# FILL_SIGMA node spacings
-CG_MAX_LENGTH = 1.0
-CG_RTOL = 1e-6
-CG_MAX_ITER = 200
-FILL_SIGMA = 2.0
 
 
 def gradient_noise_gain(order: int) -> float:
@@ -320,7 +303,7 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     # while this thread estimates the bias, their third field
     late = Future()
     with ThreadPoolExecutor(1) as aside:
-        job = aside.submit(_residuals, mesh, np.column_stack([u, v]), keep, lengths, step,
+        job = aside.submit(trial_residuals, mesh, np.column_stack([u, v]), keep, lengths, step,
                            late)
         try:
             lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset,
@@ -357,168 +340,6 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     return plain, warp, gain
 
 
-def _residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
-               late: Future | None = None) -> np.ndarray:
-    """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
-    ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes.
-    ``late``: a future of more columns of ``fields``, waited for only once a
-    smoother is ready for them (the caller computes them meanwhile).
-
-    Lengths up to ``CG_MAX_LENGTH`` node spacings are solved by Jacobi CG for
-    the correction ``S_ℓ f - f`` itself (:class:`_ShortSmoother`); longer ones
-    (and short ones whose CG stalls) by a factor like the global matrix's, or
-    on meshes too large for a factor by AMG-CG warm-started from the previous
-    length (4 digits suffice)."""
-    T, free = mesh.prolongation()
-    KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
-    Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
-    diag = np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
-    trials = [k for k, ell in enumerate(lengths) if ell != 0]
-    first = np.where(keep[:, None], fields, np.nan)
-
-    def data():  # the fields, the late columns with them, 0 off keep
-        more = () if late is None else (late.result(),)
-        return np.where(keep[:, None], np.column_stack([fields, *more]), 0.0)
-
-    def factor(k, start=None):
-        solver = SPDSolver((Wd + lengths[k] ** 4 * KtK).tocsc(), "auto", rtol=1e-5)
-        b = T.T @ data()
-        return solver.solve(b, b / diag if start is None else start)
-
-    if solver_method(Wd.shape[0]) == "direct":
-        short = [k for k in trials if lengths[k] <= CG_MAX_LENGTH * step]
-        long = [k for k in trials if k not in short]
-        # CG starts from the fields, filled off the data by their window mean
-        fill = np.nan_to_num(window_mean(mesh, first, step, FILL_SIGMA * step))
-
-        def columns(late_ones: bool):  # (right-hand sides, starts) on the free nodes
-            f = late.result() if late_ones else fields
-            start = np.where(keep[:, None], f, 0.0 if late_ones else fill)[free]
-            return T.T @ np.where(keep[:, None], f, 0.0), start
-        cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor,
-                            short[0] if short else None)
-        # the long lengths' factors are independent and SuperLU releases the GIL:
-        # two at a time on the two cores (each freed once its solve is done);
-        # the shortest length's CG goes first (it tells whether CG converges
-        # here), the other short lengths' CG fills the cores after the factors,
-        # their late columns last (no core waits for them while work is left)
-        jobs = ([("cg", k) for k in short[:1]] + [("factor", k) for k in long]
-                + [("cg", k) for k in short[:0:-1]] + [("late", k) for k in short[::-1]])
-        run = {"cg": cg.first_columns, "factor": factor, "late": cg.late_columns}
-        done = side_by_side(lambda job: run[job[0]](job[1]), jobs, SMOOTHING_THREADS)
-        found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
-        sols = [found[k] for k in trials]
-    else:
-        sols = []
-        for k in trials:
-            sols.append(factor(k, sols[-1] if sols else None))
-    full = data()
-    out = np.full((mesh.n_nodes, len(lengths), full.shape[1]), np.nan)
-    out[keep] = 0.0
-    for k, sol in zip(trials, sols):
-        out[keep, k] = ((T @ sol) - full)[keep]
-    return out
-
-
-class _ShortSmoother:
-    """A short trial smoother by Jacobi CG on its correction.
-
-    With ``x0`` the fields (filled off the data), ``(Wd + ℓ⁴ KᵀK) x = b`` is
-    solved as ``x = x0 + e``, ``(Wd + ℓ⁴ KᵀK) e = b - (Wd + ℓ⁴ KᵀK) x0``: ``e`` is
-    the smoother's correction, the risk's residual, so CG's relative tolerance
-    applies to it, not to the field (a rigid shift of 50 px would otherwise
-    need 1e-8). Short lengths are well conditioned (κ ≲ 1 + 64 (ℓ/step)⁴):
-    10-70 iterations, a fraction of a factor's cost. Where CG stalls (many
-    untrusted nodes make the system nearly singular there) ``factor(k)``
-    solves the length instead. Whether CG converges on the ``first`` (the
-    shortest) length decides for the others: past a stall there, they are
-    factorised without trying (a decision that does not depend on timing).
-
-    ``columns(late)``: ``(b, x0)`` of the first columns (``late=False``) or,
-    with ``has_late``, of the late ones (waited for after the first)."""
-
-    def __init__(self, Wd, KtK, lengths, columns, has_late: bool, factor, first):
-        self.Wd, self.KtK, self.lengths, self.columns = Wd, KtK, lengths, columns
-        self.has_late, self.factor, self.first = has_late, factor, first
-        self._converges = Future()
-        # length -> Future of its first columns by CG (None: solved whole)
-        self._firsts: dict[int, Future] = {}
-
-    def first_columns(self, k: int) -> np.ndarray | None:
-        """Length ``k``'s solution in every column (by its factor if CG stalls,
-        or stalled on the first length; by CG without late columns), or None
-        when its late columns are left to :meth:`late_columns`."""
-        done = self._firsts.setdefault(k, Future())
-        try:
-            x = self._cg_first(k)
-        except BaseException as exc:
-            done.set_exception(exc)
-            raise
-        partial = x is not None and self.has_late
-        done.set_result(x if partial else None)
-        if x is None:
-            return self.factor(k)
-        return None if partial else x
-
-    def late_columns(self, k: int) -> np.ndarray | None:
-        """Length ``k``'s solution in every column, its late columns by CG after
-        the first ones (by its factor if CG stalls there); None if
-        :meth:`first_columns` solved it whole. Run after ``first_columns(k)``
-        has started."""
-        first = self._firsts[k].result()
-        if first is None:
-            return None
-        more = _cg_columns(self._matrix(k), *self.columns(True))
-        return self.factor(k) if more is None else np.column_stack([first, more])
-
-    def _cg_first(self, k: int) -> np.ndarray | None:
-        """The first columns by CG, or None (stalled here or on the first length)."""
-        if k != self.first and not self._converges.result():
-            return None
-        try:
-            x = _cg_columns(self._matrix(k), *self.columns(False))
-        except BaseException as exc:
-            if k == self.first:
-                self._converges.set_exception(exc)
-            raise
-        if k == self.first:
-            self._converges.set_result(x is not None)
-        return x
-
-    def _matrix(self, k: int) -> sp.csr_matrix:
-        return (self.Wd + self.lengths[k] ** 4 * self.KtK).tocsr()
-
-
-class _CGFirst:
-    """``solve(rhs, guess)`` with one SPD matrix, warm-started from the last
-    solution (the first from ``start``): :func:`_cg_columns`, and once CG
-    stalls a factor for this and every later solve."""
-
-    def __init__(self, A, start: np.ndarray):
-        self.A, self._last, self._factor = A.tocsr(), start, None
-
-    def solve(self, rhs: np.ndarray, guess=None) -> np.ndarray:
-        x = None if self._factor is not None else _cg_columns(self.A, rhs, self._last)
-        if x is None:
-            if self._factor is None:
-                self._factor = SPDSolver(self.A.tocsc(), "direct", 0.0)
-            x = self._factor.solve(rhs, None)
-        self._last = x
-        return x
-
-
-def _cg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray) -> np.ndarray | None:
-    """``A⁻¹ b`` as ``x0`` plus a correction solved by Jacobi CG to ``CG_RTOL`` of
-    its right-hand side, all columns at once; None if a column needs more than
-    ``CG_MAX_ITER`` iterations."""
-    rhs = np.ascontiguousarray(b - A @ x0)
-    atol, _ = cg_tolerances(rhs, CG_RTOL)
-    e = np.zeros(rhs.shape)
-    its = np.zeros(rhs.shape[1], np.int64)
-    jacobi_cg(A.indptr, A.indices, A.data, 1.0 / A.diagonal(), rhs, e, atol, CG_MAX_ITER, its)
-    return None if (its >= CG_MAX_ITER).any() else x0 + e
-
-
 def _adaptive_choice(mesh: Q4Mesh, risk, step, sigma_px, i_global) -> np.ndarray:
     """Per-node candidate index minimising the windowed risk (N, K); nodes
     whose window holds no trusted node take the single best one."""
@@ -527,29 +348,6 @@ def _adaptive_choice(mesh: Q4Mesh, risk, step, sigma_px, i_global) -> np.ndarray
     idx = np.full(mesh.n_nodes, i_global)
     idx[ok] = np.argmin(risk[ok], axis=1)
     return idx
-
-
-def window_mean(mesh: Q4Mesh, values: np.ndarray, step: float, sigma_px: float) -> np.ndarray:
-    """Gaussian-weighted mean (standard deviation ``sigma_px``) of nodal
-    ``values`` (N, M) around each node, ignoring NaN; NaN where the window
-    holds no value. Nodes are binned on their lattice of spacing ``step``
-    (quadtree nodes fall in the nearest cell), so the cost is linear in N."""
-    ix = np.rint((mesh.x - mesh.x.min()) / step).astype(np.int64)
-    iy = np.rint((mesh.y - mesh.y.min()) / step).astype(np.int64)
-    shape = (int(iy.max()) + 1, int(ix.max()) + 1)
-    s = sigma_px / step
-    out = np.full(values.shape, np.nan)
-    for j in range(values.shape[1]):
-        ok = np.isfinite(values[:, j])
-        num = np.zeros(shape)
-        den = np.zeros(shape)
-        np.add.at(num, (iy[ok], ix[ok]), values[ok, j])
-        np.add.at(den, (iy[ok], ix[ok]), 1.0)
-        num = ndi.gaussian_filter(num, s, mode="constant", truncate=2.5)
-        den = ndi.gaussian_filter(den, s, mode="constant", truncate=2.5)
-        d = den[iy, ix]
-        out[:, j] = np.where(d > 1e-3, num[iy, ix] / np.maximum(d, 1e-3), np.nan)
-    return out
 
 
 def _deconvolution_symbol(step, subset, length, qx, qy):
@@ -582,7 +380,7 @@ def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
         # iterations: crack sample 2,000 per column, against ~40 when nearly
         # all nodes are data)
         fill = window_mean(mesh, np.where(keep[:, None], uv, np.nan), step, FILL_SIGMA * step)
-        solver = _CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free])
+        solver = CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free])
     d = uv
     for _ in range(DECONVOLUTION_STEPS):
         curv = estimate(d[:, 0], d[:, 1], solver=solver)
