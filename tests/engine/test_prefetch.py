@@ -100,6 +100,28 @@ def test_a_done_job_is_used_and_kept_for_the_next_pair():
     assert calls == [1] and cache[("k",)] == 42 and im.pending == {}
 
 
+def test_a_job_built_on_a_claimed_one_is_computed_in_place_not_raised():
+    """The propagation's maps are a job built on the speckle job's future. On a
+    loaded machine ``memo`` may claim the speckle job before it starts (computed
+    in place, the job cancelled); the maps job then fails in the background.
+    Its failure must not reach the analysis: the maps are computed in place."""
+    gate = threading.Event()
+    im = Images(np.zeros((4, 4)), np.zeros((4, 4)), None, None, None)
+    with ThreadPoolExecutor(1) as pool:
+        im.background = pool
+        pool.submit(gate.wait, 10.0)  # the thread is busy: the jobs below wait
+        im.prefetch(("speckle",), lambda: "q from the background")
+        first = im.pending[("speckle",)]
+        im.prefetch(("maps",), lambda: "maps of " + first.result())
+        assert im.memo(("speckle",), lambda: "q here") == "q here"  # claimed, cancelled
+        gate.set()
+        done = im.pending[("maps",)]
+        with pytest.raises(Exception):  # noqa: B017 - CancelledError from the claimed job
+            done.result(10.0)
+        assert im.memo(("maps",), lambda: "maps here") == "maps here"
+    assert im.pending == {}
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values: Linux")
 def test_the_background_thread_runs_at_a_low_priority():
     from napari_aldic.engine.dic.correlate import _yielding

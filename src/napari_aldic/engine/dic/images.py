@@ -53,9 +53,12 @@ class Images:
         if self.ref_cache is not None and key in self.ref_cache:
             return self.ref_cache[key]
         job = self.pending.pop(key, None)
-        # not done yet (a loaded machine starves the low-priority thread):
-        # computed here rather than waited for
-        value = job.result() if job is not None and job.done() else compute()
+        # not done yet (a loaded machine starves the low-priority thread), or
+        # failed there (e.g. a job built on another that memo claimed and
+        # cancelled first): computed here rather than waited for
+        usable = (job is not None and job.done() and not job.cancelled()
+                  and job.exception() is None)
+        value = job.result() if usable else compute()
         if job is not None:
             job.cancel()
         if self.ref_cache is not None:

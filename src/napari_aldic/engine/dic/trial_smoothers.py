@@ -41,7 +41,7 @@ FILL_SIGMA = 2.0
 
 
 def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
-               late: Future | None = None) -> np.ndarray:
+                    late: Future | None = None) -> np.ndarray:
     """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
     ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes.
     ``late``: a future of more columns of ``fields``, waited for only once a

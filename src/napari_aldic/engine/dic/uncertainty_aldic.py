@@ -320,7 +320,7 @@ def aldic_gain(q, project, lin: ADMMLinearisation, maps: ProbeMaps | None = None
               _gradient_coupling(m, k))
     # the probes are independent: two halves side by side (the propagation's
     # NumPy and SciPy steps release the GIL but run on one thread each)
-    halves = np.array_split(np.arange(lin.probes), 2)
+    halves = [h for h in np.array_split(np.arange(lin.probes), 2) if h.size]
     parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *consts),
                          halves, 2)
     uh = np.concatenate([p[0] for p in parts], axis=1)
