@@ -72,6 +72,12 @@ class _Count:
         monkeypatch.setattr(TS, "SPDSolver", spy)
 
 
+@pytest.fixture(autouse=True)
+def _small_meshes_too(monkeypatch):
+    """These meshes are below CG_MIN_NODES (where factors are cheaper): CG anyway."""
+    monkeypatch.setattr(TS, "CG_MIN_NODES", 0)
+
+
 def _residuals(mesh, fields, keep, late=True):
     lengths = [float(c) * 31 for c in SMOOTH_CANDIDATES]
     fut = None

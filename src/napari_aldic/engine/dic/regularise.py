@@ -58,7 +58,7 @@ from .global_solve import (
     solver_method,
 )
 from .reliability import displacement_variance, subset_statistics
-from .trial_smoothers import CG_MAX_LENGTH, FILL_SIGMA, CGFirst, trial_residuals, window_mean
+from .trial_smoothers import FILL_SIGMA, CGFirst, trial_residuals, use_cg, window_mean
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
@@ -372,18 +372,19 @@ def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
     T, free = mesh.prolongation()
     estimate = CurvatureEstimator(mesh, length, keep, T, free)
     uv = np.column_stack([u, v])
+    # a factor when the trial smoothers use them too: with many untrusted nodes
+    # (weight UNTRUSTED_WEIGHT) Jacobi CG on the field needs thousands of
+    # iterations (crack sample: 2,000 per column, 2.7 s, against ~40 when nearly
+    # all are data); or, as the short trial smoothers, CG on the correction from
+    # the field filled off the data, a factor if CG stalls
+    direct = solver_method(mesh.n_nodes) == "direct"
     solver = None
-    if solver_method(mesh.n_nodes) == "direct" and length <= CG_MAX_LENGTH * step:
-        # as the short trial smoothers: CG on the correction, from the field
-        # filled off the data, and a factor if CG stalls (with many untrusted
-        # nodes, weight UNTRUSTED_WEIGHT, Jacobi CG needs thousands of
-        # iterations: crack sample 2,000 per column, against ~40 when nearly
-        # all nodes are data)
+    if use_cg(free.size, length, step):
         fill = window_mean(mesh, np.where(keep[:, None], uv, np.nan), step, FILL_SIGMA * step)
         solver = CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free])
     d = uv
     for _ in range(DECONVOLUTION_STEPS):
-        curv = estimate(d[:, 0], d[:, 1], solver=solver)
+        curv = estimate(d[:, 0], d[:, 1], direct=direct, solver=solver)
         d = uv - _subset_gamma(subset) * np.column_stack([curv[:, 0] + curv[:, 2],
                                                           curv[:, 3] + curv[:, 5]])
     bias[inner] = (uv - d)[inner]

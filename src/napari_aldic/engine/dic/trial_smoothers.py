@@ -25,8 +25,8 @@ from .global_solve import UNTRUSTED_WEIGHT, Q4Mesh, SPDSolver, curvature_operato
 from .linear_solvers import cg_tolerances
 from .threads import side_by_side
 
-__all__ = ["trial_residuals", "CGFirst", "window_mean", "SMOOTHING_THREADS", "CG_MAX_LENGTH",
-           "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA"]
+__all__ = ["trial_residuals", "CGFirst", "window_mean", "use_cg", "SMOOTHING_THREADS",
+           "CG_MAX_LENGTH", "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA", "CG_MIN_NODES"]
 
 # trial smoothers factorised at once (the machines this targets have 2+ cores)
 SMOOTHING_THREADS = 2
@@ -38,6 +38,17 @@ CG_MAX_LENGTH = 1.0
 CG_RTOL = 1e-6
 CG_MAX_ITER = 200
 FILL_SIGMA = 2.0
+# below this many free nodes factors are cheap (their cost grows like n^1.5, CG's
+# like n): measured, CG lost at 4,900 nodes (0.27 s against 0.21 s for the whole
+# choice on the open-hole coupon) and won at 15,000 (0.65 s against 0.81 s)
+CG_MIN_NODES = 10_000
+
+
+def use_cg(n_free: int, length: float, step: float) -> bool:
+    """Whether a smoother of ``length`` (pixels) on ``n_free`` nodes spaced
+    ``step`` is solved by CG (else by a factor, or AMG-CG past its size)."""
+    return (solver_method(n_free) == "direct" and n_free >= CG_MIN_NODES
+            and length <= CG_MAX_LENGTH * step)
 
 
 def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
@@ -47,7 +58,8 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     ``late``: a future of more columns of ``fields``, waited for only once a
     smoother is ready for them (the caller computes them meanwhile).
 
-    Lengths up to ``CG_MAX_LENGTH`` node spacings are solved by Jacobi CG for
+    Lengths up to ``CG_MAX_LENGTH`` node spacings (on meshes of at least
+    ``CG_MIN_NODES`` free nodes, :func:`use_cg`) are solved by Jacobi CG for
     the correction ``S_ℓ f - f`` itself (:class:`_ShortSmoother`); longer ones
     (and short ones whose CG stalls) by a factor like the global matrix's, or
     on meshes too large for a factor by AMG-CG warm-started from the previous
@@ -69,7 +81,7 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         return solver.solve(b, b / diag if start is None else start)
 
     if solver_method(Wd.shape[0]) == "direct":
-        short = [k for k in trials if lengths[k] <= CG_MAX_LENGTH * step]
+        short = [k for k in trials if use_cg(Wd.shape[0], lengths[k], step)]
         long = [k for k in trials if k not in short]
         # CG starts from the fields, filled off the data by their window mean
         fill = np.nan_to_num(window_mean(mesh, first, step, FILL_SIGMA * step))
