@@ -117,7 +117,7 @@ class SPDSolver:
         columns sharing each pass over ``A``)."""
         A = self._csr
         b = np.ascontiguousarray(rhs, np.float64).reshape(rhs.shape[0], -1)
-        x = np.array(start, np.float64).reshape(b.shape)
+        x = np.array(start, np.float64, order="C").reshape(b.shape)
         # not np.linalg.norm: a 1-D norm is a BLAS dot product, which on
         # vectors this long OpenBLAS splits between threads (18 ms a call
         # measured at load 7 on 2 cores, 6 calls in a smoothing choice)
