@@ -138,6 +138,8 @@ class _ShortSmoother:
         self._converges = Future()
         # length -> Future of its first columns by CG (None: solved whole)
         self._firsts: dict[int, Future] = {}
+        # length -> its matrix, built once for its first and late columns
+        self._mats: dict[int, sp.csr_matrix] = {}
 
     def first_columns(self, k: int) -> np.ndarray | None:
         """Length ``k``'s solution in every column (by its factor if CG stalls,
@@ -181,7 +183,11 @@ class _ShortSmoother:
         return x
 
     def _matrix(self, k: int) -> sp.csr_matrix:
-        return (self.Wd + self.lengths[k] ** 4 * self.KtK).tocsr()
+        # first_columns(k) builds it; late_columns(k) reads it after that has
+        # set its future (no two threads build one length's matrix)
+        if k not in self._mats:
+            self._mats[k] = (self.Wd + self.lengths[k] ** 4 * self.KtK).tocsr()
+        return self._mats[k]
 
 
 class CGFirst:

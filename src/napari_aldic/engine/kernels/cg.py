@@ -107,6 +107,7 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
     q = np.empty((n, k))
     rho = np.empty(k)
     rho_prev = np.ones(k)
+    beta = np.empty(k)
     alpha = np.empty(k)
     active = np.ones(k, np.bool_)
     for c in range(k):
@@ -126,12 +127,13 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
                 z[i, c] = dinv[i] * r[i, c]
         for c in range(k):
             rho[c] = _dot(r, z, c)
+            beta[c] = rho[c] / rho_prev[c]  # once per column, not per element
         for i in range(n):
             for c in range(k):
                 if not active[c]:
                     continue
                 if it > 0:
-                    p[i, c] = p[i, c] * (rho[c] / rho_prev[c]) + z[i, c]
+                    p[i, c] = p[i, c] * beta[c] + z[i, c]
                 else:
                     p[i, c] = z[i, c]
         _matvec(indptr, indices, data, p, q)
