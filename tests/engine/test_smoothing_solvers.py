@@ -1,6 +1,7 @@
 """The linear solvers of the smoothing choice: the multi-column Jacobi CG kernel,
-the short trial smoothers solved by CG on their correction, and the factor
-they fall back to when CG stalls."""
+the trial smoothers solved by CG on their correction (Jacobi, or on a lattice
+mesh the cosine-transform preconditioner), and the factor they fall back to
+when CG stalls."""
 
 from concurrent.futures import Future
 
@@ -9,7 +10,8 @@ import pytest
 import scipy.sparse as sp
 
 from napari_aldic.engine.dic import trial_smoothers as TS
-from napari_aldic.engine.dic.global_solve import curvature_operator, uniform_mesh
+from napari_aldic.engine.dic.global_solve import UNTRUSTED_WEIGHT, curvature_operator, uniform_mesh
+from napari_aldic.engine.dic.lattice_pcg import LatticePreconditioner, lattice_of, pcg_columns
 from napari_aldic.engine.dic.linear_solvers import cg_tolerances
 from napari_aldic.engine.dic.mesh import make_grid
 from napari_aldic.engine.dic.regularise import SMOOTH_CANDIDATES
@@ -90,21 +92,27 @@ def _residuals(mesh, fields, keep, late=True):
 def _factored(monkeypatch, mesh, fields, keep):
     with monkeypatch.context() as m:
         m.setattr(TS, "CG_MAX_LENGTH", 0.0)  # every trial length by a factor
+        m.setattr(TS, "LATTICE_MIN_LENGTH", np.inf)
         return _residuals(mesh, fields, keep)
 
 
-def test_short_trial_smoothers_by_cg_agree_with_factors(monkeypatch):
-    """The short lengths are solved by CG on the correction S f - f, without a
-    factor, and agree with the factored smoother far below the noise the risk
+@pytest.mark.parametrize("lattice", [False, True])
+def test_trial_smoothers_by_cg_agree_with_factors(monkeypatch, lattice):
+    """The short lengths are solved by Jacobi CG on the correction S f - f and,
+    on a lattice mesh, the long ones by the cosine-transform preconditioned CG:
+    no factor at all there (two, for the long lengths, without the lattice
+    path). Both agree with the factored smoother far below the noise the risk
     weighs (rigid offset of 3 px in the fields: the tolerance is the correction's)."""
     mesh = _mesh()
     fields = _fields(mesh)
     keep = mesh.y > mesh.y.min()  # an untrusted first row, as in the 1024² benchmark
     ref = _factored(monkeypatch, mesh, fields, keep)
+    if not lattice:
+        monkeypatch.setattr(TS, "LATTICE_MIN_LENGTH", np.inf)
     count = _Count(monkeypatch)
     got = _residuals(mesh, fields, keep)
     lengths = np.array(SMOOTH_CANDIDATES) * 31
-    assert count.n == int(np.sum(lengths > TS.CG_MAX_LENGTH * 8))  # factors: long lengths only
+    assert count.n == (0 if lattice else int(np.sum(lengths > TS.CG_MAX_LENGTH * 8)))
     assert np.isfinite(got[keep]).all() and np.isnan(got[~keep]).all()
     # per length and column (u, v, then the late ones): 1e-6 of CG's first
     # residual leaves ~1e-5 of the correction; the risk weighs its square
@@ -114,19 +122,26 @@ def test_short_trial_smoothers_by_cg_agree_with_factors(monkeypatch):
     assert np.all(err < 2e-4 * scale)
 
 
-@pytest.mark.parametrize("case, cap, factors", [("block", TS.CG_MAX_ITER, 6),
-                                                 ("row", 40, 4)])
-def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, case, cap, factors):
+@pytest.mark.parametrize("case, cap, lattice_cap, factors", [
+    ("block", TS.CG_MAX_ITER, TS.LATTICE_MAX_ITER, 6), ("row", 40, None, 4), ("row", 40, 3, 4)])
+def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, case, cap,
+                                                              lattice_cap, factors):
     """A 40 % untrusted block makes CG stall at the first (shortest) length:
     every length is then factorised (6). With one untrusted row and a cap of
-    40 iterations CG converges on the two shortest lengths and stalls on the
-    next two, whose late columns must still be solved: 2 long + 2 stalled
-    factors. Either way the result is the factored one."""
+    40 iterations (no lattice path) Jacobi CG converges on the two shortest
+    lengths and stalls on the next two, whose late columns must still be
+    solved: 2 long + 2 stalled factors. With the lattice path capped at 3
+    iterations, its three lengths stall and the fourth by Jacobi CG: 4 again.
+    Either way the result is the factored one."""
     mesh = _mesh((320, 320))
     fields = _fields(mesh, 2)
     keep = mesh.x < 200 if case == "block" else mesh.y > mesh.y.min()
     ref = _factored(monkeypatch, mesh, fields, keep)
     monkeypatch.setattr(TS, "CG_MAX_ITER", cap)
+    if lattice_cap is None:
+        monkeypatch.setattr(TS, "LATTICE_MIN_LENGTH", np.inf)
+    else:
+        monkeypatch.setattr(TS, "LATTICE_MAX_ITER", lattice_cap)
     count = _Count(monkeypatch)
     got = _residuals(mesh, fields, keep)
     assert count.n == factors
@@ -138,8 +153,6 @@ def test_trial_smoothers_fall_back_to_factors_where_cg_stalls(monkeypatch, case,
 def test_cg_first_solver_factors_after_a_stall(monkeypatch):
     """_CGFirst: CG from the start it is given, warm-started after, and a factor
     for good once CG stalls (the bias smoother of the 40 % untrusted block)."""
-    from napari_aldic.engine.dic.global_solve import UNTRUSTED_WEIGHT
-
     mesh = _mesh((320, 320))
     keep = mesh.x < 200
     KtK = (curvature_operator(mesh).T @ curvature_operator(mesh)).tocsr()
@@ -158,3 +171,61 @@ def test_cg_first_solver_factors_after_a_stall(monkeypatch):
         scale = np.abs(exact - f)[keep].max()
         assert np.abs(x1 - exact)[keep].max() < 2e-4 * scale
         assert np.abs(x2 - 1.01 * exact)[keep].max() < 2e-4 * scale
+
+
+def test_lattice_of_accepts_one_lattice_only():
+    """The lattice path needs every node on one lattice of the node spacing:
+    a uniform mesh (with or without an ROI hole) is one; a refined quadtree
+    mesh (hanging nodes) or a spacing that does not match is not."""
+    from napari_aldic.engine.dic.quadtree import Refinement, build_quadtree
+
+    mesh = _mesh((160, 200))
+    free = mesh.prolongation()[1]
+    iy, ix, shape = lattice_of(mesh, free, 8.0)
+    assert shape == (int(iy.max()) + 1, int(ix.max()) + 1)
+    assert np.unique(iy * shape[1] + ix).size == mesh.n_nodes
+    assert lattice_of(mesh, free, 5.0) is None
+    roi = np.ones((200, 200), bool)
+    roi[80:120, 80:120] = False
+    holed = uniform_mesh(make_grid(roi, 15, 8), roi)
+    assert lattice_of(holed, holed.prolongation()[1], 8.0) is not None
+    grid = make_grid(roi, 15, 8)
+    qm = build_quadtree(grid, roi, Refinement(mask_boundary=True, levels=2), 7).mesh
+    assert qm.hanging.size and lattice_of(qm, qm.prolongation()[1], 8.0) is None
+
+
+@pytest.mark.parametrize("length", [7.75, 15.5, 31.0])
+def test_lattice_pcg_solves_the_smoother_where_the_symbol_is_only_approximate(length):
+    """The preconditioner ignores the edge rows, an ROI hole and the untrusted
+    nodes' small weight: CG still reaches the factored solution (relative
+    tolerance 1e-10 of the correction), in far fewer iterations than Jacobi CG
+    needs (counted by the preconditioner's calls)."""
+    roi = np.ones((300, 340), bool)
+    roi[100:160, 120:200] = False
+    mesh = uniform_mesh(make_grid(roi, 31, 8), roi)
+    free = mesh.prolongation()[1]
+    lat = lattice_of(mesh, free, 8.0)
+    wd = np.where((mesh.x > 250) & (mesh.y < 60), UNTRUSTED_WEIGHT, 1.0)
+    A = (sp.diags(wd) + length**4 * curvature_operator(mesh)).tocsr()
+    f = _fields(mesh, 5)
+    b = wd[:, None] * f
+    exact = sp.linalg.spsolve(A.tocsc(), b)
+    calls = [0]
+    M = LatticePreconditioner(lat, length, 8.0)
+
+    def counted(r):
+        calls[0] += 1
+        return M(r)
+    x = pcg_columns(A, b, f, counted, 1e-10, 200)
+    assert x is not None
+    assert np.abs(x - exact).max() < 1e-7 * np.abs(exact - f).max()
+    assert calls[0] < 60
+    jacobi = [0]
+    dinv = 1.0 / A.diagonal()
+
+    def diagonal(r):
+        jacobi[0] += 1
+        return r * dinv[:, None]
+    assert pcg_columns(A, b, f, diagonal, 1e-10, 5000) is not None
+    assert jacobi[0] > 2.5 * calls[0]
+    assert pcg_columns(A, b, f, M, 1e-10, 3) is None  # a cap it cannot meet: None

@@ -2,11 +2,14 @@
 smoother ``S_ℓ = (Wd + ℓ⁴ KᵀK)⁻¹ Wd`` applied to the Local DIC fields, and the
 undermatching bias's smoother.
 
-Long lengths are factorised (SuperLU, as the global matrix), two at a time on
-the two cores. Short ones (up to ``CG_MAX_LENGTH`` node spacings) are well
-conditioned, ``κ ≲ 1 + 64 (ℓ/step)⁴``: Jacobi CG solves them for the
-correction ``S_ℓ f - f`` itself in 30-75 iterations, a fraction of a
-factor's cost (``docs/method.md`` section 7.4). Where many untrusted nodes
+Short lengths (up to ``CG_MAX_LENGTH`` node spacings) are well conditioned,
+``κ ≲ 1 + 64 (ℓ/step)⁴``: Jacobi CG solves them for the correction
+``S_ℓ f - f`` itself in 30-75 iterations, a fraction of a factor's cost
+(``docs/method.md`` section 7.4). On a mesh that is one node lattice, lengths
+from ``LATTICE_MIN_LENGTH`` node spacings are solved by CG preconditioned with
+the smoother's cosine-transform symbol instead (:mod:`.lattice_pcg`, ~13
+iterations at any length). Other long lengths are factorised (SuperLU, as the
+global matrix), two at a time on the two cores. Where many untrusted nodes
 (weight ``UNTRUSTED_WEIGHT``: a hole, a crack) make CG stall, factors take
 over; which path a length takes depends on the data only, never on thread
 timing.
@@ -22,11 +25,13 @@ import scipy.sparse as sp
 
 from ..kernels.cg import jacobi_cg
 from .global_solve import UNTRUSTED_WEIGHT, Q4Mesh, SPDSolver, curvature_operator, solver_method
+from .lattice_pcg import LatticePreconditioner, lattice_of, pcg_columns
 from .linear_solvers import cg_tolerances
 from .threads import side_by_side
 
 __all__ = ["trial_residuals", "CGFirst", "window_mean", "use_cg", "SMOOTHING_THREADS",
-           "CG_MAX_LENGTH", "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA", "CG_MIN_NODES"]
+           "CG_MAX_LENGTH", "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA", "CG_MIN_NODES",
+           "LATTICE_MIN_LENGTH", "LATTICE_MAX_ITER"]
 
 # trial smoothers factorised at once (the machines this targets have 2+ cores)
 SMOOTHING_THREADS = 2
@@ -42,6 +47,12 @@ FILL_SIGMA = 2.0
 # like n): measured, CG lost at 4,900 nodes (0.27 s against 0.21 s for the whole
 # choice on the open-hole coupon) and won at 15,000 (0.65 s against 0.81 s)
 CG_MIN_NODES = 10_000
+# on a lattice mesh, lengths from this many node spacings take the cosine-
+# transform preconditioner (measured at 15k nodes, two columns: 0.069 against
+# Jacobi's 0.085 s at 0.97 spacing, 0.052 against 0.15 s and a factor's 0.19 s
+# at 1.9; Jacobi wins below ~0.7); past LATTICE_MAX_ITER iterations, a factor
+LATTICE_MIN_LENGTH = 0.9
+LATTICE_MAX_ITER = 100
 
 
 def use_cg(n_free: int, length: float, step: float) -> bool:
@@ -81,8 +92,8 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         return solver.solve(b, b / diag if start is None else start)
 
     if solver_method(Wd.shape[0]) == "direct":
-        short = [k for k in trials if use_cg(Wd.shape[0], lengths[k], step)]
-        long = [k for k in trials if k not in short]
+        lattice = lattice_of(mesh, free, step) if use_cg(Wd.shape[0], 0.0, step) else None
+        short, spectral, long = _split_lengths(trials, lengths, Wd.shape[0], step, lattice)
         # CG starts from the fields, filled off the data by their window mean
         fill = np.nan_to_num(window_mean(mesh, first, step, FILL_SIGMA * step))
 
@@ -90,15 +101,23 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
             f = late.result() if late_ones else fields
             start = np.where(keep[:, None], f, 0.0 if late_ones else fill)[free]
             return T.T @ np.where(keep[:, None], f, 0.0), start
-        cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor,
-                            short[0] if short else None)
+
+        def solve(k, A, b, x0):  # CG of length k, or None where it stalls
+            if k not in spectral:
+                return _cg_columns(A, b, x0)
+            return pcg_columns(A, b, x0, LatticePreconditioner(lattice, lengths[k], step),
+                               CG_RTOL, LATTICE_MAX_ITER)
+        by_cg = sorted(short + spectral)
+        cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor, solve,
+                            by_cg[0] if by_cg else None)
         # the long lengths' factors are independent and SuperLU releases the GIL:
         # two at a time on the two cores (each freed once its solve is done);
         # the shortest length's CG goes first (it tells whether CG converges
-        # here), the other short lengths' CG fills the cores after the factors,
-        # their late columns last (no core waits for them while work is left)
-        jobs = ([("cg", k) for k in short[:1]] + [("factor", k) for k in long]
-                + [("cg", k) for k in short[:0:-1]] + [("late", k) for k in short[::-1]])
+        # here), the other lengths' CG fills the cores after the factors,
+        # longest first, their late columns last (no core waits for them
+        # while work is left)
+        jobs = ([("cg", k) for k in by_cg[:1]] + [("factor", k) for k in long]
+                + [("cg", k) for k in by_cg[:0:-1]] + [("late", k) for k in by_cg[::-1]])
         run = {"cg": cg.first_columns, "factor": factor, "late": cg.late_columns}
         done = side_by_side(lambda job: run[job[0]](job[1]), jobs, SMOOTHING_THREADS)
         found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
@@ -115,15 +134,26 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     return out
 
 
+def _split_lengths(trials, lengths, n_free: int, step: float, lattice):
+    """The trial lengths (indices) by Jacobi CG, by lattice-preconditioned CG
+    and by a factor."""
+    spectral = ([k for k in trials if lengths[k] >= LATTICE_MIN_LENGTH * step]
+                if lattice is not None else [])
+    short = [k for k in trials if k not in spectral and use_cg(n_free, lengths[k], step)]
+    return short, spectral, [k for k in trials if k not in short + spectral]
+
+
 class _ShortSmoother:
-    """A short trial smoother by Jacobi CG on its correction.
+    """A trial smoother by CG on its correction.
 
     With ``x0`` the fields (filled off the data), ``(Wd + ℓ⁴ KᵀK) x = b`` is
     solved as ``x = x0 + e``, ``(Wd + ℓ⁴ KᵀK) e = b - (Wd + ℓ⁴ KᵀK) x0``: ``e`` is
     the smoother's correction, the risk's residual, so CG's relative tolerance
     applies to it, not to the field (a rigid shift of 50 px would otherwise
     need 1e-8). Short lengths are well conditioned (κ ≲ 1 + 64 (ℓ/step)⁴):
-    10-70 iterations, a fraction of a factor's cost. Where CG stalls (many
+    10-70 iterations of Jacobi CG, a fraction of a factor's cost; longer ones
+    on a lattice ~13 of :mod:`.lattice_pcg`'s (``solve(k, A, b, x0)`` picks
+    the method of length ``k``, None where it stalls). Where CG stalls (many
     untrusted nodes make the system nearly singular there) ``factor(k)``
     solves the length instead. Whether CG converges on the ``first`` (the
     shortest) length decides for the others: past a stall there, they are
@@ -132,9 +162,9 @@ class _ShortSmoother:
     ``columns(late)``: ``(b, x0)`` of the first columns (``late=False``) or,
     with ``has_late``, of the late ones (waited for after the first)."""
 
-    def __init__(self, Wd, KtK, lengths, columns, has_late: bool, factor, first):
+    def __init__(self, Wd, KtK, lengths, columns, has_late: bool, factor, solve, first):
         self.Wd, self.KtK, self.lengths, self.columns = Wd, KtK, lengths, columns
-        self.has_late, self.factor, self.first = has_late, factor, first
+        self.has_late, self.factor, self.solve, self.first = has_late, factor, solve, first
         self._converges = Future()
         # length -> Future of its first columns by CG (None: solved whole)
         self._firsts: dict[int, Future] = {}
@@ -165,7 +195,7 @@ class _ShortSmoother:
         first = self._firsts[k].result()
         if first is None:
             return None
-        more = _cg_columns(self._matrix(k), *self.columns(True))
+        more = self.solve(k, self._matrix(k), *self.columns(True))
         return self.factor(k) if more is None else np.column_stack([first, more])
 
     def _cg_first(self, k: int) -> np.ndarray | None:
@@ -173,7 +203,7 @@ class _ShortSmoother:
         if k != self.first and not self._converges.result():
             return None
         try:
-            x = _cg_columns(self._matrix(k), *self.columns(False))
+            x = self.solve(k, self._matrix(k), *self.columns(False))
         except BaseException as exc:
             if k == self.first:
                 self._converges.set_exception(exc)
