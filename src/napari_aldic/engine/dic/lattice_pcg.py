@@ -48,27 +48,40 @@ def lattice_of(mesh: Q4Mesh, free: np.ndarray, step: float):
 
 class LatticePreconditioner:
     """``r -> (I + (ℓ/step)⁴ (L_x + L_y)²)⁻¹ r`` on the lattice of the free
-    nodes (columns of ``r`` (n, K)), zero-padded where the lattice has no node:
-    a symmetric positive definite approximation of ``(Wd + ℓ⁴ KᵀK)⁻¹``."""
+    nodes (columns of ``r`` (n, K)), zero-padded where the lattice has no node
+    and up to a size the FFT handles fast: a symmetric positive definite
+    approximation of ``(Wd + ℓ⁴ KᵀK)⁻¹``."""
 
     def __init__(self, lattice, length: float, step: float):
         iy, ix, shape = lattice
-        self.shape = shape
-        self.cell = iy * shape[1] + ix
-        ly = 2.0 - 2.0 * np.cos(np.pi * np.arange(shape[0]) / shape[0])
-        lx = 2.0 - 2.0 * np.cos(np.pi * np.arange(shape[1]) / shape[1])
+        self.nodes = shape
+        # e.g. 124 -> 125 (5³): the transforms take 0.57 instead of 0.89 ms
+        self.shape = tuple(sfft.next_fast_len(s, real=True) for s in shape)
+        self.cell = iy * self.shape[1] + ix
+        # nodes in row-major lattice order fill the grid by a slice, not a scatter
+        self.full = (ix.size == shape[0] * shape[1]
+                     and np.array_equal(iy * shape[1] + ix, np.arange(ix.size)))
+        ly = 2.0 - 2.0 * np.cos(np.pi * np.arange(self.shape[0]) / self.shape[0])
+        lx = 2.0 - 2.0 * np.cos(np.pi * np.arange(self.shape[1]) / self.shape[1])
         self.symbol = 1.0 / (1.0 + (length / step) ** 4 * (ly[:, None] + lx[None, :]) ** 2)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
         k = r.shape[1]
-        grid = np.zeros((k, self.shape[0] * self.shape[1]))
-        grid[:, self.cell] = r.T
-        grid = grid.reshape(k, *self.shape)
+        ny, nx = self.nodes
+        grid = np.zeros((k, *self.shape))
+        if self.full:
+            grid[:, :ny, :nx] = r.T.reshape(k, ny, nx)
+        else:
+            grid.reshape(k, -1)[:, self.cell] = r.T
         # one worker: the caller already runs the trial smoothers side by side
-        spec = sfft.dctn(grid, type=2, norm="ortho", axes=(1, 2), workers=1)
+        spec = sfft.dctn(grid, type=2, norm="ortho", axes=(1, 2), workers=1,
+                         overwrite_x=True)
         spec *= self.symbol
-        grid = sfft.idctn(spec, type=2, norm="ortho", axes=(1, 2), workers=1)
-        return np.ascontiguousarray(grid.reshape(k, -1)[:, self.cell].T)
+        grid = sfft.idctn(spec, type=2, norm="ortho", axes=(1, 2), workers=1,
+                          overwrite_x=True)
+        out = (grid[:, :ny, :nx].reshape(k, -1) if self.full
+               else grid.reshape(k, -1)[:, self.cell])
+        return np.ascontiguousarray(out.T)
 
 
 def pcg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, precond, rtol: float,

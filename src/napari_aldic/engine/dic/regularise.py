@@ -58,7 +58,14 @@ from .global_solve import (
     solver_method,
 )
 from .reliability import displacement_variance, subset_statistics
-from .trial_smoothers import FILL_SIGMA, CGFirst, trial_residuals, use_cg, window_mean
+from .trial_smoothers import (
+    FILL_SIGMA,
+    CGFirst,
+    lattice_preconditioner,
+    trial_residuals,
+    use_cg,
+    window_mean,
+)
 
 __all__ = ["displacement_noise", "choose_smoothing", "SmoothingChoice", "curvature_noise_gains",
            "shrink_curvature", "SMOOTH_CANDIDATES", "ADAPTIVE_WINDOW", "window_mean"]
@@ -375,13 +382,16 @@ def _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, length):
     # a factor when the trial smoothers use them too: with many untrusted nodes
     # (weight UNTRUSTED_WEIGHT) Jacobi CG on the field needs thousands of
     # iterations (crack sample: 2,000 per column, 2.7 s, against ~40 when nearly
-    # all are data); or, as the short trial smoothers, CG on the correction from
-    # the field filled off the data, a factor if CG stalls
+    # all are data); or, as the trial smoothers, CG on the correction from the
+    # field filled off the data (lattice-preconditioned where they are), a
+    # factor if CG stalls
     direct = solver_method(mesh.n_nodes) == "direct"
     solver = None
-    if use_cg(free.size, length, step):
+    pre = lattice_preconditioner(mesh, free, length, step)
+    if pre is not None or use_cg(free.size, length, step):
         fill = window_mean(mesh, np.where(keep[:, None], uv, np.nan), step, FILL_SIGMA * step)
-        solver = CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free])
+        solver = CGFirst(estimate.matrix, np.where(keep[:, None], uv, np.nan_to_num(fill))[free],
+                         pre)
     d = uv
     for _ in range(DECONVOLUTION_STEPS):
         curv = estimate(d[:, 0], d[:, 1], direct=direct, solver=solver)

@@ -29,7 +29,8 @@ from .lattice_pcg import LatticePreconditioner, lattice_of, pcg_columns
 from .linear_solvers import cg_tolerances
 from .threads import side_by_side
 
-__all__ = ["trial_residuals", "CGFirst", "window_mean", "use_cg", "SMOOTHING_THREADS",
+__all__ = ["trial_residuals", "CGFirst", "window_mean", "use_cg", "lattice_preconditioner",
+           "SMOOTHING_THREADS",
            "CG_MAX_LENGTH", "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA", "CG_MIN_NODES",
            "LATTICE_MIN_LENGTH", "LATTICE_MAX_ITER"]
 
@@ -62,6 +63,18 @@ def use_cg(n_free: int, length: float, step: float) -> bool:
             and length <= CG_MAX_LENGTH * step)
 
 
+def lattice_preconditioner(mesh: Q4Mesh, free: np.ndarray, length: float, step: float,
+                           lattice=None) -> LatticePreconditioner | None:
+    """The cosine-transform preconditioner of a smoother of ``length``
+    (pixels) when it is used (:mod:`.lattice_pcg`): on a mesh of one node
+    lattice (``lattice``, found when not given) of at least ``CG_MIN_NODES``
+    free nodes, from ``LATTICE_MIN_LENGTH`` node spacings; else None."""
+    if length < LATTICE_MIN_LENGTH * step or not use_cg(free.size, 0.0, step):
+        return None
+    lattice = lattice_of(mesh, free, step) if lattice is None else lattice
+    return None if lattice is None else LatticePreconditioner(lattice, length, step)
+
+
 def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
                     late: Future | None = None) -> np.ndarray:
     """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
@@ -92,8 +105,12 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         return solver.solve(b, b / diag if start is None else start)
 
     if solver_method(Wd.shape[0]) == "direct":
-        lattice = lattice_of(mesh, free, step) if use_cg(Wd.shape[0], 0.0, step) else None
-        short, spectral, long = _split_lengths(trials, lengths, Wd.shape[0], step, lattice)
+        lattice = lattice_of(mesh, free, step)
+        pre = {k: lattice_preconditioner(mesh, free, lengths[k], step, lattice)
+               for k in trials} if lattice is not None else {}
+        spectral = [k for k in trials if pre.get(k) is not None]
+        short = [k for k in trials if k not in spectral and use_cg(free.size, lengths[k], step)]
+        long = [k for k in trials if k not in short + spectral]
         # CG starts from the fields, filled off the data by their window mean
         fill = np.nan_to_num(window_mean(mesh, first, step, FILL_SIGMA * step))
 
@@ -103,10 +120,7 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
             return T.T @ np.where(keep[:, None], f, 0.0), start
 
         def solve(k, A, b, x0):  # CG of length k, or None where it stalls
-            if k not in spectral:
-                return _cg_columns(A, b, x0)
-            return pcg_columns(A, b, x0, LatticePreconditioner(lattice, lengths[k], step),
-                               CG_RTOL, LATTICE_MAX_ITER)
+            return _cg_columns(A, b, x0, pre.get(k))
         by_cg = sorted(short + spectral)
         cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor, solve,
                             by_cg[0] if by_cg else None)
@@ -132,15 +146,6 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     for k, sol in zip(trials, sols):
         out[keep, k] = ((T @ sol) - full)[keep]
     return out
-
-
-def _split_lengths(trials, lengths, n_free: int, step: float, lattice):
-    """The trial lengths (indices) by Jacobi CG, by lattice-preconditioned CG
-    and by a factor."""
-    spectral = ([k for k in trials if lengths[k] >= LATTICE_MIN_LENGTH * step]
-                if lattice is not None else [])
-    short = [k for k in trials if k not in spectral and use_cg(n_free, lengths[k], step)]
-    return short, spectral, [k for k in trials if k not in short + spectral]
 
 
 class _ShortSmoother:
@@ -222,14 +227,16 @@ class _ShortSmoother:
 
 class CGFirst:
     """``solve(rhs, guess)`` with one SPD matrix, warm-started from the last
-    solution (the first from ``start``): :func:`_cg_columns`, and once CG
+    solution (the first from ``start``): :func:`_cg_columns` (``precond``: a
+    :class:`~.lattice_pcg.LatticePreconditioner`, else Jacobi), and once CG
     stalls a factor for this and every later solve."""
 
-    def __init__(self, A, start: np.ndarray):
-        self.A, self._last, self._factor = A.tocsr(), start, None
+    def __init__(self, A, start: np.ndarray, precond=None):
+        self.A, self._last, self._factor, self.precond = A.tocsr(), start, None, precond
 
     def solve(self, rhs: np.ndarray, guess=None) -> np.ndarray:
-        x = None if self._factor is not None else _cg_columns(self.A, rhs, self._last)
+        x = (None if self._factor is not None
+             else _cg_columns(self.A, rhs, self._last, self.precond))
         if x is None:
             if self._factor is None:
                 self._factor = SPDSolver(self.A.tocsc(), "direct", 0.0)
@@ -238,10 +245,14 @@ class CGFirst:
         return x
 
 
-def _cg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray) -> np.ndarray | None:
-    """``A⁻¹ b`` as ``x0`` plus a correction solved by Jacobi CG to ``CG_RTOL`` of
-    its right-hand side, all columns at once; None if a column needs more than
-    ``CG_MAX_ITER`` iterations."""
+def _cg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray,
+                precond=None) -> np.ndarray | None:
+    """``A⁻¹ b`` as ``x0`` plus a correction solved by CG to ``CG_RTOL`` of its
+    right-hand side, all columns at once; None if a column needs more than
+    ``CG_MAX_ITER`` iterations. Jacobi CG (compiled), or preconditioned by
+    ``precond`` (:func:`~.lattice_pcg.pcg_columns`, ``LATTICE_MAX_ITER``)."""
+    if precond is not None:
+        return pcg_columns(A, b, x0, precond, CG_RTOL, LATTICE_MAX_ITER)
     rhs = np.ascontiguousarray(b - A @ x0)
     atol, _ = cg_tolerances(rhs, CG_RTOL)
     e = np.zeros(rhs.shape)
