@@ -260,3 +260,32 @@ def test_uncertainty_from_the_moments_is_the_matrix_model(shape_function, smooth
         half, _ = _covariance_by_numpy(q, 9.0)
         np.testing.assert_allclose(static_uncertainty(q, 3.0)[ok] ** 2, half[ok], rtol=1e-9)
         assert np.nanmax(np.abs(half[ok] / want[ok] - 1)) > 1e-3  # and it made a difference
+
+
+def test_reading_the_matrices_keeps_the_moments_path(monkeypatch):
+    """AL-DIC's propagation reads the speckle quality's matrices (gathered from
+    the window moments); the Local uncertainty computed after that must still
+    come straight from the moments (the flat matrix copy cost 0.07-0.13 s at
+    15k nodes), with the same result. An assigned matrix switches to it."""
+    import napari_aldic.engine.dic.quality as Q
+
+    img, _ = S.speckle_pair((128, 128), S.Translation(0, 0), seed=3, bit_depth=None)
+    x = y = np.array([40, 64, 88])
+    seen = []
+    real = Q.covariance_diag
+
+    def spy(arrays, *args):
+        seen.append(arrays)
+        return real(arrays, *args)
+    monkeypatch.setattr(Q, "covariance_diag", spy)
+    q = speckle_quality(img, x, y, 31)
+    before = static_uncertainty(q, 2.0)
+    _ = (q.hessian, q.noise, q.cross, q.cross_noise)  # read, as the propagation does
+    after = static_uncertainty(q, 2.0)
+    np.testing.assert_array_equal(after, before)
+    assert len(seen[1]) == len(q.sums.arrays)
+    assert all(a is b or np.shares_memory(a, b) for a, b in zip(seen[1], q.sums.arrays))
+    q.noise = 0.5 * q.noise  # assigned: the moments no longer describe it
+    changed = static_uncertainty(q, 2.0)
+    assert not any(np.shares_memory(a, q.sums.arrays[0]) for a in seen[2])
+    assert np.all(np.abs(changed - before) > 1e-3 * before)  # the assignment counts
