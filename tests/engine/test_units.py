@@ -130,6 +130,38 @@ def test_median_test_flags_planted_outlier_but_not_across_crack():
     assert out[bad] and out.sum() == 1
 
 
+def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatch):
+    """``_State.outliers``: the median test reads only the trusted nodes' u, v,
+    so the same trusted set and values give the last flags without testing
+    again; a changed value at a trusted node, or a changed trusted set, tests
+    again. Values at untrusted nodes do not matter."""
+    from types import SimpleNamespace
+
+    import napari_aldic.engine.dic.local as L
+
+    roi = np.ones((120, 120), bool)
+    grid = make_grid(roi, 11, 6)
+    p = np.zeros((grid.n, 6))
+    bad = np.nonzero((grid.x == 42) & (grid.y == 30))[0][0]
+    p[bad, 0] = 1.0
+    st = SimpleNamespace(p=p, nbrs5=lattice_neighbours(grid, roi), _outliers=None)
+    calls = []
+    monkeypatch.setattr(L, "median_test", lambda *a: calls.append(1) or median_test(*a))
+    trusted = np.ones(grid.n, bool)
+    trusted[0] = False
+    first = L._State.outliers(st, trusted)
+    assert first[bad] and first.sum() == 1
+    p[0, 0] = 50.0  # an untrusted node: the same inputs for the test
+    first[:] = False  # the caller's copy, not the kept flags
+    assert np.array_equal(L._State.outliers(st, trusted.copy()), median_test(
+        p[:, 0], p[:, 3], trusted, st.nbrs5)) and len(calls) == 1
+    p[bad, 0] = 0.0  # a trusted node's value: tested again, no outlier left
+    assert not L._State.outliers(st, trusted).any() and len(calls) == 2
+    trusted[5] = False  # another trusted set: tested again
+    L._State.outliers(st, trusted)
+    assert len(calls) == 3
+
+
 def test_result_roundtrip_without_pickle(tmp_path):
     ref, dfm = S.speckle_pair((96, 96), S.Translation(0.25, 0.5), seed=2)
     res = correlate(ref, dfm, subset=21, step=6, search=8)
