@@ -80,13 +80,25 @@ def _small_meshes_too(monkeypatch):
     monkeypatch.setattr(TS, "CG_MIN_NODES", 0)
 
 
-def _residuals(mesh, fields, keep, late=True):
+def _residuals(mesh, fields, keep, late=True, workers=TS.SMOOTHING_THREADS):
     lengths = [float(c) * 31 for c in SMOOTH_CANDIDATES]
     fut = None
     if late:  # the bias columns arrive late, as in choose_smoothing
         fut = Future()
         fut.set_result(0.01 * np.sin(fields[:, ::-1] / 7.0))
-    return TS.trial_residuals(mesh, fields, keep, lengths, 8.0, fut)
+    return TS.trial_residuals(mesh, fields, keep, lengths, 8.0, fut, workers)
+
+
+@pytest.mark.parametrize("workers", [1, 5])
+def test_trial_smoothers_do_not_depend_on_the_workers(workers):
+    """More (or fewer) threads solving lengths side by side give the same bits:
+    each job computes the same whatever runs beside it, and a job waits only
+    on jobs listed before it (no deadlock with one worker)."""
+    mesh = _mesh()
+    fields = _fields(mesh, 6)
+    keep = mesh.y > mesh.y.min()
+    np.testing.assert_array_equal(_residuals(mesh, fields, keep, workers=workers),
+                                  _residuals(mesh, fields, keep))
 
 
 def _factored(monkeypatch, mesh, fields, keep):

@@ -46,10 +46,12 @@ def test_side_by_side_keeps_order_and_reads_a_generator(monkeypatch):
 
 
 @pytest.mark.parametrize("method", ["local", "aldic"])
-def test_results_do_not_depend_on_the_thread_count(method):
+def test_results_do_not_depend_on_the_thread_count(method, monkeypatch):
     """One thread and two give the same bits: the kernels write disjoint
     nodes, the probe moments and factor columns are split, never summed
-    across threads."""
+    across threads. So do the smoothing choice's trial smoothers and the
+    u_std propagation's probe groups when they see five threads (both
+    scale with the run's threads, at least two)."""
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("Numba has a single thread here (NUMBA_NUM_THREADS=1)")
     f = synthetic.Affine.strain_rotation(exx=0.003, angle_deg=0.3, center=(128, 128),
@@ -61,3 +63,24 @@ def test_results_do_not_depend_on_the_thread_count(method):
     for name in ("u", "v", "u_std", "v_std", "zncc"):
         np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)
     np.testing.assert_array_equal(one.reason, two.reason)
+    if method == "aldic":
+        from types import SimpleNamespace
+
+        import napari_aldic.engine.dic.regularise as R
+        import napari_aldic.engine.dic.uncertainty_aldic as UA
+
+        groups = []
+        real = UA.side_by_side
+
+        def spy(fn, items, workers=None):
+            if isinstance(items, list):  # the propagation's groups (not the probe sums)
+                groups.append(len(items))
+            return real(fn, items, workers)
+        five = SimpleNamespace(get_num_threads=lambda: 5)
+        monkeypatch.setattr(R, "numba", five)
+        monkeypatch.setattr(UA, "numba", five)
+        monkeypatch.setattr(UA, "side_by_side", spy)
+        more = correlate(ref, dfm, subset=21, step=6, method=method, n_threads=2)
+        assert groups == [5]  # the 16 probes in five groups
+        for name in ("u", "v", "u_std", "v_std", "zncc"):
+            np.testing.assert_array_equal(getattr(more, name), getattr(two, name), err_msg=name)

@@ -47,6 +47,7 @@ from __future__ import annotations
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from ..core.params import ADAPTIVE_WINDOW, SMOOTH_CANDIDATES
@@ -60,6 +61,7 @@ from .global_solve import (
 from .reliability import displacement_variance, subset_statistics
 from .trial_smoothers import (
     FILL_SIGMA,
+    SMOOTHING_THREADS,
     CGFirst,
     lattice_preconditioner,
     trial_residuals,
@@ -310,8 +312,10 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     # while this thread estimates the bias, their third field
     late = Future()
     with ThreadPoolExecutor(1) as aside:
+        # the run's threads, read here (a new thread sees Numba's default)
+        workers = max(SMOOTHING_THREADS, numba.get_num_threads())
         job = aside.submit(trial_residuals, mesh, np.column_stack([u, v]), keep, lengths, step,
-                           late)
+                           late, workers)
         try:
             lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset,
                                             bias_length)

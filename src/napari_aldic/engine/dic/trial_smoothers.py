@@ -34,7 +34,8 @@ __all__ = ["trial_residuals", "CGFirst", "window_mean", "use_cg", "lattice_preco
            "CG_MAX_LENGTH", "CG_RTOL", "CG_MAX_ITER", "FILL_SIGMA", "CG_MIN_NODES",
            "LATTICE_MIN_LENGTH", "LATTICE_MAX_ITER"]
 
-# trial smoothers factorised at once (the machines this targets have 2+ cores)
+# trial smoothers solved at once, at least (more with more of the run's threads:
+# the jobs are independent and each computes the same whatever runs beside it)
 SMOOTHING_THREADS = 2
 # trial lengths up to this many node spacings are solved by Jacobi CG (relative
 # tolerance CG_RTOL on the smoother's correction; past CG_MAX_ITER iterations a
@@ -76,11 +77,12 @@ def lattice_preconditioner(mesh: Q4Mesh, free: np.ndarray, length: float, step: 
 
 
 def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float,
-                    late: Future | None = None) -> np.ndarray:
+                    late: Future | None = None, workers: int = SMOOTHING_THREADS) -> np.ndarray:
     """(N, K, M) ``S_ℓ f - f`` per node and length (NaN off ``keep``) of nodal
     ``fields`` (N, M): the thin-plate smoother fitted at the trusted nodes.
     ``late``: a future of more columns of ``fields``, waited for only once a
-    smoother is ready for them (the caller computes them meanwhile).
+    smoother is ready for them (the caller computes them meanwhile);
+    ``workers``: threads solving lengths side by side.
 
     Lengths up to ``CG_MAX_LENGTH`` node spacings (on meshes of at least
     ``CG_MIN_NODES`` free nodes, :func:`use_cg`) are solved by Jacobi CG for
@@ -133,7 +135,8 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         jobs = ([("cg", k) for k in by_cg[:1]] + [("factor", k) for k in long]
                 + [("cg", k) for k in by_cg[:0:-1]] + [("late", k) for k in by_cg[::-1]])
         run = {"cg": cg.first_columns, "factor": factor, "late": cg.late_columns}
-        done = side_by_side(lambda job: run[job[0]](job[1]), jobs, SMOOTHING_THREADS)
+        # a job waits only on jobs listed before it: any number of workers is safe
+        done = side_by_side(lambda job: run[job[0]](job[1]), jobs, workers)
         found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
         sols = [found[k] for k in trials]
     else:

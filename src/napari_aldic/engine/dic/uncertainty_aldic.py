@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..kernels.moments import moment_terms
@@ -315,14 +316,16 @@ def aldic_gain(q, project, lin: ADMMLinearisation, maps: ProbeMaps | None = None
     start, b_t = np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0)
     solver = BatchSolver(lin.solver)
     if lin.curvature is not None:
-        lin.curvature.estimator.factorise()  # shared by both halves
+        lin.curvature.estimator.factorise()  # shared by all parts
     consts = (cinv, pen, k, None if lin.curvature is None else _curvature_coupling(m, k),
               _gradient_coupling(m, k))
-    # the probes are independent: two halves side by side (the propagation's
-    # NumPy and SciPy steps release the GIL but run on one thread each)
-    halves = [h for h in np.array_split(np.arange(lin.probes), 2) if h.size]
+    # the probes are independent: in parts side by side, at least two (the
+    # propagation's NumPy and SciPy steps release the GIL but run on one thread
+    # each); a probe's arithmetic does not depend on the part it is in
+    count = min(max(2, numba.get_num_threads()), lin.probes)
+    groups = [g for g in np.array_split(np.arange(lin.probes), count) if g.size]
     parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *consts),
-                         halves, 2)
+                         groups, count)
     uh = np.concatenate([p[0] for p in parts], axis=1)
     vh = np.concatenate([p[1] for p in parts], axis=1)
     s_loc = np.stack([np.sum(dp0[:, 0] ** 2, axis=1), np.sum(dp0[:, k] ** 2, axis=1)], axis=1)
