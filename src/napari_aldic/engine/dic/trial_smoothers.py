@@ -9,7 +9,7 @@ Short lengths (up to ``CG_MAX_LENGTH`` node spacings) are well conditioned,
 from ``LATTICE_MIN_LENGTH`` node spacings are solved by CG preconditioned with
 the smoother's cosine-transform symbol instead (:mod:`.lattice_pcg`, ~13
 iterations at any length). Other long lengths are factorised (SuperLU, as the
-global matrix), two at a time on the two cores. Where many untrusted nodes
+global matrix). The lengths are solved side by side. Where many untrusted nodes
 (weight ``UNTRUSTED_WEIGHT``: a hole, a crack) make CG stall, factors take
 over; which path a length takes depends on the data only, never on thread
 timing.
@@ -50,8 +50,8 @@ FILL_SIGMA = 2.0
 # choice on the open-hole coupon) and won at 15,000 (0.65 s against 0.81 s)
 CG_MIN_NODES = 10_000
 # on a lattice mesh, lengths from this many node spacings take the cosine-
-# transform preconditioner (measured at 15k nodes, two columns: 0.069 against
-# Jacobi's 0.085 s at 0.97 spacing, 0.052 against 0.15 s and a factor's 0.19 s
+# transform preconditioner (measured at 15k nodes, two columns: 0.039 against
+# Jacobi's 0.061 s at 0.97 spacing, 0.042 against 0.21 s and a factor's 0.19 s
 # at 1.9; Jacobi wins below ~0.7); past LATTICE_MAX_ITER iterations, a factor
 LATTICE_MIN_LENGTH = 0.9
 LATTICE_MAX_ITER = 100
@@ -86,10 +86,12 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
 
     Lengths up to ``CG_MAX_LENGTH`` node spacings (on meshes of at least
     ``CG_MIN_NODES`` free nodes, :func:`use_cg`) are solved by Jacobi CG for
-    the correction ``S_ℓ f - f`` itself (:class:`_ShortSmoother`); longer ones
-    (and short ones whose CG stalls) by a factor like the global matrix's, or
-    on meshes too large for a factor by AMG-CG warm-started from the previous
-    length (4 digits suffice)."""
+    the correction ``S_ℓ f - f`` itself (:class:`_CGSmoother`), and on a
+    lattice mesh the lengths from ``LATTICE_MIN_LENGTH`` spacings by CG with
+    :mod:`.lattice_pcg`'s preconditioner; the others (and those whose CG
+    stalls) by a factor like the global matrix's, or on meshes too large for
+    a factor by AMG-CG warm-started from the previous length (4 digits
+    suffice)."""
     T, free = mesh.prolongation()
     KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
     Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
@@ -124,10 +126,10 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         def solve(k, A, b, x0):  # CG of length k, or None where it stalls
             return _cg_columns(A, b, x0, pre.get(k))
         by_cg = sorted(short + spectral)
-        cg = _ShortSmoother(Wd, KtK, lengths, columns, late is not None, factor, solve,
-                            by_cg[0] if by_cg else None)
+        cg = _CGSmoother(Wd, KtK, lengths, columns, late is not None, factor, solve,
+                         by_cg[0] if by_cg else None)
         # the long lengths' factors are independent and SuperLU releases the GIL:
-        # two at a time on the two cores (each freed once its solve is done);
+        # side by side (each freed once its solve is done);
         # the shortest length's CG goes first (it tells whether CG converges
         # here), the other lengths' CG fills the cores after the factors,
         # longest first, their late columns last (no core waits for them
@@ -151,7 +153,7 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     return out
 
 
-class _ShortSmoother:
+class _CGSmoother:
     """A trial smoother by CG on its correction.
 
     With ``x0`` the fields (filled off the data), ``(Wd + ℓ⁴ KᵀK) x = b`` is
