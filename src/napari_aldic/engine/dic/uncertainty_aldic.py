@@ -156,13 +156,14 @@ class BatchSolver:
     probe would need its own conjugate-gradient solves, and AL-DIC reports
     the Local model instead (:func:`~.aldic.aldic_stage`)."""
 
-    def __init__(self, solver):
+    def __init__(self, solver, threads: int | None = None):
         if solver.system.method != "direct":
             raise ValueError("the AL-DIC noise propagation needs the factorised global "
                              f"system, not {solver.system.method!r} (meshes up to "
                              "DIRECT_MAX_UNKNOWNS free nodes)")
         # all probe columns in one compiled pass over the factor (TriangularSolver)
         self.s, self.system = solver, solver.system.triangular()
+        self.threads = threads  # of each solve (TriangularSolver.solve)
 
     def gradients(self, uh, vh):
         s = self.s
@@ -172,7 +173,7 @@ class BatchSolver:
         s = self.s
         k = u.shape[1]
         rhs = s.rhs(F, W, u, v, vu, vv)
-        full = s.T @ self.system.solve(rhs)
+        full = s.T @ self.system.solve(rhs, threads=self.threads)
         return full[:, :k], full[:, k:]
 
 
@@ -314,15 +315,17 @@ def aldic_gain(q, project, lin: ADMMLinearisation, maps: ProbeMaps | None = None
     # still swamp the field
     data = active[:, None, None]
     start, b_t = np.where(data, dp0, 0.0), np.where(data, b[:, [0, k]], 0.0)
-    solver = BatchSolver(lin.solver)
+    # the probes are independent: in parts side by side, at least two (the
+    # propagation's NumPy and SciPy steps release the GIL but run on one thread
+    # each); a probe's arithmetic does not depend on the part it is in
+    threads = max(2, numba.get_num_threads())
+    count = min(threads, lin.probes)
+    # each part solves its columns in one pass over the factor (the parts fill the threads)
+    solver = BatchSolver(lin.solver, threads=max(1, threads // count))
     if lin.curvature is not None:
         lin.curvature.estimator.factorise()  # shared by all parts
     consts = (cinv, pen, k, None if lin.curvature is None else _curvature_coupling(m, k),
               _gradient_coupling(m, k))
-    # the probes are independent: in parts side by side, at least two (the
-    # propagation's NumPy and SciPy steps release the GIL but run on one thread
-    # each); a probe's arithmetic does not depend on the part it is in
-    count = min(max(2, numba.get_num_threads()), lin.probes)
     groups = [g for g in np.array_split(np.arange(lin.probes), count) if g.size]
     parts = side_by_side(lambda c: _propagate(solver, lin, start[..., c], b_t[..., c], *consts),
                          groups, count)
