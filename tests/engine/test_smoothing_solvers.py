@@ -237,7 +237,7 @@ def test_lattice_pcg_solves_the_smoother_where_the_symbol_is_only_approximate(le
 
     def diagonal(r):
         jacobi[0] += 1
-        return r * dinv[:, None]
+        return r * dinv  # residuals as rows (K, n)
     assert pcg_columns(A, b, f, diagonal, 1e-10, 5000) is not None
     assert jacobi[0] > 2.5 * calls[0]
     assert pcg_columns(A, b, f, M, 1e-10, 3) is None  # a cap it cannot meet: None

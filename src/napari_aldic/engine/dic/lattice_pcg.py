@@ -48,7 +48,7 @@ def lattice_of(mesh: Q4Mesh, free: np.ndarray, step: float):
 
 class LatticePreconditioner:
     """``r -> (I + (ℓ/step)⁴ (L_x + L_y)²)⁻¹ r`` on the lattice of the free
-    nodes (columns of ``r`` (n, K)), zero-padded where the lattice has no node
+    nodes (each row of ``r`` (K, n) a field), zero-padded where the lattice has no node
     and up to a size the FFT handles fast: a symmetric positive definite
     approximation of ``(Wd + ℓ⁴ KᵀK)⁻¹``."""
 
@@ -66,13 +66,14 @@ class LatticePreconditioner:
         self.symbol = 1.0 / (1.0 + (length / step) ** 4 * (ly[:, None] + lx[None, :]) ** 2)
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
-        k = r.shape[1]
+        """The preconditioned residuals of ``r`` (K, n): one row per column."""
+        k = r.shape[0]
         ny, nx = self.nodes
         grid = np.zeros((k, *self.shape))
         if self.full:
-            grid[:, :ny, :nx] = r.T.reshape(k, ny, nx)
+            grid[:, :ny, :nx] = r.reshape(k, ny, nx)
         else:
-            grid.reshape(k, -1)[:, self.cell] = r.T
+            grid.reshape(k, -1)[:, self.cell] = r
         # one worker: the caller already runs the trial smoothers side by side
         spec = sfft.dctn(grid, type=2, norm="ortho", axes=(1, 2), workers=1,
                          overwrite_x=True)
@@ -81,7 +82,7 @@ class LatticePreconditioner:
                           overwrite_x=True)
         out = (grid[:, :ny, :nx].reshape(k, -1) if self.full
                else grid.reshape(k, -1)[:, self.cell])
-        return np.ascontiguousarray(out.T)
+        return np.ascontiguousarray(out)
 
 
 def pcg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, precond, rtol: float,
@@ -89,30 +90,41 @@ def pcg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, precond, rtol: 
     """``A⁻¹ b`` for the columns of ``b`` (n, K) by preconditioned CG from ``x0``:
     each column until its residual is ``rtol`` times its first one (so the
     tolerance applies to the correction ``x - x0``), its iterates then frozen.
-    None if a column needs more than ``maxiter`` iterations.
+    None if a column needs more than ``maxiter`` iterations. ``precond`` maps
+    residuals held as rows (K, n) to rows.
 
-    Sums are NumPy's einsum, not BLAS (threaded BLAS dot products of this
-    length cost more in hand-overs than in arithmetic on a busy machine,
-    see :mod:`~..kernels.cg`)."""
-    x = np.array(x0, np.float64)
-    r = b - A @ x
-    atol, _ = cg_tolerances(r, rtol)
-    active = np.sqrt(np.einsum("ij,ij->j", r, r)) > atol
+    The columns are held as rows, so that each is one contiguous vector:
+    SciPy's product with one vector is twice as fast per column as with an
+    (n, K) block (0.14 against 0.26 ms at 15k nodes). Sums are NumPy's einsum,
+    not BLAS (threaded BLAS dot products of this length cost more in
+    hand-overs than in arithmetic on a busy machine, see :mod:`~..kernels.cg`)."""
+    x = np.array(np.transpose(x0), np.float64, order="C")
+    r = np.ascontiguousarray(np.transpose(b), np.float64) - _times(A, x)
+    atol, _ = cg_tolerances(r.T, rtol)
+    active = np.sqrt(np.einsum("ij,ij->i", r, r)) > atol
     z = precond(r)
     p = z.copy()
-    rz = np.einsum("ij,ij->j", r, z)
+    rz = np.einsum("ij,ij->i", r, z)
     for _ in range(maxiter):
         if not active.any():
-            return x
-        Ap = A @ p
-        pAp = np.einsum("ij,ij->j", p, Ap)
-        alpha = np.divide(rz, pAp, out=np.zeros_like(rz), where=active & (pAp > 0))
+            break
+        Ap = _times(A, p)
+        pAp = np.einsum("ij,ij->i", p, Ap)
+        alpha = np.divide(rz, pAp, out=np.zeros_like(rz), where=active & (pAp > 0))[:, None]
         x += alpha * p
         r -= alpha * Ap
-        active &= np.sqrt(np.einsum("ij,ij->j", r, r)) > atol
+        active &= np.sqrt(np.einsum("ij,ij->i", r, r)) > atol
         z = precond(r)
-        rz_new = np.einsum("ij,ij->j", r, z)
-        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=active & (rz > 0))
+        rz_new = np.einsum("ij,ij->i", r, z)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=active & (rz > 0))[:, None]
         p = z + beta * p
         rz = rz_new
-    return x if not active.any() else None
+    return None if active.any() else np.ascontiguousarray(x.T)
+
+
+def _times(A: sp.csr_matrix, rows: np.ndarray) -> np.ndarray:
+    """``A`` times each row of ``rows`` (K, n), as rows."""
+    out = np.empty_like(rows)
+    for j in range(rows.shape[0]):
+        out[j] = A @ rows[j]
+    return out
