@@ -48,8 +48,9 @@ CURVATURE_SMOOTHING = 0.5
 __all__ = ["ADMMState", "LocalStep", "run_admm", "image_local_step"]
 
 #: the ADMM local step: ``(start (n, 2), F (n, 4), target (n, 2), mu, active (n,),
-#: curvature (n, 6) or None) -> (uv (n, 2), zncc, iterations, reason)`` for the
-#: ``active`` nodes (see :func:`~.icgn.icgn_solve_translation`)
+#: curvature (n, 6) or None, prior (n, 6) or None) -> (uv (n, 2), zncc, iterations,
+#: reason)`` for the ``active`` nodes (see :func:`~.icgn.icgn_solve_translation`;
+#: ``prior``: the targets and gradients the starts were optimal for)
 LocalStep = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
@@ -60,10 +61,10 @@ def image_local_step(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half:
     gradients; ``lin``: the exact ones, :func:`~.icgn.icgn_solve`; ``slot,
     masks``: the subsets cut by the ROI)."""
 
-    def step(start, F, target, mu, active, curvature):
+    def step(start, F, target, mu, active, curvature, prior=None):
         return icgn_solve_translation(f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F,
                                       target, mu, active, slot, masks, half, max_iter, tol,
-                                      curvature=curvature, lin=lin)
+                                      curvature=curvature, lin=lin, prior=prior)
 
     return step
 
@@ -137,6 +138,10 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
     if second_order and noise_var is not None and subset is not None:
         gains = _noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
     grad = solver.gradients(uh, vh)
+    # the targets and gradients the local displacements are optimal for: the
+    # Local DIC result is the data term's own optimum (no penalty: its own
+    # target) with its own gradient
+    prior = np.column_stack([u, v, grad0])
     for k in range(max_iter):
         if on_iteration is not None:
             on_iteration(k + 1)
@@ -148,12 +153,13 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         t = time.perf_counter()
         curv = (_warp_curvature(solver, uh, vh, half, cut, gains, noise_var)
                 if second_order else None)
-        uv, zncc, iters, reason_k = local_step(start, F, target, mu, active, curv)
+        uv, zncc, iters, reason_k = local_step(start, F, target, mu, active, curv, prior)
         timing["local"] += time.perf_counter() - t
         ok = active & (reason_k == Reason.OK)
         # failed local steps keep the previous value (no new information)
         u = np.where(ok, uv[:, 0], u)
         v = np.where(ok, uv[:, 1], v)
+        prior = np.where(ok[:, None], np.column_stack([target, F]), prior)
         reason = np.where(active, reason_k, reason).astype(np.int8)
         uh_new, vh_new, G = _global_step(solver, F, W, u, v, vu, vv, timing)
         history.append(_progress(k, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok))

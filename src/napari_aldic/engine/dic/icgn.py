@@ -196,7 +196,7 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
 
 def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad, target,
                            mu, active, slot, masks, half, max_iter=40, tol=1e-3,
-                           curvature=None, lin=None):
+                           curvature=None, lin=None, prior=None):
     """AL-DIC local step: IC-GN on the displacement only, with the gradient fixed.
 
     Minimises, per node, ``SSD(u; F fixed) + mu' / 2 |u - target|^2`` where
@@ -215,6 +215,13 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
         added to the warp as ``0.5 dXᵀ ∇∇u dX``; None keeps the warp affine.
     lin : (egx, egy) or None
         Exact reference gradients (as :func:`icgn_solve`).
+    prior : (n, 6) or None
+        The penalty targets and gradients the starts were optimal for (the
+        previous ADMM iteration's; for a Local DIC start the start itself and
+        its own gradient): the iteration
+        then starts from the linear prediction of the new optimum (one
+        sampled step fewer on most nodes; the converged result moves by
+        less than ``tol``).
 
     Returns
     -------
@@ -222,6 +229,7 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     """
     curv = (np.zeros((0, 6)) if curvature is None
             else np.ascontiguousarray(curvature, np.float64))
+    prior = np.zeros((0, 6)) if prior is None else np.ascontiguousarray(prior, np.float64)
     n = nodes_x.size
     check_masks(slot, masks, half, n)
     uv = np.array(uv_init, dtype=np.float64, copy=True)
@@ -233,6 +241,6 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
         icgn_translation, -(-n // status.CHUNK), f, fgx, fgy, egx, egy, spline.coef,
         spline.order, nodes_x, nodes_y,
         np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64), curv,
-        np.ascontiguousarray(target, np.float64), float(mu), active, slot, masks, int(half),
-        int(max_iter), float(tol), uv, zn, it, rs)
+        np.ascontiguousarray(target, np.float64), prior, float(mu), active, slot, masks,
+        int(half), int(max_iter), float(tol), uv, zn, it, rs)
     return uv, zn, it, rs

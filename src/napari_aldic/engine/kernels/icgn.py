@@ -377,6 +377,37 @@ def translation_reference_sums(gx, gy, ex, ey, fs, m, fm):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
+def predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys, m):
+    """The start moved one linear step, to the predicted penalised optimum.
+
+    ``(u, v)`` was optimal for the target ``prior[k, :2]`` with the gradient
+    ``prior[k, 2:]``: there the data term's gradient was ``pen Aᵀ (u - prior)``.
+    Holding the subset at the new gradient moves the warped samples by
+    ``δF dx``, which changes it by about ``-Σ J ∇fᵀ δF dx`` (the first
+    moments of the subset). :func:`translation_step`'s update with that
+    gradient, without sampling the deformed image."""
+    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
+     tu, tv, u0, v0) = node
+    dux = ux - prior[k, 2]
+    duy = uy - prior[k, 3]
+    dvx = vx - prior[k, 4]
+    dvy = vy - prior[k, 5]
+    c0 = c1 = 0.0
+    for q in range(m):
+        # the reference-frame change of the sample under the gradient change
+        s = ex[q] * (dux * dxs[q] + duy * dys[q]) + ey[q] * (dvx * dxs[q] + dvy * dys[q])
+        c0 += gx[q] * s
+        c1 += gy[q] * s
+    pu = prior[k, 0] - tu
+    pv = prior[k, 1] - tv
+    r0 = pen * (a11 * pu + a21 * pv) + c0
+    r1 = pen * (a12 * pu + a22 * pv) + c1
+    d0 = (m11 * r0 - m01 * r1) / det
+    d1 = (m00 * r1 - m10 * r0) / det
+    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
 def curvature_offsets(curv, k, dxs, dys, m, qx, qy):
     """Fixed second-order part of node ``k``'s warp, from the global field.
 
@@ -510,7 +541,7 @@ def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs
 
 @nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
-                     target, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
+                     target, prior, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
                      iters_out, reason_out):
     """Penalised IC-GN of the displacement at the ``active`` nodes of chunks
     ``first`` to ``stop`` (AL-DIC; chunks as :func:`icgn_affine`).
@@ -520,7 +551,11 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
     without texture is stored as ``NO_TEXTURE`` with its initial
     displacement) and the constant penalised normal matrix, then iterate
     :func:`translation_step` while it reports ``NOT_CONVERGED`` and
-    ``max_iter`` allows.
+    ``max_iter`` allows. With ``prior`` the iteration starts one linear step
+    on: the start is taken as the penalised optimum for the target ``prior``
+    (so the data term's gradient there is that penalty's), and the step to
+    the optimum for ``target`` is :func:`translation_step`'s with that
+    gradient. Most nodes then converge in one sampled step instead of two.
 
     Parameters
     ----------
@@ -535,6 +570,10 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
         Second derivatives of the warp, or no rows for an affine warp.
     target : (n, 2) float64
         Penalty targets.
+    prior : (n, 6) or (0, 6) float64
+        The targets and gradients the starts were optimal for (a Local DIC
+        start: the start itself, no penalty, and its own gradient), or no
+        rows: start where ``uv_init`` says (:func:`predicted_start`).
     mu : float
         Dimensionless penalty weight.
     uv_out, zncc_out, iters_out, reason_out : (n, 2), (n,), (n,), (n,)
@@ -571,6 +610,9 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
             u, v = start
             node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
                     m11, det, target[k, 0], target[k, 1], u, v)
+            if prior.shape[0] == n:
+                u, v = predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys,
+                                       m)
             status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1
