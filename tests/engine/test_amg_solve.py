@@ -91,3 +91,25 @@ def test_aldic_through_the_amg_path_matches_the_direct_path(monkeypatch):
     # ... and well above the propagated AL-DIC figure (measured 1.78x here)
     assert np.median(amg.u_std[same]) > 1.4 * np.median(direct.u_std[same])
 
+
+
+def test_factor_copied_ahead_is_the_same_and_let_go():
+    """``SPDSolver.triangular_ahead`` copies the factor on a thread while the
+    caller goes on; ``triangular()`` then returns that copy (the same solves,
+    bit for bit, as one made on the spot) and lets it go, so a solver kept
+    between frames does not hold a second copy of its factor."""
+    import scipy.sparse as sp
+
+    n = 400
+    rng = np.random.default_rng(0)
+    B = sp.random(n, n, density=0.01, random_state=1)
+    A = (B @ B.T + sp.eye(n) * 4.0).tocsc()
+    s = linear_solvers.SPDSolver(A, "direct", 0.0)
+    s.triangular_ahead()
+    s.triangular_ahead()  # once is enough
+    ahead = s.triangular()
+    assert s.triangular() is not ahead  # let go: the next one is a new copy
+    b = rng.standard_normal((n, 6))
+    np.testing.assert_array_equal(ahead.solve(b), s.triangular().solve(b))
+    np.testing.assert_allclose(A @ ahead.solve(b), b, atol=1e-9)
+    linear_solvers.SPDSolver(A, "jacobi", 1e-8).triangular_ahead()  # no factor: nothing

@@ -122,6 +122,8 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
                               curvature=np.asarray(smooth, float)**4 / mu,
                               method=solver_method)
     timing["global_factorise"] = time.perf_counter() - t
+    # the u_std propagation solves with the factor's copy: made meanwhile
+    solver.system.triangular_ahead()
     n = u0.size
     W = np.zeros((n, 4))
     vu, vv = np.zeros(n), np.zeros(n)  # scaled multipliers of the constraint u = û

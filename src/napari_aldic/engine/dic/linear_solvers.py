@@ -5,6 +5,9 @@ preconditioned by algebraic multigrid or by the diagonal
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import Future
+
 import numba
 import numpy as np
 import scipy.sparse as sp
@@ -54,6 +57,7 @@ class SPDSolver:
         self.rtol = rtol
         self._last = None
         self._lu = self._M = None
+        self._triangular: Future | None = None  # TriangularSolver started ahead
         self.iterations: list[int] = []  # CG iterations of each solve (per column)
         if self.method == "direct":
             # SPD: no pivoting. The minimum-degree order of A + Aᵀ is then kept and
@@ -108,8 +112,31 @@ class SPDSolver:
         return sol
 
     def triangular(self) -> TriangularSolver:
-        """The factor as a :class:`TriangularSolver` (a copy)."""
+        """The factor as a :class:`TriangularSolver` (a copy: the one
+        :meth:`triangular_ahead` started, when it was, which this solver then
+        lets go: the caller holds it only as long as it needs it)."""
+        ahead, self._triangular = self._triangular, None
+        if ahead is not None:
+            return ahead.result()
         return TriangularSolver(self._lu)
+
+    def triangular_ahead(self) -> None:
+        """Start copying the factor out for :meth:`triangular` on a thread of
+        its own (0.02-0.04 s at 15k nodes, serial): AL-DIC starts it once the
+        global system is factorised, and the ADMM local step's idle tail
+        absorbs it before the u_std propagation asks. The copy only reads
+        the factor, as the solves do."""
+        if self._lu is None or self._triangular is not None:
+            return
+        self._triangular = Future()
+        done = self._triangular
+
+        def copy() -> None:
+            try:
+                done.set_result(TriangularSolver(self._lu))
+            except BaseException as exc:  # handed to triangular()'s caller
+                done.set_exception(exc)
+        threading.Thread(target=copy, name="factor copy", daemon=True).start()
 
     def _jacobi_cg(self, rhs: np.ndarray, start: np.ndarray) -> np.ndarray:
         """Jacobi-preconditioned CG for every column (``scipy.sparse.linalg.cg``'s
