@@ -116,14 +116,8 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         (a progress / cancellation point).
     """
     timing = {"global_factorise": 0.0, "global_solve": 0.0, "local": 0.0}
-    t = time.perf_counter()
-    if solver is None:
-        solver = GlobalSolver(mesh, beta=beta * step**2, mu=1.0, weights=trusted,
-                              curvature=np.asarray(smooth, float)**4 / mu,
-                              method=solver_method)
-    timing["global_factorise"] = time.perf_counter() - t
-    # the u_std propagation solves with the factor's copy: made meanwhile
-    solver.system.triangular_ahead()
+    solver = _global_solver(solver, mesh, trusted, beta * step**2, smooth, mu,
+                            solver_method, timing)
     n = u0.size
     W = np.zeros((n, 4))
     vu, vv = np.zeros(n), np.zeros(n)  # scaled multipliers of the constraint u = û
@@ -171,6 +165,19 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
     grad = grad.copy()
     grad[~solver.covered] = grad0[~solver.covered]  # no element: local gradient
     return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing), solver
+
+
+def _global_solver(solver: GlobalSolver | None, mesh: Q4Mesh, trusted, beta_step2: float,
+                   smooth, mu: float, method: str, timing: dict) -> GlobalSolver:
+    """The global step's solver (``solver`` when reused: a sequence's next
+    frame), its factor's copy for the u_std propagation started meanwhile."""
+    t = time.perf_counter()
+    if solver is None:
+        solver = GlobalSolver(mesh, beta=beta_step2, mu=1.0, weights=trusted,
+                              curvature=np.asarray(smooth, float)**4 / mu, method=method)
+    timing["global_factorise"] = time.perf_counter() - t
+    solver.system.triangular_ahead()
+    return solver
 
 
 def _noise_gains(smooth, curv_length: float, step: float, subset: int):

@@ -13,6 +13,8 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
 * ``icgn_node`` the per-node pieces every IC-GN driver shares (Cholesky solve,
   work buffers, starting a node, the step verdict);
 * ``icgn``     the affine and the penalised-translation IC-GN solvers;
+* ``translation`` the per-node pieces of the penalised-translation solver (AL-DIC's
+  local step: reference sums, penalised system, predicted start, one step);
 * ``icgn_quadratic`` the 12-parameter (second-order) IC-GN solver;
 * ``moments``  streaming window moments of the speckle-quality maps (the per-node
   uncertainty from them is batched NumPy, ``dic/covariance``);

@@ -13,7 +13,8 @@ deformed image (:func:`~.gauss_newton.gn_step`, one pass of nine sums).
 
 * :func:`icgn_affine`: the six affine parameters ``(u, ux, uy, v, vx, vy)`` (Local DIC);
 * :func:`icgn_translation`: the displacement only, gradient held fixed, with
-  the AL-DIC penalty towards a target (the local step of ADMM).
+  the AL-DIC penalty towards a target (the local step of ADMM; its per-node
+  pieces are in :mod:`.translation`).
 
 References: S. Baker, I. Matthews, "Lucas-Kanade 20 years on", IJCV 56, 2004;
 B. Pan, K. Li, W. Tong, "Fast, robust and accurate DIC calculation without
@@ -28,7 +29,6 @@ import numpy as np
 from .flags import FASTMATH, INLINE, SERIAL, SERIAL_CALLEE
 from .gauss_newton import (
     CHUNK,
-    DIVERGED,
     NO_TEXTURE,
     NOT_CONVERGED,
     OK,
@@ -39,10 +39,16 @@ from .gauss_newton import (
 from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .static import zero_motion_evidence
 from .subset import gather_gradients, gather_subset, subset_buffers
+from .translation import (
+    curvature_offsets,
+    penalty_system,
+    predicted_start,
+    translation_reference_sums,
+    translation_step,
+)
 
 __all__ = ["icgn_affine", "icgn_translation", "affine_reference_sums", "inverse_compose",
-           "affine_step", "translation_reference_sums", "curvature_offsets", "penalty_system",
-           "translation_step"]
+           "affine_step"]
 
 
 # ------------------------------------------------------------- affine IC-GN
@@ -335,210 +341,6 @@ def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init,
 
 
 # ------------------------------------------------------------- translation IC-GN
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def translation_reference_sums(gx, gy, ex, ey, fs, m, fm):
-    """Gauss-Newton sums of the reference subset for the displacement only.
-
-    Parameters
-    ----------
-    gx, gy, fs : 1-D float64
-        Steepest-descent gradients and values of the gathered subset.
-    ex, ey : 1-D float64
-        Its exact reference gradients (the linearisation).
-    m : int
-        Subset pixels.
-    fm : float
-        Mean of the reference subset.
-
-    Returns
-    -------
-    h00, h01, h10, h11 : float
-        The 2 x 2 matrix ``sum [gx gy]^T [ex ey]`` (instrumental variables,
-        as :func:`affine_reference_sums`).
-    sj0, sj3 : float
-        ``sum gx``, ``sum gy``.
-    b0, b3 : float
-        ``sum gx (f - fm)``, ``sum gy (f - fm)``.
-    """
-    h00 = h01 = h10 = h11 = sj0 = sj3 = b0 = b3 = 0.0
-    for q in range(m):
-        a1 = gx[q]
-        a2 = gy[q]
-        fv = fs[q] - fm
-        h00 += a1 * ex[q]
-        h01 += a1 * ey[q]
-        h10 += a2 * ex[q]
-        h11 += a2 * ey[q]
-        sj0 += a1
-        sj3 += a2
-        b0 += a1 * fv
-        b3 += a2 * fv
-    return h00, h01, h10, h11, sj0, sj3, b0, b3
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys, m):
-    """The start moved one linear step, to the predicted penalised optimum.
-
-    ``(u, v)`` was optimal for the target ``prior[k, :2]`` with the gradient
-    ``prior[k, 2:]``: there the data term's gradient was ``pen Aᵀ (u - prior)``.
-    Holding the subset at the new gradient moves the warped samples by
-    ``δF dx``, which changes it by about ``-Σ J ∇fᵀ δF dx`` (the first
-    moments of the subset). :func:`translation_step`'s update with that
-    gradient, without sampling the deformed image."""
-    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
-     tu, tv, u0, v0) = node
-    dux = ux - prior[k, 2]
-    duy = uy - prior[k, 3]
-    dvx = vx - prior[k, 4]
-    dvy = vy - prior[k, 5]
-    c0 = c1 = 0.0
-    for q in range(m):
-        # the reference-frame change of the sample under the gradient change
-        s = ex[q] * (dux * dxs[q] + duy * dys[q]) + ey[q] * (dvx * dxs[q] + dvy * dys[q])
-        c0 += gx[q] * s
-        c1 += gy[q] * s
-    pu = prior[k, 0] - tu
-    pv = prior[k, 1] - tv
-    r0 = pen * (a11 * pu + a21 * pv) + c0
-    r1 = pen * (a12 * pu + a22 * pv) + c1
-    d0 = (m11 * r0 - m01 * r1) / det
-    d1 = (m00 * r1 - m10 * r0) / det
-    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1)
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def curvature_offsets(curv, k, dxs, dys, m, qx, qy):
-    """Fixed second-order part of node ``k``'s warp, from the global field.
-
-    Parameters
-    ----------
-    curv : (n, 6) float64
-        ``(uxx, uxy, uyy, vxx, vxy, vyy)`` per node (1/px).
-    k : int
-        Node index.
-    dxs, dys : 1-D float64
-        Subset pixel offsets.
-    m : int
-        Subset pixels.
-    qx, qy : 1-D float64
-        Receive ``0.5 dX^T (grad grad u) dX`` and the same for ``v``.
-    """
-    for q in range(m):
-        dx = dxs[q]
-        dy = dys[q]
-        qx[q] = 0.5 * curv[k, 0] * dx * dx + curv[k, 1] * dx * dy \
-            + 0.5 * curv[k, 2] * dy * dy
-        qy[q] = 0.5 * curv[k, 3] * dx * dx + curv[k, 4] * dx * dy \
-            + 0.5 * curv[k, 5] * dy * dy
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def penalty_system(h00, h01, h10, h11, ux, uy, vx, vy, mu):
-    """Matrix of the penalised displacement step, constant per node.
-
-    ``A = I + F`` maps a reference-frame shift to a deformed-frame shift; the
-    penalty stiffness ``mu (h00 + h11) / 2`` scales ``mu`` to the data term.
-
-    Parameters
-    ----------
-    h00, h01, h10, h11 : float
-        Reference 2 x 2 matrix (:func:`translation_reference_sums`).
-    ux, uy, vx, vy : float
-        The fixed displacement gradient.
-    mu : float
-        Dimensionless penalty weight.
-
-    Returns
-    -------
-    a11, a12, a21, a22 : float
-        ``A``.
-    pen : float
-        Penalty stiffness.
-    m00, m01, m10, m11 : float
-        ``H + pen A^T A``.
-    det : float
-        Its determinant.
-    """
-    a11 = 1.0 + ux
-    a12 = uy
-    a21 = vx
-    a22 = 1.0 + vy
-    pen = mu * 0.5 * (h00 + h11)  # penalty stiffness, scaled to the data term
-    # (H + pen A^T A), constant over the iterations
-    c01 = pen * (a11 * a12 + a21 * a22)
-    m00 = h00 + pen * (a11 * a11 + a21 * a21)
-    m01 = h01 + c01
-    m10 = h10 + c01
-    m11 = h11 + pen * (a12 * a12 + a22 * a22)
-    det = m00 * m11 - m01 * m10
-    return a11, a12, a21, a22, pen, m00, m01, m10, m11, det
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def translation_step(c1, stride, coef, order, x0, y0, u, v, dxs, dys, gx, gy, fs, m, fm,
-                     dfn, xw, yw, gv, xmax, ymax, quad, qx, qy, node, span, tol, zn):
-    """One penalised IC-GN step of a node's displacement (gradient fixed).
-
-    Samples the warped subset (:func:`~.gauss_newton.gn_step`) and solves
-    ``(H + pen A^T A) d = -g + pen A^T (u - t)`` for the reference-frame
-    increment ``d``; the displacement moves by ``A d``.
-
-    Parameters
-    ----------
-    c1, stride, coef, order, x0, y0, dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv
-        As :func:`~.gauss_newton.gn_step`.
-    xmax, ymax, quad, qx, qy
-        As :func:`~.gauss_newton.gn_step`.
-    u, v : float
-        Current displacement.
-    node : tuple of float
-        The node's constants: fixed gradient ``(ux, uy, vx, vy)``, reference
-        sums ``(sj0, sj3, b0, b3)`` (:func:`translation_reference_sums`), the
-        penalised system (:func:`penalty_system`), the penalty target
-        ``(tu, tv)`` and the starting displacement ``(u0, v0)`` (divergence test).
-    span, tol : int, float
-        Subset width; convergence tolerance (pixels).
-    zn : float
-        ZNCC of the previous step.
-
-    Returns
-    -------
-    status : int
-        ``NOT_CONVERGED`` to go on, ``OK`` when ``|A d| < tol``,
-        else the failure.
-    zn : float
-        ZNCC of this step (unchanged if the step failed).
-    u, v : float
-        Updated displacement (unchanged if the step failed).
-    """
-    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
-     tu, tv, u0, v0) = node
-    st, zn_k, r, gm, t0, t1, t2, t3, t4, t5 = gn_step(
-        c1, stride, coef, order, x0, y0, u, ux, uy, v, vx, vy,
-        dxs, dys, gx, gy, fs, m, fm, dfn, xw, yw, gv, xmax, ymax, quad, qx, qy)
-    if st != OK:
-        return st, zn, u, v
-    g0 = b0 - r * (t0 - gm * sj0)
-    g3 = b3 - r * (t3 - gm * sj3)
-    # (H + pen A^T A) d = -g + pen A^T (u - t)
-    eu = u - tu
-    ev = v - tv
-    r0 = -g0 + pen * (a11 * eu + a21 * ev)
-    r1 = -g3 + pen * (a12 * eu + a22 * ev)
-    d0 = (m11 * r0 - m01 * r1) / det
-    d1 = (m00 * r1 - m10 * r0) / det
-    du = a11 * d0 + a12 * d1
-    dv = a21 * d0 + a22 * d1
-    u -= du
-    v -= dv
-    if abs(u - u0) > span or abs(v - v0) > span or not np.isfinite(u + v):
-        return DIVERGED, zn_k, u, v
-    if du * du + dv * dv < tol * tol:
-        return OK, zn_k, u, v
-    return NOT_CONVERGED, zn_k, u, v
-
-
 @nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
                      target, prior, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
