@@ -21,7 +21,7 @@ image, white) moves every quantity of an AL-DIC run linearly:
 
 Drawing ``K`` unit-variance noise images (Rademacher: ±1 per pixel, which
 estimate the variances with less sampling error than Gaussian ones,
-:func:`rademacher_images`) and pushing each through these maps
+:func:`rademacher_bits`) and pushing each through these maps
 gives per node the std of the smoothed field and of the Local DIC
 start under the same noise; their ratio (the smoothing gain, noise level
 free) scales the Local model's standard uncertainty (``dic.quality``),
@@ -37,11 +37,11 @@ import numba
 import numpy as np
 
 from ..kernels.moments import moment_terms
+from ..kernels.noise_sums import MAX_NOISE_ORDER, noise_window_sums
 from .threads import side_by_side
-from .window_moments import window_moments
 
 __all__ = ["ADMMLinearisation", "CurvatureFeedback", "linearise_admm", "aldic_gain", "BatchSolver",
-           "ProbeMaps", "probe_maps", "noise_projector", "rademacher_images"]
+           "ProbeMaps", "probe_maps", "noise_projector", "rademacher_bits"]
 
 
 @dataclass
@@ -341,58 +341,88 @@ def aldic_gain(q, project, lin: ADMMLinearisation, maps: ProbeMaps | None = None
 def noise_projector(jx, jy, x, y, subset: int, roi, terms):
     """A callable ``(rng, count) -> (n, 2k, count)``: for ``count`` fresh
     white noise images of unit variance drawn from ``rng`` (Rademacher: ±1
-    at each pixel, see :func:`rademacher_images`), ``Σ_subset J t n`` per
+    at each pixel, see :func:`rademacher_bits`), ``Σ_subset J t n`` per
     node (the right-hand side of the subset's Gauss-Newton step with the
     noise as residual; ``J = (jx, jy)``, ``t`` the shape monomials
     ``terms``, ``dic.quality.SHAPE_TERMS``). Its ``apply(images)`` gives the
     same for given noise images (a list of (H, W) arrays)."""
-    mask = None if roi is None or bool(np.all(roi)) else np.asarray(roi, bool)
+    h, w = np.shape(jx)
+    jx, jy = (np.ascontiguousarray(a, np.float32) for a in (jx, jy))
+    mask = (np.zeros((0, 0), np.bool_) if roi is None or bool(np.all(roi))
+            else np.ascontiguousarray(roi, np.bool_))
     deg = max(p + q for p, q in terms)
+    if deg > MAX_NOISE_ORDER:
+        raise ValueError(f"noise_projector: shape terms up to order {MAX_NOISE_ORDER}, "
+                         f"got {deg}")
     col = [moment_terms(deg).index(t) for t in terms]
-    # the moment kernel takes 5 base images: jx, jy and 3 noise images a call
-    per_call = 3
+    layout = _window_layout(np.asarray(x), np.asarray(y), subset // 2, h, w)
+    dx = np.asarray(x, np.float64).ravel() - 0.5 * (w - 1)
+    dy = np.asarray(y, np.float64).ravel() - 0.5 * (h - 1)
+    none8, none32 = np.zeros((0, 0), np.uint8), np.zeros((0, 0, 0), np.float32)
 
-    def sums(chunk) -> np.ndarray:  # (n, 2k, len(chunk))
-        prods = [(a, 2 + i, deg) for i in range(len(chunk)) for a in (0, 1)]
-        mom = window_moments([jx, jy, *chunk], prods, x, y, subset // 2, mask=mask,
-                             centre=True, serial=True)
-        return np.stack([np.column_stack([mom[2 * i][:, col], mom[2 * i + 1][:, col]])
-                         for i in range(len(chunk))], axis=2)
+    def sums(bits, noise) -> np.ndarray:  # (n, 2k, K): one kernel call, one thread
+        keep, *lay = layout
+        k = bits.shape[0] or noise.shape[0]
+        part = np.empty((keep.size, 2 * len(moment_terms(deg)), k))
+        noise_window_sums(jx, jy, mask, bits, noise, deg, *lay, dx[keep], dy[keep], part)
+        out = np.zeros((dx.size, 2 * len(col), k))
+        out[keep] = part[:, col + [len(moment_terms(deg)) + c for c in col]]
+        return out
 
-    def run(chunks) -> np.ndarray:
-        # a call's 6 products are too small a job for the kernel's own threads
-        # (one band): the calls run side by side instead, one per thread, while
-        # this thread makes the next chunk (measured: 0.20 -> 0.11 s for 16
-        # probes of a 1024² image on 2 cores)
-        return np.concatenate(side_by_side(sums, chunks), axis=2)
+    def run(bits=None, noise=None) -> np.ndarray:
+        # the probes in groups side by side, one kernel call (one pass over J) each
+        count = (bits if bits is not None else noise).shape[0]
+        groups = [g for g in np.array_split(np.arange(count), numba.get_num_threads())
+                  if g.size]
+        parts = side_by_side(lambda g: sums(none8 if bits is None else bits[g],
+                                            none32 if noise is None else noise[g]), groups)
+        return np.concatenate(parts, axis=2)
 
     def apply(images) -> np.ndarray:
-        return run([np.asarray(a, jx.dtype) for a in images[c0:c0 + per_call]]
-                   for c0 in range(0, len(images), per_call))
+        return np.concatenate([run(noise=np.asarray(images[c0:c0 + APPLY_CHUNK], np.float32))
+                               for c0 in range(0, len(images), APPLY_CHUNK)], axis=2)
 
     def project(rng, count: int = 1) -> np.ndarray:
-        # drawn chunk by chunk from rng: the same images as drawing all at once
-        return run(rademacher_images(rng, np.shape(jx), min(per_call, count - c0), jx.dtype)
-                   for c0 in range(0, count, per_call))
+        return run(bits=rademacher_bits(rng, (h, w), count))
 
     project.apply = apply
     return project
 
 
-def rademacher_images(rng, shape, count: int, dtype=np.float32) -> list:
-    """``count`` images of independent ±1 pixels (equally likely), from ``rng``'s
-    random bytes, one bit per pixel.
+#: noise images per kernel call of a projector's ``apply`` (memory: K H W floats)
+APPLY_CHUNK = 16
+
+
+def _window_layout(x, y, half: int, h: int, w: int) -> tuple:
+    """The node windows of :func:`~..kernels.noise_sums.noise_window_sums`:
+    ``keep`` (the nodes whose window holds pixels; the others' sums are 0),
+    then its arguments ``edges, e0, e1, col_of, r0, r1, by0, by1`` for them."""
+    xi, yi = np.asarray(x, np.int64).ravel(), np.asarray(y, np.int64).ravel()
+    c0, c1 = np.clip(xi - half, 0, w), np.clip(xi + half + 1, 0, w)
+    r0, r1 = np.clip(yi - half, 0, h), np.clip(yi + half + 1, 0, h)
+    keep = np.flatnonzero((c0 < c1) & (r0 < r1))
+    cols, col_of = np.unique(xi[keep], return_inverse=True)
+    cc0, cc1 = np.clip(cols - half, 0, w), np.clip(cols + half + 1, 0, w)
+    edges = np.unique(np.concatenate([cc0, cc1])).astype(np.int64)
+    r0, r1 = r0[keep], r1[keep]
+    return (keep, edges, np.searchsorted(edges, cc0).astype(np.int64),
+            np.searchsorted(edges, cc1).astype(np.int64), col_of.ravel().astype(np.int64),
+            r0, r1, np.argsort(r0, kind="stable").astype(np.int64),
+            np.argsort(r1, kind="stable").astype(np.int64))
+
+
+def rademacher_bits(rng, shape, count: int) -> np.ndarray:
+    """``count`` images of independent ±1 pixels (equally likely), from
+    ``rng``'s random bytes: (count, ceil(size / 8)) uint8, one bit a pixel
+    (``np.unpackbits`` order; 1 is +1), the bytes of each image drawn in turn.
 
     As probes of a linear map ``A`` of white noise (mean 0, variance 1 per
     pixel), ``E[(A z)_i²] = Σ_j A_ij²`` for these as for Gaussian images, with
     a smaller sampling variance, ``2 (Σ_j A_ij²)² - 2 Σ_j A_ij⁴`` against
     ``2 (Σ_j A_ij²)²`` (Hutchinson's estimator); drawing them costs a few
     per cent of Gaussian ones (1 bit a pixel instead of a normal deviate)."""
-    size = int(np.prod(shape))
-    out = []
-    for _ in range(count):
-        bits = np.unpackbits(rng.integers(0, 256, (size + 7) // 8, dtype=np.uint8))[:size]
-        z = np.multiply(bits, 2, dtype=dtype)
-        z -= 1
-        out.append(z.reshape(shape))
+    nbytes = (int(np.prod(shape)) + 7) // 8
+    out = np.empty((count, nbytes), np.uint8)
+    for c in range(count):
+        out[c] = rng.integers(0, 256, nbytes, dtype=np.uint8)
     return out

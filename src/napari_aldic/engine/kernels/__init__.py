@@ -18,6 +18,7 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
 * ``icgn_quadratic`` the 12-parameter (second-order) IC-GN solver;
 * ``moments``  streaming window moments of the speckle-quality maps (the per-node
   uncertainty from them is batched NumPy, ``dic/covariance``);
+* ``noise_sums`` window sums of many noise probes at once (AL-DIC's ``u_std``);
 * ``sums``     integral images and window sums;
 * ``lattice``  per-node statistics over lattice neighbours (median test, plane fit);
 * ``cg``       Jacobi-preconditioned conjugate gradients (the curvature smoother);

@@ -65,6 +65,10 @@ KERNELS: dict[str, tuple[str, ...]] = {
     "cg.jacobi_cg": (_sig(_I32_1, _I32_1, _F64_1, _F64_1, _F64_2, _F64_2, _F64_1, "int64",
                           _I64_1),),
     "cg.triangular_solve": (_sig(_I32_1, _I32_1, _F64_1, _F64_2, "boolean"),),
+    "noise_sums.noise_window_sums": (_sig(
+        _F32_2, _F32_2, "boolean[:, ::1]", "uint8[:, ::1]", "float32[:, :, ::1]", "int64",
+        _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _I64_1, _F64_1, _F64_1,
+        "float64[:, :, ::1]"),),
     # strain (plane fit)
     "lattice.plane_fit": (_sig(
         _F64_1, _F64_1, _F64_1, _F64_1, "boolean[::1]", "int64[:, ::1]", "int64", _F64_2),),
@@ -81,7 +85,8 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "local": ("bspline.spline_gradients", "sums.window_sums", "icgn.icgn_affine",
               "lattice.median_flags", "moments.moments_kernel", "moments.centre_moments",
               "static.lag_peaks"),
-    "aldic": ("icgn.icgn_translation", "cg.jacobi_cg", "cg.triangular_solve"),
+    "aldic": ("icgn.icgn_translation", "cg.jacobi_cg", "cg.triangular_solve",
+              "noise_sums.noise_window_sums"),
     "strain": ("lattice.plane_fit",),
     "synthetic": ("speckle.speckle_intensity",),
 }
