@@ -126,12 +126,13 @@ def test_trial_smoothers_by_cg_agree_with_factors(monkeypatch, lattice):
     lengths = np.array(SMOOTH_CANDIDATES) * 31
     assert count.n == (0 if lattice else int(np.sum(lengths > TS.CG_MAX_LENGTH * 8)))
     assert np.isfinite(got[keep]).all() and np.isnan(got[~keep]).all()
-    # per length and column (u, v, then the late ones): 1e-6 of CG's first
-    # residual leaves ~1e-5 of the correction; the risk weighs its square
+    # per length and column (u, v, then the late ones): 1e-5 of CG's first
+    # residual (CG_RTOL) leaves up to ~7e-4 of the correction here; the risk
+    # weighs its square
     err = np.abs(got[keep] - ref[keep]).max(axis=0)[1:]
     scale = np.abs(ref[keep]).max(axis=0)[1:]
     assert np.all(scale > 5e-6)
-    assert np.all(err < 2e-4 * scale)
+    assert np.all(err < 2e-3 * scale)
 
 
 @pytest.mark.parametrize("case, cap, lattice_cap, factors", [
