@@ -91,7 +91,7 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
              tol: float, smooth: float | np.ndarray = 0.0, second_order: bool = False,
              noise_var: np.ndarray | None = None, subset: int | None = None,
              solver: GlobalSolver | None = None, solver_method: str = "auto",
-             on_iteration=None) -> tuple[ADMMState, GlobalSolver]:
+             on_iteration=None, on_factorise=None) -> tuple[ADMMState, GlobalSolver]:
     """Run AL-DIC ADMM from a Local DIC result.
 
     Parameters
@@ -114,8 +114,12 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         :func:`~napari_aldic.engine.dic.linear_solvers.solver_method`).
     on_iteration : callable(k), optional; called before ADMM iteration k
         (a progress / cancellation point).
+    on_factorise : callable(), optional; called as the global system is set up
+        (its factorisation leaves a core idle: the caller starts work there).
     """
     timing = {"global_factorise": 0.0, "global_solve": 0.0, "local": 0.0}
+    if on_factorise is not None:
+        on_factorise()
     solver = _global_solver(solver, mesh, trusted, beta * step**2, smooth, mu,
                             solver_method, timing)
     n = u0.size

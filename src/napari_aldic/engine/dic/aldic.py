@@ -50,7 +50,8 @@ class ALDICOutcome:
 
 def aldic_stage(local_step: LocalStep, mesh: Q4Mesh, validity: Validity, u, v, grad, zncc,
                 reason, cut: np.ndarray, params: DICParams, timing: dict, *,
-                solver_cache: dict | None = None, on_iteration=None) -> ALDICOutcome:
+                solver_cache: dict | None = None, on_iteration=None,
+                on_factorise=None) -> ALDICOutcome:
     """AL-DIC from a Local result (``u, v, grad, zncc, reason`` per node).
 
     Parameters
@@ -63,6 +64,8 @@ def aldic_stage(local_step: LocalStep, mesh: Q4Mesh, validity: Validity, u, v, g
     solver_cache : dict kept between calls (frames of a sequence): the global
         system of the same mesh, trusted nodes and penalties is reused.
     on_iteration : callable(k), called before ADMM iteration k.
+    on_factorise : callable(), called as the global system is set up
+        (:func:`~.admm.run_admm`).
     """
     # noisy but correct matches are data for the global step too
     trusted = (reason == Reason.OK) | (reason == Reason.UNCERTAIN)
@@ -79,7 +82,7 @@ def aldic_stage(local_step: LocalStep, mesh: Q4Mesh, validity: Validity, u, v, g
         mu=params.mu, beta=params.beta, step=params.step, smooth=smooth,
         second_order=second_order, noise_var=noise_var, subset=params.subset,
         solver=cached, max_iter=params.admm_max_iter, tol=params.admm_tol,
-        on_iteration=on_iteration)
+        on_iteration=on_iteration, on_factorise=on_factorise)
     if solver_cache is not None and cached is None:
         solver_cache.clear()  # keep one system: the mesh of the current frames
         solver_cache[key] = solver

@@ -322,20 +322,14 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     """Local DIC at the nodes, then AL-DIC on their mesh if asked."""
     sub = split_subsets(roi, grid, params.subset, params.min_component)
     prefetch_static(im, roi, grid, sub, params)
+    probes_ahead = None
     if params.extra.get("quality", True):
         inputs = _quality_inputs(im, roi, grid, params)
         speckle = speckle_job(*inputs)
         im.prefetch(*speckle)
-        if params.method == "aldic":  # the noise probes of its u_std propagation
-            _, grads, _, mask, x, y, subset, shape, jacobian = inputs
-            probes = probe_job(grads, mask, x, y, subset, shape, jacobian,
-                               ADMMLinearisation.seed, ADMMLinearisation.probes)
-            im.prefetch(*probes)
-            # and what the propagation makes of them before the run (on the
-            # core the global factorisation leaves idle)
-            jobs = [im.pending.get(speckle[0]), im.pending.get(probes[0])]
-            if None not in jobs:
-                im.prefetch(*maps_job((speckle[0], jobs[0]), (probes[0], jobs[1]), params.mu))
+        if params.method == "aldic":
+            def probes_ahead():
+                _prefetch_probes(im, inputs, speckle[0], params.mu)
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
                                                    validity, guess=guess)
@@ -358,11 +352,27 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
     out = aldic_stage(step, mesh, validity, sol.u, sol.v, sol.grad, zncc, reason,
                       sub.slot >= 0, params, timing, solver_cache=solver_cache,
                       on_iteration=lambda k: report("aldic", 0.85 + 0.1 * k / params.admm_max_iter,
-                                                    f"ADMM iteration {k}"))
+                                                    f"ADMM iteration {k}"),
+                      on_factorise=probes_ahead)
     iters = np.where(out.reason == Reason.OK, out.iters, iters).astype(np.int32)
     return _Solution(sub, out.u, out.v, out.grad, out.zncc, out.reason, iters, mesh,
                      sol.u, sol.v, out.history, out.regularisation, sol.std, out.validity,
                      out.admm)
+
+
+def _prefetch_probes(im: Images, inputs: tuple, speckle_key, mu: float) -> None:
+    """Start the noise probes of AL-DIC's u_std propagation and what the
+    propagation makes of them (``result_quality``'s, the reference's alone) on
+    the background thread. AL-DIC calls this as its global system is
+    factorised: SuperLU runs on one core, and ~0.15 CPU-s of probes (1024²,
+    16 probes) fit beside it instead of slowing IC-GN and the smoothing choice."""
+    _, grads, _, mask, x, y, subset, shape, jacobian = inputs
+    probes = probe_job(grads, mask, x, y, subset, shape, jacobian,
+                       ADMMLinearisation.seed, ADMMLinearisation.probes)
+    im.prefetch(*probes)
+    jobs = [im.pending.get(speckle_key), im.pending.get(probes[0])]
+    if None not in jobs:
+        im.prefetch(*maps_job((speckle_key, jobs[0]), (probes[0], jobs[1]), mu))
 
 
 def _validity(im: Images, roi, grid: NodeGrid, sub: SubsetMasks, params: DICParams,
