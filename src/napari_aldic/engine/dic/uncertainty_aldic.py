@@ -31,6 +31,7 @@ gradient-noise corrections.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -365,10 +366,11 @@ def noise_projector(jx, jy, x, y, subset: int, roi, terms):
     def sums(bits, noise) -> np.ndarray:  # (n, 2k, K): one kernel call, one thread
         keep, *lay = layout
         k = bits.shape[0] or noise.shape[0]
-        part = np.empty((keep.size, 2 * len(moment_terms(deg)), k))
-        noise_window_sums(jx, jy, mask, bits, noise, deg, *lay, dx[keep], dy[keep], part)
+        raw = np.empty((keep.size, 2 * len(moment_terms(deg)), k))
+        noise_window_sums(jx, jy, mask, bits, noise, deg, *lay, raw)
         out = np.zeros((dx.size, 2 * len(col), k))
-        out[keep] = part[:, col + [len(moment_terms(deg)) + c for c in col]]
+        out[keep] = _about_nodes(raw, dx[keep], dy[keep], deg)[:, col + [
+            len(moment_terms(deg)) + c for c in col]]
         return out
 
     def run(bits=None, noise=None) -> np.ndarray:
@@ -393,6 +395,25 @@ def noise_projector(jx, jy, x, y, subset: int, roi, terms):
 
 #: noise images per kernel call of a projector's ``apply`` (memory: K H W floats)
 APPLY_CHUNK = 16
+
+
+def _about_nodes(raw: np.ndarray, dx: np.ndarray, dy: np.ndarray, order: int) -> np.ndarray:
+    """Moments ``Σ a (X - dx)^p (Y - dy)^q`` about each node from ``raw``
+    (N, 2 M, K) about the image centre (both halves, ``moment_terms(order)``
+    order; ``dx``, ``dy`` (N,): the nodes about the centre), by the binomial
+    expansion."""
+    terms = moment_terms(order)
+    out = np.empty_like(raw)
+    ex, ey = -dx[:, None], -dy[:, None]
+    for half in (0, len(terms)):
+        for t, (p, q) in enumerate(terms):
+            acc = np.zeros(raw[:, 0].shape)
+            for i in range(p + 1):
+                for j in range(q + 1):
+                    acc += (math.comb(p, i) * math.comb(q, j) * ex ** (p - i) * ey ** (q - j)
+                            * raw[:, half + terms.index((i, j))])
+            out[:, half + t] = acc
+    return out
 
 
 def _window_layout(x, y, half: int, h: int, w: int) -> tuple:

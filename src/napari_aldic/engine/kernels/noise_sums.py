@@ -54,19 +54,31 @@ def _noise_row(bits, noise, r, w, z):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
+def _copy(run, snap, e):
+    """``snap[e] = run``, as a loop (a slice assignment compiles its shape
+    checks for seconds)."""
+    for q in range(run.shape[0]):
+        for j in range(run.shape[1]):
+            snap[e, q, j] = run[q, j]
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
 def _row_sums(jx, jy, mask, r, z, order, edges, run, snap):
     """Running sums of ``jx n X^p`` and ``jy n X^p`` along row ``r`` (rows
     ``p`` and ``order + 1 + p`` of ``run``), kept in ``snap`` at each edge
     (the sums of the columns left of it)."""
     w = jx.shape[1]
     cx = 0.5 * (w - 1)
-    run[:] = 0.0
+    nq, nk = run.shape
+    for q in range(nq):
+        for j in range(nk):
+            run[q, j] = 0.0
     masked = mask.shape[0] > 0
     ne = edges.size
     ei = 0
     for x in range(w):
         while ei < ne and edges[ei] == x:
-            snap[ei] = run
+            _copy(run, snap, ei)
             ei += 1
         if masked and not mask[r, x]:
             continue
@@ -79,43 +91,21 @@ def _row_sums(jx, jy, mask, r, z, order, edges, run, snap):
                 run[order + 1 + p, j] += z[x, j] * b
             xp *= x - cx
     while ei < ne:
-        snap[ei] = run
+        _copy(run, snap, ei)
         ei += 1
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _term(p, q, order):
-    """Index of ``X^p Y^q`` in ``moments.moment_terms(order)``."""
-    return p * (order + 1) - p * (p - 1) // 2 + q
-
-
-@nb.njit(**INLINE, fastmath=FASTMATH)
-def _centre(v, order, dx, dy):
-    """Moments about the node at ``(dx, dy)`` from moments about the image
-    centre, in place (``v``: (2 M, K)): ``Σ a (X - dx)^p (Y - dy)^q`` by the
-    binomial expansion, the highest orders first so that each reads the raw
-    lower ones (binomial coefficients of orders <= 2)."""
-    nt = (order + 1) * (order + 2) // 2
-    for s in range(2):
-        for tot in range(order, 0, -1):
-            for p in range(tot + 1):
-                q = tot - p
-                t = s * nt + _term(p, q, order)
-                for i in range(p + 1):
-                    for m in range(q + 1):
-                        if i == p and m == q:
-                            continue
-                        c = ((2.0 if p == 2 and i == 1 else 1.0)
-                             * (2.0 if q == 2 and m == 1 else 1.0)
-                             * (-dx) ** (p - i) * (-dy) ** (q - m))
-                        u = s * nt + _term(i, m, order)
-                        for j in range(v.shape[1]):
-                            v[t, j] += c * v[u, j]
+def _add(acc, c, out, k, sign):
+    """``out[k] += sign * acc[c]``, as a loop."""
+    for t in range(acc.shape[1]):
+        for j in range(acc.shape[2]):
+            out[k, t, j] += sign * acc[c, t, j]
 
 
 @nb.njit(**CACHED, fastmath=FASTMATH)
 def noise_window_sums(jx, jy, mask, bits, noise, order, edges, e0, e1, col_of, r0, r1,
-                      by0, by1, dx, dy, out):
+                      by0, by1, out):
     """Raw window moments of every probe's products with ``jx`` and ``jy``.
 
     Parameters
@@ -141,12 +131,11 @@ def noise_window_sums(jx, jy, mask, bits, noise, order, edges, e0, e1, col_of, r
         Each node's window rows ``r0 <= row < r1`` (``r0 < r1``).
     by0, by1 : (N,) int64
         The nodes ordered by ``r0`` and by ``r1``.
-    dx, dy : (N,) float64
-        Each node's position relative to the image centre ``((W-1)/2, (H-1)/2)``.
     out : (N, 2 M, K) float64
-        Receives ``Σ jx n (X - dx)^p (Y - dy)^q`` (the first ``M`` rows,
-        ``(p, q)`` in ``moments.moment_terms(order)`` order) and the same for
-        ``jy``: the moments about each node.
+        Receives ``Σ jx n X^p Y^q`` (the first ``M`` rows, ``(p, q)`` in
+        ``moments.moment_terms(order)`` order) and the same for ``jy``, with
+        ``X``, ``Y`` about the image centre ``((W-1)/2, (H-1)/2)`` (the
+        caller moves them to each node).
     """
     h, w = jx.shape
     nk = bits.shape[0] if bits.shape[0] > 0 else noise.shape[0]
@@ -156,11 +145,14 @@ def noise_window_sums(jx, jy, mask, bits, noise, order, edges, e0, e1, col_of, r
     run = np.zeros((2 * (order + 1), nk))
     snap = np.empty((edges.size, 2 * (order + 1), nk))
     acc = np.zeros((e0.size, 2 * nt, nk))
-    out[:] = 0.0
+    for k in range(n):
+        for t in range(2 * nt):
+            for j in range(nk):
+                out[k, t, j] = 0.0
     i0 = i1 = 0
     for r in range(h):
         while i0 < n and r0[by0[i0]] == r:  # windows opening: less the sums so far
-            out[by0[i0]] -= acc[col_of[by0[i0]]]
+            _add(acc, col_of[by0[i0]], out, by0[i0], -1.0)
             i0 += 1
         if i1 == n:
             break
@@ -181,7 +173,5 @@ def noise_window_sums(jx, jy, mask, bits, noise, order, edges, e0, e1, col_of, r
                         yq *= y
                         t += 1
         while i1 < n and r1[by1[i1]] == r + 1:  # windows closing: plus the sums now
-            k = by1[i1]
-            out[k] += acc[col_of[k]]
-            _centre(out[k], order, dx[k], dy[k])
+            _add(acc, col_of[by1[i1]], out, by1[i1], 1.0)
             i1 += 1
