@@ -118,17 +118,10 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         (its factorisation leaves a core idle: the caller starts work there).
     """
     timing = {"global_factorise": 0.0, "global_solve": 0.0, "local": 0.0}
-    if on_factorise is not None:
-        on_factorise()
     solver = _global_solver(solver, mesh, trusted, beta * step**2, smooth, mu,
-                            solver_method, timing)
+                            solver_method, timing, on_factorise)
+    W, vu, vv, uh, vh = _start(solver, grad0, u0, v0, timing)
     n = u0.size
-    W = np.zeros((n, 4))
-    vu, vv = np.zeros(n), np.zeros(n)  # scaled multipliers of the constraint u = û
-    # initial global field: the compatible projection of the local result
-    t = time.perf_counter()
-    uh, vh = solver.solve(grad0, W, u0, v0, vu, vv)
-    timing["global_solve"] += time.perf_counter() - t
     u, v = u0.copy(), v0.copy()
     zncc = np.full(n, np.nan)
     reason = np.where(usable, Reason.OK, Reason.SMALL_COMPONENT).astype(np.int8)
@@ -172,9 +165,13 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
 
 
 def _global_solver(solver: GlobalSolver | None, mesh: Q4Mesh, trusted, beta_step2: float,
-                   smooth, mu: float, method: str, timing: dict) -> GlobalSolver:
+                   smooth, mu: float, method: str, timing: dict,
+                   on_factorise=None) -> GlobalSolver:
     """The global step's solver (``solver`` when reused: a sequence's next
-    frame), its factor's copy for the u_std propagation started meanwhile."""
+    frame), its factor's copy for the u_std propagation started meanwhile;
+    ``on_factorise()`` is called first."""
+    if on_factorise is not None:
+        on_factorise()
     t = time.perf_counter()
     if solver is None:
         solver = GlobalSolver(mesh, beta=beta_step2, mu=1.0, weights=trusted,
@@ -182,6 +179,18 @@ def _global_solver(solver: GlobalSolver | None, mesh: Q4Mesh, trusted, beta_step
     timing["global_factorise"] = time.perf_counter() - t
     solver.system.triangular_ahead()
     return solver
+
+
+def _start(solver: GlobalSolver, grad0, u0, v0, timing: dict) -> tuple:
+    """``(W, vu, vv, uh, vh)``: the scaled multipliers of the constraints
+    ``D û = F`` and ``u = û`` (zero) and the initial global field, the
+    compatible projection of the local result."""
+    n = u0.size
+    W, vu, vv = np.zeros((n, 4)), np.zeros(n), np.zeros(n)
+    t = time.perf_counter()
+    uh, vh = solver.solve(grad0, W, u0, v0, vu, vv)
+    timing["global_solve"] += time.perf_counter() - t
+    return W, vu, vv, uh, vh
 
 
 def _noise_gains(smooth, curv_length: float, step: float, subset: int):

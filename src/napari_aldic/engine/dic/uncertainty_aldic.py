@@ -31,13 +31,12 @@ gradient-noise corrections.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from ..kernels.moments import moment_terms
+from ..kernels.moments import centre_moments, moment_terms
 from ..kernels.noise_sums import MAX_NOISE_ORDER, noise_window_sums
 from .threads import side_by_side
 
@@ -399,21 +398,14 @@ APPLY_CHUNK = 16
 
 def _about_nodes(raw: np.ndarray, dx: np.ndarray, dy: np.ndarray, order: int) -> np.ndarray:
     """Moments ``Σ a (X - dx)^p (Y - dy)^q`` about each node from ``raw``
-    (N, 2 M, K) about the image centre (both halves, ``moment_terms(order)``
-    order; ``dx``, ``dy`` (N,): the nodes about the centre), by the binomial
-    expansion."""
-    terms = moment_terms(order)
-    out = np.empty_like(raw)
-    ex, ey = -dx[:, None], -dy[:, None]
-    for half in (0, len(terms)):
-        for t, (p, q) in enumerate(terms):
-            acc = np.zeros(raw[:, 0].shape)
-            for i in range(p + 1):
-                for j in range(q + 1):
-                    acc += (math.comb(p, i) * math.comb(q, j) * ex ** (p - i) * ey ** (q - j)
-                            * raw[:, half + terms.index((i, j))])
-            out[:, half + t] = acc
-    return out
+    (N, 2 M, K) about the image centre (both halves in ``moment_terms(order)``
+    order; ``dx``, ``dy`` (N,): the nodes about the centre), by
+    :func:`~..kernels.moments.centre_moments` (one row per node, half and probe)."""
+    n, k = raw.shape[0], raw.shape[2]
+    rows = np.ascontiguousarray(raw.reshape(n, 2, -1, k).transpose(0, 1, 3, 2))
+    rows = rows.reshape(n * 2 * k, -1)
+    c = centre_moments(rows, np.repeat(dx, 2 * k), np.repeat(dy, 2 * k), order)
+    return c.reshape(n, 2, k, -1).transpose(0, 1, 3, 2).reshape(raw.shape)
 
 
 def _window_layout(x, y, half: int, h: int, w: int) -> tuple:
