@@ -86,12 +86,13 @@ class LatticePreconditioner:
 
 
 def pcg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, precond, rtol: float,
-                maxiter: int) -> np.ndarray | None:
+                maxiter: int, atol: np.ndarray | None = None) -> np.ndarray | None:
     """``A⁻¹ b`` for the columns of ``b`` (n, K) by preconditioned CG from ``x0``:
     each column until its residual is ``rtol`` times its first one (so the
-    tolerance applies to the correction ``x - x0``), its iterates then frozen.
-    None if a column needs more than ``maxiter`` iterations. ``precond`` maps
-    residuals held as rows (K, n) to rows.
+    tolerance applies to the correction ``x - x0``) or ``atol`` (K,), where
+    given and larger, its iterates then frozen. None if a column needs more
+    than ``maxiter`` iterations. ``precond`` maps residuals held as rows (K, n)
+    to rows.
 
     The columns are held as rows, so that each is one contiguous vector:
     SciPy's product with one vector is twice as fast per column as with an
@@ -100,7 +101,7 @@ def pcg_columns(A: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, precond, rtol: 
     hand-overs than in arithmetic on a busy machine, see :mod:`~..kernels.cg`)."""
     x = np.array(np.transpose(x0), np.float64, order="C")
     r = np.ascontiguousarray(np.transpose(b), np.float64) - _times(A, x)
-    atol, _ = cg_tolerances(r.T, rtol)
+    atol = np.maximum(cg_tolerances(r.T, rtol)[0], 0.0 if atol is None else atol)
     active = np.sqrt(np.einsum("ij,ij->i", r, r)) > atol
     z = precond(r)
     p = z.copy()
