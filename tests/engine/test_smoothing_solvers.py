@@ -211,9 +211,10 @@ def test_cg_first_later_solves_keep_the_first_absolute_tolerance(monkeypatch):
     assert np.abs(x1 - exact).max() < 2e-4 * scale
     assert np.abs(x2 - (1 + 1e-3) * exact).max() < 2e-4 * scale
     # a solver whose first solve is that one (a relative stop, from the same
-    # start) needs more iterations for the same answer
+    # start) needs more iterations for the same answer: 9 against 12 here (a
+    # relative stop in the warm-started solver also took 12)
     TS.CGFirst(A, x1).solve(f * (1 + 1e-3))
-    assert its[1] < its[2], its
+    assert its[1] <= 0.8 * its[2], its
 
 
 def test_lattice_of_accepts_one_lattice_only():

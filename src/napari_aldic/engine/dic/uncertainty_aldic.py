@@ -356,20 +356,23 @@ def noise_projector(jx, jy, x, y, subset: int, roi, terms):
     if deg > MAX_NOISE_ORDER:
         raise ValueError(f"noise_projector: shape terms up to order {MAX_NOISE_ORDER}, "
                          f"got {deg}")
-    col = [moment_terms(deg).index(t) for t in terms]
-    layout = _window_layout(np.asarray(x), np.asarray(y), subset // 2, h, w)
-    dx = np.asarray(x, np.float64).ravel() - 0.5 * (w - 1)
-    dy = np.asarray(y, np.float64).ravel() - 0.5 * (h - 1)
+    order_terms = moment_terms(deg)
+    col = [order_terms.index(t) for t in terms]
+    keep, *lay = _window_layout(np.asarray(x), np.asarray(y), subset // 2, h, w)
+    n = np.size(x)
+    # the nodes about the image centre, where the kernel's moments are taken
+    dx = np.asarray(x, np.float64).ravel()[keep] - 0.5 * (w - 1)
+    dy = np.asarray(y, np.float64).ravel()[keep] - 0.5 * (h - 1)
     none8, none32 = np.zeros((0, 0), np.uint8), np.zeros((0, 0, 0), np.float32)
+    moments = len(order_terms)
+    pick = col + [moments + c for c in col]  # the shape terms of jx, then of jy
 
     def sums(bits, noise) -> np.ndarray:  # (n, 2k, K): one kernel call, one thread
-        keep, *lay = layout
         k = bits.shape[0] or noise.shape[0]
-        raw = np.empty((keep.size, 2 * len(moment_terms(deg)), k))
+        raw = np.empty((keep.size, 2 * moments, k))
         noise_window_sums(jx, jy, mask, bits, noise, deg, *lay, raw)
-        out = np.zeros((dx.size, 2 * len(col), k))
-        out[keep] = _about_nodes(raw, dx[keep], dy[keep], deg)[:, col + [
-            len(moment_terms(deg)) + c for c in col]]
+        out = np.zeros((n, len(pick), k))
+        out[keep] = _about_nodes(raw, dx, dy, deg)[:, pick]
         return out
 
     def run(bits=None, noise=None) -> np.ndarray:

@@ -17,8 +17,10 @@ The general streaming kernel (``moments.moments_kernel``) does the same for any
 products, one probe's two products at a time, with its accumulators restarting
 every few rows for the cancellation of high orders; here the orders are at most
 2, the coordinates image-centred and the sums float64, which leaves the
-differences ~1e-12 relative (measured against it in the tests), and reading the
-gradients once for many probes makes the sums ~5x cheaper.
+differences ~2e-14 relative (``tests/engine/test_noise_sums.py``), and reading
+the gradients once for many probes makes the sums ~2.5x cheaper (16 probes at
+1024²: 0.30-0.38 against 0.12-0.14 CPU-s). Moments about each node follow from
+these by ``moments.centre_moments``.
 """
 
 from __future__ import annotations
