@@ -89,10 +89,11 @@ def prepare_images(f: np.ndarray, g: np.ndarray, interpolation: str,
     ``solver_cache``), where the reference's spline and gradients are kept."""
     im = Images(f, g, None, None, None, ref_cache=ref_cache)
     order = im.memo(("order", interpolation), lambda: choose_order(interpolation, f))
-    # the two spline prefilters (scipy, GIL released) and the reference's exact
-    # gradients (a serial kernel, GIL released) run on a second thread while
-    # this one smooths the reference for the steepest-descent images (0.11 ->
-    # 0.06 s at 1024² on 2 cores; the gradients there: ~0.07 -> ~0.055 s)
+    # the two spline prefilters and the reference's exact gradients (serial
+    # kernels, GIL released) run on a second thread while this one smooths
+    # the reference for the steepest-descent images (1024², 2 cores: 0.11 s
+    # in one thread, 0.06-0.08 s in two with scipy's filters, 0.04 s with the
+    # kernels of kernels/prefilter.py)
     with ThreadPoolExecutor(1) as pool:
         g_spline = []
 

@@ -7,6 +7,8 @@ validate inputs, allocate outputs and call them live in ``dic/`` (and
 * ``flags``    the compilation options, defined once (fast-math set, cache, ...);
 * ``bspline``  B-spline weights and samplers (float64 points, float32 IC-GN taps),
   spline gradients at the pixel centres;
+* ``prefilter`` B-spline prefilters (recursive line filters; 2-D here, 3-D in
+  ``prefilter3d``);
 * ``subset``   a node's subset: work buffers, gathering its pixels, noise model;
 * ``gauss_newton`` the Gauss-Newton step the IC-GN solvers share (chunks, one
   iteration's sums, storing a node's outcome);

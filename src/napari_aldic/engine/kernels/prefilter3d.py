@@ -1,69 +1,23 @@
 """Tricubic B-spline prefilter and knot gradients of a volume, parallel (DVC).
 
-The cubic B-spline interpolation coefficients solve ``(1/6, 2/3, 1/6) * c = s``
-along each axis: a causal and an anti-causal first-order recursion with the
-pole ``z = sqrt(3) - 2`` and gain 6 (Unser, IEEE Signal Proc. Mag. 16, 1999),
-with the whole-sample mirror boundary (scipy.ndimage ``mode="mirror"``): the
-causal start is the sum of the mirrored line weighed by ``z^k`` (truncated
-where ``|z|^k`` is below 1e-16, as scipy does for lines longer than that),
-the anti-causal start ``z / (z^2 - 1) (c+[N-1] + z c+[N-2])``. Computed in
-float64 in place, parallel over slices (the lines along y and z are run
-side by side along x, so every access is contiguous).
+The cubic B-spline coefficients along each axis come from the recursive line
+filters of :mod:`.prefilter` (whole-sample mirror boundary, float64, in
+place), run in parallel over slices; the lines along y and z are filtered
+side by side along x, so every access is contiguous.
 """
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
-from .flags import CALLEE, INLINE, PARALLEL
+from .flags import PARALLEL
+from .prefilter import GAINS, POLES, filter_cols, filter_line
 
 __all__ = ["prefilter_inplace", "knot_gradients"]
 
-_POLE = math.sqrt(3.0) - 2.0
-_GAIN = 6.0
-_HORIZON = int(math.ceil(math.log(1e-16) / math.log(abs(_POLE))))
-
-
-@nb.njit(**INLINE)
-def _causal_start(line, n):
-    """``c+[0]`` of one line (mirror boundary)."""
-    z = _POLE
-    if n <= 1:
-        return line[0]
-    if _HORIZON < n:
-        s = 0.0
-        zk = 1.0
-        for k in range(_HORIZON):
-            s += zk * line[k]
-            zk *= z
-        return s
-    # exact: the mirrored line has period 2n - 2
-    zn = z ** (n - 1)
-    z2n = zn * zn
-    s = line[0] + zn * line[n - 1]
-    zk = z
-    for k in range(1, n - 1):
-        s += (zk + z2n / zk) * line[k]
-        zk *= z
-    return s / (1.0 - zn * zn)
-
-
-@nb.njit(**INLINE)
-def _filter_line(line, n):
-    z = _POLE
-    for k in range(n):
-        line[k] *= _GAIN
-    if n <= 1:
-        return
-    line[0] = _causal_start(line, n)
-    for k in range(1, n):
-        line[k] += z * line[k - 1]
-    line[n - 1] = z / (z * z - 1.0) * (line[n - 1] + z * line[n - 2])
-    for k in range(n - 2, -1, -1):
-        line[k] = z * (line[k + 1] - line[k])
+_CUBIC = POLES[3]
+_GAIN = GAINS[3]
 
 
 @nb.njit(**PARALLEL)
@@ -71,60 +25,19 @@ def _along_x(c):
     nz, ny, nx = c.shape
     for iz in nb.prange(nz):
         for iy in range(ny):
-            _filter_line(c[iz, iy], nx)
-
-
-@nb.njit(**CALLEE)
-def _filter_cols(a):
-    """Filter the 2-D array ``a`` (n, m) along axis 0, its m columns side by side."""
-    n, m = a.shape
-    z = _POLE
-    for k in range(n):
-        for i in range(m):
-            a[k, i] *= _GAIN
-    if n <= 1:
-        return
-    start = np.zeros(m)
-    if _HORIZON < n:
-        zk = 1.0
-        for k in range(_HORIZON):
-            for i in range(m):
-                start[i] += zk * a[k, i]
-            zk *= z
-    else:
-        zn = z ** (n - 1)
-        for i in range(m):
-            start[i] = a[0, i] + zn * a[n - 1, i]
-        zk = z
-        for k in range(1, n - 1):
-            wk = zk + zn * zn / zk
-            for i in range(m):
-                start[i] += wk * a[k, i]
-            zk *= z
-        for i in range(m):
-            start[i] /= 1.0 - zn * zn
-    for i in range(m):
-        a[0, i] = start[i]
-    for k in range(1, n):
-        for i in range(m):
-            a[k, i] += z * a[k - 1, i]
-    for i in range(m):
-        a[n - 1, i] = z / (z * z - 1.0) * (a[n - 1, i] + z * a[n - 2, i])
-    for k in range(n - 2, -1, -1):
-        for i in range(m):
-            a[k, i] = z * (a[k + 1, i] - a[k, i])
+            filter_line(c[iz, iy], nx, _CUBIC, _GAIN)
 
 
 @nb.njit(**PARALLEL)
 def _along_y(c):
     for iz in nb.prange(c.shape[0]):
-        _filter_cols(c[iz])
+        filter_cols(c[iz], _CUBIC, _GAIN)
 
 
 @nb.njit(**PARALLEL)
 def _along_z(c):
     for iy in nb.prange(c.shape[1]):
-        _filter_cols(c[:, iy, :])
+        filter_cols(c[:, iy, :], _CUBIC, _GAIN)
 
 
 def prefilter_inplace(c: np.ndarray) -> None:

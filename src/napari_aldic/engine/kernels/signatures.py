@@ -40,6 +40,8 @@ def _sig(*args: str) -> str:
 
 KERNELS: dict[str, tuple[str, ...]] = {
     "bspline.spline_gradients": (_sig(_F32_2, _F64_1, _F64_1, _F32_2, _F32_2),),
+    "prefilter.prefilter_2d": (_sig(_F64_2, _F64_1, "float64"),),
+    "prefilter.symmetric_fir_2d": (_sig(_F64_2, _F64_1, _F64_2),),
     "sums.window_sums": (_sig("float32[:, :, ::1]", "int64"),),
     "icgn.icgn_affine": (_sig(
         "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
@@ -82,7 +84,8 @@ KERNELS: dict[str, tuple[str, ...]] = {
 #: with a Local step), "aldic" AL-DIC's global steps, "strain" the strain's
 #: plane fit, "synthetic" the synthetic speckle images
 GROUPS: dict[str, tuple[str, ...]] = {
-    "local": ("bspline.spline_gradients", "sums.window_sums", "icgn.icgn_affine",
+    "local": ("bspline.spline_gradients", "prefilter.prefilter_2d",
+              "prefilter.symmetric_fir_2d", "sums.window_sums", "icgn.icgn_affine",
               "lattice.median_flags", "moments.moments_kernel", "moments.centre_moments",
               "static.lag_peaks"),
     "aldic": ("icgn.icgn_translation", "cg.jacobi_cg", "cg.triangular_solve",
@@ -107,6 +110,8 @@ COST: dict[str, float] = {
     "moments.centre_moments": 0.68, "lattice.plane_fit": 0.8, "cg.triangular_solve": 0.2,
     # 2026-12-07, fifteenth session (2.6-3.5 s alone on the EPYC VM)
     "noise_sums.noise_window_sums": 3.0,
+    # 2026-12-07, sixteenth session (1.8-2.9 s and 0.8-1.0 s alone on the EPYC VM)
+    "prefilter.prefilter_2d": 2.0, "prefilter.symmetric_fir_2d": 0.8,
 }
 
 #: kernels that compile much faster in the process that compiles another one
