@@ -1,11 +1,12 @@
 """Tricubic B-spline sampling over padded float32 coefficients (DVC).
 
 The coefficients come from :mod:`.prefilter3d` (order 3, mirror boundary:
-``scipy.ndimage.spline_filter``'s to 1e-15) padded by :data:`PAD3` voxels on every side by mirroring, so the
-samplers never bounds-check inside a subset. They are float32 on purpose:
-the 64-tap sum is memory bound, float32 halves its traffic, and its rounding
-(~1e-7 of the grey level) is far below the 1e-3 voxel the solver resolves;
-weights and sums are float32 too, positions float64.
+``scipy.ndimage.spline_filter``'s to 1e-15) padded by :data:`PAD3` voxels on
+every side by mirroring, so the samplers never bounds-check inside a subset.
+They are float32 on purpose: the 64-tap sum is memory bound, float32 halves
+its traffic, and its rounding (~1e-7 of the grey level) is far below the 1e-3
+voxel the solver resolves; weights and sums are float32 too, positions
+float64.
 """
 
 from __future__ import annotations
