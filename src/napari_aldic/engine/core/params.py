@@ -79,7 +79,8 @@ class DICParams:
         Spacing in pixels of the anchor nodes: a sparse subset of the coarse
         nodes searched first over the widening range; each coarse node's
         search is then centred on the motion predicted from its nearest
-        matched anchor (first-order, with the anchor's gradient), so large
+        matched anchor (first-order, with the anchor's gradient), and tested
+        first over at most 8 px around it (widened as any search), so large
         and spatially varying motion costs no wider searches. ``None`` picks
         4 x the coarse spacing; ``0`` turns anchors off (every coarse node
         searched around zero motion).
