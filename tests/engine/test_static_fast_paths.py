@@ -2,7 +2,8 @@
 the plain definitions give (issue 22, speed): the flat-pixel map (windows
 from summed-area tables, the 75th percentile counted instead of sorted when
 the noise bound decides), the Gaussian smoothing of the steepest-descent
-images (bit for bit), and the zero-motion evidence, whose ``z`` is skipped
+images (bit for bit), the flat pixels per node window (from the few flat
+pixels' positions), and the zero-motion evidence, whose ``z`` is skipped
 where ``S / D`` cannot flag a node (the flags stay the same)."""
 
 import numpy as np
@@ -15,7 +16,7 @@ from napari_aldic.engine.dic.icgn import icgn_solve
 from napari_aldic.engine.dic.images import prepare_images
 from napari_aldic.engine.dic.interpolation import JACOBIAN_SIGMAS, gaussian_smooth
 from napari_aldic.engine.dic.mesh import make_grid
-from napari_aldic.engine.dic.subsets import split_subsets
+from napari_aldic.engine.dic.subsets import integral_image, rect_sums, split_subsets
 
 FIELD = synthetic.Affine.strain_rotation(exx=0.005, center=(128, 128), t=(1.3, -0.6))
 
@@ -74,6 +75,20 @@ def test_window_variance_mirrors_the_border_like_uniform_filter():
     m = ndi.uniform_filter(a.astype(np.float64), S.FLAT_WINDOW)
     ref = ndi.uniform_filter(a.astype(np.float64) ** 2, S.FLAT_WINDOW) - m * m
     assert np.allclose(S._window_var(a), ref, rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize("share", [0.0, 1e-4, 0.01, 0.3])
+def test_window_counts_sparse_equal_the_summed_area_table(share):
+    rng = np.random.default_rng(5)
+    flat = rng.random((300, 260)) < share
+    flat[40:60, 100:180] = share > 0.005  # a flat bar among scattered pixels
+    grid = make_grid(np.ones(flat.shape, bool), 21, 7)
+    x, y, h = grid.x.astype(np.int64), grid.y.astype(np.int64), 10
+    want = rect_sums(integral_image(flat), x - h, y - h, x + h, y + h)
+    got = S._window_counts(flat, x, y, h)
+    assert np.array_equal(got, want)
+    sparse = np.count_nonzero(flat) <= S.SPARSE_FLAT * x.size
+    assert sparse == (share < 0.01)  # both paths are exercised
 
 
 def test_gaussian_smooth_is_ndimage_bit_for_bit():

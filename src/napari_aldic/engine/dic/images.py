@@ -45,12 +45,13 @@ class Images:
     #: work started ahead, by ``memo`` key
     pending: dict = field(default_factory=dict)
 
-    def memo(self, key, compute: Callable):
+    def memo(self, key, compute: Callable, keep: bool = True):
         """``compute()``, or its value for ``key`` kept from an earlier pair
         with this reference (the inputs of ``compute`` must be in ``key``
         unless they are the reference image itself), or started ahead by
-        :meth:`prefetch`."""
-        if self.ref_cache is not None and key in self.ref_cache:
+        :meth:`prefetch`. ``keep=False``: work on this pair's deformed image,
+        never kept for the next pair."""
+        if keep and self.ref_cache is not None and key in self.ref_cache:
             return self.ref_cache[key]
         job = self.pending.pop(key, None)
         # not done yet (a loaded machine starves the low-priority thread), or
@@ -61,20 +62,20 @@ class Images:
         value = job.result() if usable else compute()
         if job is not None:
             job.cancel()
-        if self.ref_cache is not None:
+        if keep and self.ref_cache is not None:
             self.ref_cache[key] = value
         return value
 
-    def prefetch(self, key, compute: Callable) -> None:
+    def prefetch(self, key, compute: Callable, keep: bool = True) -> None:
         """Start ``compute()`` on :attr:`background` for a later :meth:`memo`
         of ``key`` (unless it is kept already; nothing without a background
-        thread): work on the reference alone that overlaps the analysis, on
-        a core its serial stages leave idle (the thread runs at a low
-        priority; what it has not finished when needed is computed there
-        and then, so it never holds the analysis up)."""
+        thread; ``keep`` as for :meth:`memo`): work on the images alone that
+        overlaps the analysis, on a core its serial stages leave idle (the
+        thread runs at a low priority; what it has not finished when needed
+        is computed there and then, so it never holds the analysis up)."""
         if self.background is None or key in self.pending:
             return
-        if self.ref_cache is None or key not in self.ref_cache:
+        if self.ref_cache is None or key not in self.ref_cache or not keep:
             self.pending[key] = self.background.submit(compute)
 
 

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import fft as sp_fft, ndimage as ndi
+from scipy.spatial import cKDTree
 
 from ..core.files import array_digest
 from ..core.reasons import Reason
@@ -98,6 +99,11 @@ EDGE_SHARE = 0.05
 EDGE_SIGMAS = 6.0
 EDGE_MIN = 0.05
 EDGE_KEEP = 0.3
+#: flat pixels per node below which their windows' counts come from the
+#: pixels' positions rather than a summed-area table (:func:`_window_counts`)
+SPARSE_FLAT = 0.1
+
+
 def _tile_spans(size: int, tile: int) -> np.ndarray:
     """Starts of tiles of ``tile`` pixels covering ``size`` (the last one
     flush with the end)."""
@@ -249,6 +255,7 @@ def prefetch_static(im, roi, grid, sub, params) -> None:
     with the autocorrelation peaks of every usable node's subset
     (:func:`ambiguity` then reads those of the nodes it tests)."""
     im.prefetch(("flat_var",), lambda: _window_var(im.f))
+    im.prefetch(("flat_var_g",), lambda: _window_var(im.g), keep=False)
     im.prefetch(_peaks_key(roi, grid, sub, params),
                 lambda: _peak_heights(im, roi, grid, sub, sub.reason == Reason.OK, params,
                                       serial=True))
@@ -313,22 +320,23 @@ def _window_var(a: np.ndarray, tile: int = 120) -> np.ndarray:
     return var.reshape(ny * tile, nx * tile)[:h, :w]
 
 
-def _flat_pixels(f, g, roi, image_var: float, f_var=None) -> np.ndarray:
+def _flat_pixels(f, g, roi, image_var: float, f_var=None, g_var=None) -> np.ndarray:
     """Pixels of the ROI flat in both images: their window's variance is that
     of the noise (:data:`FLAT_NOISE`) and well below the image's typical
     local contrast (:data:`FLAT_CONTRAST` of the 75th percentile). The second
     condition keeps speckle under heavy noise (whose windows are not much
     above the noise either) from counting as flat: a static region stands
-    out from the speckle around it, noise does not. ``f_var``: the windows'
-    variance of ``f`` (:func:`_window_var`), when computed already."""
+    out from the speckle around it, noise does not. ``f_var``, ``g_var``: the
+    windows' variance of ``f`` and ``g`` (:func:`_window_var`), or callables
+    that return them (computed only when needed)."""
     thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
     roi = np.asarray(roi, bool)
     whole = roi.all()
     flat = roi.copy()
-    for a, var in ((f, f_var), (g, None)):
+    for a, var in ((f, f_var), (g, g_var)):
         if not flat.any():  # speckle: the reference alone shows nothing flat
             break
-        var = _window_var(a) if var is None else var
+        var = _window_var(a) if var is None else var() if callable(var) else var
         flat &= var <= thr2
         if flat.any() and not _typical_at_least(var, roi, whole, thr2 / FLAT_CONTRAST ** 2):
             typical = np.percentile(var if whole else var[roi], 75)
@@ -343,6 +351,23 @@ def _typical_at_least(var, roi, whole: bool, bound: float) -> bool:
     v = var if whole else var[roi]
     # np.percentile's 75th interpolates the sorted values at j and j + 1
     return np.count_nonzero(v < bound) <= int(np.floor(0.75 * (v.size - 1)))
+
+
+def _window_counts(flat: np.ndarray, x: np.ndarray, y: np.ndarray, h: int) -> np.ndarray:
+    """Pixels of ``flat`` in each node's ``(2h + 1)²`` window (inside the
+    image). On speckle only noise makes a pixel flat (~100 of a megapixel):
+    each of those then finds the nodes whose windows hold it (a k-d tree of
+    the nodes, ~1 ms), instead of an image-sized summed-area table (~15 ms)."""
+    fy, fx = np.nonzero(flat)
+    if fy.size > SPARSE_FLAT * x.size:
+        return rect_sums(integral_image(flat), x - h, y - h, x + h, y + h)
+    if fy.size == 0:
+        return np.zeros(x.size, np.int64)
+    tree = cKDTree(np.column_stack([x, y]))
+    # integer positions: Chebyshev distance <= h + 0.5 is the window exactly
+    hits = tree.query_ball_point(np.column_stack([fx, fy]), r=h + 0.5, p=np.inf)
+    return np.bincount(np.concatenate([np.asarray(j, np.int64) for j in hits]),
+                       minlength=x.size)
 
 
 def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> np.ndarray:
@@ -376,12 +401,12 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
     out = np.zeros(grid.n, bool)
     h, size = params.half, params.subset
     flat = _flat_pixels(im.f, im.g, roi, image_var,
-                        im.memo(("flat_var",), lambda: _window_var(im.f)))
+                        im.memo(("flat_var",), lambda: _window_var(im.f)),
+                        lambda: im.memo(("flat_var_g",), lambda: _window_var(im.g), keep=False))
     if not flat.any():
         return out
-    ii = integral_image(flat)
     x, y = grid.x.astype(np.int64), grid.y.astype(np.int64)
-    share = rect_sums(ii, x - h, y - h, x + h, y + h) / (size * size)
+    share = _window_counts(flat, x, y, h) / (size * size)
     nodes = np.nonzero(cand & (share >= EDGE_SHARE))[0]
     if nodes.size == 0:
         return out
