@@ -9,7 +9,7 @@ from napari_aldic.engine import DICParams, Reason, correlate, load_result, synth
 from napari_aldic.engine.dic.init_guess import ncc_search, ncc_search_widening
 from napari_aldic.engine.dic.interpolation import prefilter, reference_gradients, sample
 from napari_aldic.engine.dic.mesh import EDGE, make_grid
-from napari_aldic.engine.dic.outliers import lattice_neighbours, median_test
+from napari_aldic.engine.dic.outliers import lattice_neighbours, median_test, median_test_at
 from napari_aldic.engine.dic.subsets import split_subsets
 from napari_aldic.engine.kernels.bspline import PAD
 
@@ -134,7 +134,8 @@ def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatc
     """``_State.outliers``: the median test reads only the trusted nodes' u, v,
     so the same trusted set and values give the last flags without testing
     again; a changed value at a trusted node, or a changed trusted set, tests
-    again. Values at untrusted nodes do not matter."""
+    again the nodes that read it (a few), and a large change tests every node.
+    Values at untrusted nodes do not matter."""
     from types import SimpleNamespace
 
     import napari_aldic.engine.dic.local as L
@@ -145,8 +146,10 @@ def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatc
     bad = np.nonzero((grid.x == 42) & (grid.y == 30))[0][0]
     p[bad, 0] = 1.0
     st = SimpleNamespace(p=p, nbrs5=lattice_neighbours(grid, roi), _outliers=None)
-    calls = []
-    monkeypatch.setattr(L, "median_test", lambda *a: calls.append(1) or median_test(*a))
+    full, part = [], []
+    monkeypatch.setattr(L, "median_test", lambda *a: full.append(1) or median_test(*a))
+    monkeypatch.setattr(L, "median_test_at",
+                        lambda nodes, *a: part.append(nodes.size) or median_test_at(nodes, *a))
     trusted = np.ones(grid.n, bool)
     trusted[0] = False
     first = L._State.outliers(st, trusted)
@@ -154,12 +157,58 @@ def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatc
     p[0, 0] = 50.0  # an untrusted node: the same inputs for the test
     first[:] = False  # the caller's copy, not the kept flags
     assert np.array_equal(L._State.outliers(st, trusted.copy()), median_test(
-        p[:, 0], p[:, 3], trusted, st.nbrs5)) and len(calls) == 1
-    p[bad, 0] = 0.0  # a trusted node's value: tested again, no outlier left
-    assert not L._State.outliers(st, trusted).any() and len(calls) == 2
-    trusted[5] = False  # another trusted set: tested again
+        p[:, 0], p[:, 3], trusted, st.nbrs5)) and len(full) == 1 and not part
+    p[bad, 0] = 0.0  # a trusted node's value: its readers tested again
+    assert not L._State.outliers(st, trusted).any() and len(full) == 1
+    assert part == [25]  # the node and its 24 readers
+    trusted[5] = False  # another trusted set: the readers of node 5
     L._State.outliers(st, trusted)
-    assert len(calls) == 3
+    assert len(full) == 1 and len(part) == 2
+    p[:, 0] = np.random.default_rng(0).normal(0, 0.1, grid.n)  # everything moved
+    assert np.array_equal(L._State.outliers(st, trusted),
+                          median_test(p[:, 0], p[:, 3], trusted, st.nbrs5))
+    assert len(full) == 2
+
+
+@pytest.mark.parametrize("quadtree", [False, True])
+def test_incremental_median_test_equals_the_full_test(quadtree):
+    """Small random changes of u, v and of the trusted set, on a ROI with a
+    hole and a crack (neighbour tables that need not be symmetric) and on
+    extra off-lattice nodes (the k-d tree neighbours): the flags kept up to
+    date by ``_State.outliers`` equal a full test every time."""
+    from types import SimpleNamespace
+
+    import napari_aldic.engine.dic.local as L
+
+    roi = np.ones((160, 180), bool)
+    yy, xx = np.mgrid[:160, :180]
+    roi[(yy - 80) ** 2 + (xx - 90) ** 2 < 400] = False
+    roi[40, 20:120] = False
+    grid = make_grid(roi, 11, 6)
+    if quadtree:
+        from dataclasses import replace
+
+        extra = np.column_stack([grid.x[::7] + 3, grid.y[::7] + 3])
+        keep = roi[extra[:, 1], extra[:, 0]]
+        extra = extra[keep]
+        grid = replace(grid, x=np.concatenate([grid.x, extra[:, 0]]),
+                       y=np.concatenate([grid.y, extra[:, 1]]),
+                       ix=np.concatenate([grid.ix, np.full(len(extra), -1)]),
+                       iy=np.concatenate([grid.iy, np.full(len(extra), -1)]))
+    rng = np.random.default_rng(1)
+    p = np.zeros((grid.n, 6))
+    p[:, 0] = rng.normal(0, 0.02, grid.n)
+    p[:, 3] = rng.normal(0, 0.02, grid.n)
+    trusted = rng.random(grid.n) > 0.05
+    st = SimpleNamespace(p=p, nbrs5=lattice_neighbours(grid, roi), _outliers=None)
+    for _ in range(12):
+        got = L._State.outliers(st, trusted)
+        want = median_test(p[:, 0], p[:, 3], trusted, st.nbrs5)
+        assert np.array_equal(got, want)
+        k = rng.choice(grid.n, 6, replace=False)
+        p[k[:3], 0] += rng.choice([-2.0, 2.0], 3)  # new outliers, or healed ones
+        trusted[k[3:]] = ~trusted[k[3:]]
+    assert want.any()
 
 
 def test_result_roundtrip_without_pickle(tmp_path):

@@ -17,7 +17,7 @@ from .mesh import NodeGrid
 from .subsets import integral_image, rect_sums
 from .threads import in_threads
 
-__all__ = ["lattice_neighbours", "median_test"]
+__all__ = ["lattice_neighbours", "median_test", "median_test_at"]
 
 _RADIUS = 2  # lattice neighbourhood: 5 x 5 nodes
 
@@ -88,3 +88,20 @@ def median_test(u: np.ndarray, v: np.ndarray, trusted: np.ndarray, neighbours: n
                np.ascontiguousarray(v, np.float64), trusted, neighbours, float(threshold),
                float(eps), int(min_neighbours), out, grain=256)
     return out
+
+
+def median_test_at(nodes: np.ndarray, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
+                   neighbours: np.ndarray, **kw) -> np.ndarray:
+    """:func:`median_test`'s flags at ``nodes`` only (sorted unique indices):
+    the test of a sub-problem holding those nodes and the neighbours they
+    read, the same flags as a test of every node at those nodes (``kw``: as
+    :func:`median_test`)."""
+    rows = neighbours[nodes]
+    rest = np.setdiff1d(rows[rows >= 0], nodes, assume_unique=False)
+    order = np.concatenate([nodes, rest])
+    local = np.full(u.size + 1, -1, np.int64)  # index -1 (no neighbour) stays -1
+    local[order] = np.arange(order.size)
+    sub = np.full((order.size, neighbours.shape[1]), -1, np.int64)
+    sub[:nodes.size] = local[rows]
+    # the neighbours read have no rows of their own: never tested here
+    return median_test(u[order], v[order], trusted[order], sub, **kw)[:nodes.size]
