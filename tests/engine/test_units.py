@@ -131,42 +131,46 @@ def test_median_test_flags_planted_outlier_but_not_across_crack():
 
 
 def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatch):
-    """``_State.outliers``: the median test reads only the trusted nodes' u, v,
-    so the same trusted set and values give the last flags without testing
-    again; a changed value at a trusted node, or a changed trusted set, tests
-    again the nodes that read it (a few), and a large change tests every node.
-    Values at untrusted nodes do not matter."""
-    from types import SimpleNamespace
-
-    import napari_aldic.engine.dic.local as L
+    """``MedianTest`` (the repair stage's median test): the test reads only the
+    trusted nodes' u, v, so the same trusted set and values give the last
+    flags without testing again; a changed value at a trusted node, or a
+    changed trusted set, tests again the nodes that read it (a few), and a
+    large change tests every node. Values at untrusted nodes do not matter."""
+    import napari_aldic.engine.dic.outliers as O
 
     roi = np.ones((120, 120), bool)
     grid = make_grid(roi, 11, 6)
-    p = np.zeros((grid.n, 6))
+    u, v = np.zeros(grid.n), np.zeros(grid.n)
     bad = np.nonzero((grid.x == 42) & (grid.y == 30))[0][0]
-    p[bad, 0] = 1.0
-    st = SimpleNamespace(p=p, nbrs5=lattice_neighbours(grid, roi), _outliers=None)
-    full, part = [], []
-    monkeypatch.setattr(L, "median_test", lambda *a: full.append(1) or median_test(*a))
-    monkeypatch.setattr(L, "median_test_at",
+    u[bad] = 1.0
+    nb = lattice_neighbours(grid, roi)
+    full, part = [], []  # tests of every node; nodes of the partial tests
+
+    def counted(u, *a):
+        if u.size == grid.n:
+            full.append(1)
+        return median_test(u, *a)
+
+    monkeypatch.setattr(O, "median_test", counted)
+    monkeypatch.setattr(O, "median_test_at",
                         lambda nodes, *a: part.append(nodes.size) or median_test_at(nodes, *a))
+    test = O.MedianTest()
     trusted = np.ones(grid.n, bool)
     trusted[0] = False
-    first = L._State.outliers(st, trusted)
+    first = test.flags(u, v, trusted, nb)
     assert first[bad] and first.sum() == 1
-    p[0, 0] = 50.0  # an untrusted node: the same inputs for the test
+    u[0] = 50.0  # an untrusted node: the same inputs for the test
     first[:] = False  # the caller's copy, not the kept flags
-    assert np.array_equal(L._State.outliers(st, trusted.copy()), median_test(
-        p[:, 0], p[:, 3], trusted, st.nbrs5)) and len(full) == 1 and not part
-    p[bad, 0] = 0.0  # a trusted node's value: its readers tested again
-    assert not L._State.outliers(st, trusted).any() and len(full) == 1
+    assert np.array_equal(test.flags(u, v, trusted.copy(), nb), median_test(u, v, trusted, nb))
+    assert len(full) == 1 and not part
+    u[bad] = 0.0  # a trusted node's value: its readers tested again
+    assert not test.flags(u, v, trusted, nb).any() and len(full) == 1
     assert part == [25]  # the node and its 24 readers
     trusted[5] = False  # another trusted set: the readers of node 5
-    L._State.outliers(st, trusted)
+    test.flags(u, v, trusted, nb)
     assert len(full) == 1 and len(part) == 2
-    p[:, 0] = np.random.default_rng(0).normal(0, 0.1, grid.n)  # everything moved
-    assert np.array_equal(L._State.outliers(st, trusted),
-                          median_test(p[:, 0], p[:, 3], trusted, st.nbrs5))
+    u[:] = np.random.default_rng(0).normal(0, 0.1, grid.n)  # everything moved
+    assert np.array_equal(test.flags(u, v, trusted, nb), median_test(u, v, trusted, nb))
     assert len(full) == 2
 
 
@@ -174,11 +178,9 @@ def test_repair_stage_reuses_the_median_test_only_for_the_same_inputs(monkeypatc
 def test_incremental_median_test_equals_the_full_test(quadtree):
     """Small random changes of u, v and of the trusted set, on a ROI with a
     hole and a crack (neighbour tables that need not be symmetric) and on
-    extra off-lattice nodes (the k-d tree neighbours): the flags kept up to
-    date by ``_State.outliers`` equal a full test every time."""
-    from types import SimpleNamespace
-
-    import napari_aldic.engine.dic.local as L
+    extra off-lattice nodes (the k-d tree neighbours): the flags that
+    ``MedianTest`` keeps up to date equal a full test every time."""
+    from napari_aldic.engine.dic.outliers import MedianTest
 
     roi = np.ones((160, 180), bool)
     yy, xx = np.mgrid[:160, :180]
@@ -189,24 +191,21 @@ def test_incremental_median_test_equals_the_full_test(quadtree):
         from dataclasses import replace
 
         extra = np.column_stack([grid.x[::7] + 3, grid.y[::7] + 3])
-        keep = roi[extra[:, 1], extra[:, 0]]
-        extra = extra[keep]
+        extra = extra[roi[extra[:, 1], extra[:, 0]]]
         grid = replace(grid, x=np.concatenate([grid.x, extra[:, 0]]),
                        y=np.concatenate([grid.y, extra[:, 1]]),
                        ix=np.concatenate([grid.ix, np.full(len(extra), -1)]),
                        iy=np.concatenate([grid.iy, np.full(len(extra), -1)]))
     rng = np.random.default_rng(1)
-    p = np.zeros((grid.n, 6))
-    p[:, 0] = rng.normal(0, 0.02, grid.n)
-    p[:, 3] = rng.normal(0, 0.02, grid.n)
+    u, v = rng.normal(0, 0.02, grid.n), rng.normal(0, 0.02, grid.n)
     trusted = rng.random(grid.n) > 0.05
-    st = SimpleNamespace(p=p, nbrs5=lattice_neighbours(grid, roi), _outliers=None)
+    nb = lattice_neighbours(grid, roi)
+    test = MedianTest()
     for _ in range(12):
-        got = L._State.outliers(st, trusted)
-        want = median_test(p[:, 0], p[:, 3], trusted, st.nbrs5)
-        assert np.array_equal(got, want)
+        want = median_test(u, v, trusted, nb)
+        assert np.array_equal(test.flags(u, v, trusted, nb), want)
         k = rng.choice(grid.n, 6, replace=False)
-        p[k[:3], 0] += rng.choice([-2.0, 2.0], 3)  # new outliers, or healed ones
+        u[k[:3]] += rng.choice([-2.0, 2.0], 3)  # new outliers, or healed ones
         trusted[k[3:]] = ~trusted[k[3:]]
     assert want.any()
 

@@ -29,7 +29,7 @@ from .icgn import icgn_solve
 from .images import Images
 from .init_guess import ncc_search_widening
 from .mesh import NodeGrid
-from .outliers import lattice_neighbours, median_test, median_test_at
+from .outliers import MedianTest, lattice_neighbours
 from .reliability import Validity
 from .rotation import rotated_search, spread_nodes
 from .static import STATIC_FRACTION, STATIC_MIN_MOTION
@@ -51,9 +51,6 @@ ANCHOR_MIN = 4
 #: below the acceptance widens the search as for any node (8 -> 16 -> ...).
 #: An FFT of 48² instead of 72² per node at search=20 and subset 31.
 PREDICTED_SEARCH = 8
-#: share of the nodes changed since the last median test up to which only
-#: the nodes that read them are tested again (:meth:`_State.outliers`)
-INCREMENTAL_SHARE = 0.05
 #: IC-GN attempts remembered per node (start and outcome), replayed when a
 #: node is started from one of them again (:meth:`_State.run`): the repair
 #: waves retry from a neighbour, then the node's own search, then the
@@ -84,7 +81,7 @@ class _State:
         self.rotation_tried = False
         self.version = 0  # bumped by every store (the repair stage's memo)
         self._nbrs5 = None
-        self._outliers = None  # (inputs, flags) of the last median test
+        self._median = MedianTest()
         self._stats_scratch = np.empty((n, 5))
         # each node's last REPLAYED IC-GN starts and their outcomes
         # (p, zncc, iters, reason, static), the latest first
@@ -158,29 +155,10 @@ class _State:
 
     def outliers(self, trusted: np.ndarray) -> np.ndarray:
         """:func:`median_test` flags of the current ``u``, ``v`` at ``trusted``
-        nodes. The test reads nothing else, so the repair stage and the final
-        flags, which ask up to three times per run (15 ms each at 15k nodes),
-        test again only the nodes whose neighbourhood changed since the last
-        test: nodes trusted or untrusted since, trusted nodes that moved, and
-        the nodes that have those as neighbours (usually a few dozen)."""
-        uv = self.p[:, [0, 3]]
-        if self._outliers is not None:
-            was, uv_was, flags = self._outliers
-            changed = (was != trusted) | (trusted & np.any(uv_was != uv, axis=1))
-            if not changed.any():
-                return flags.copy()
-            if np.count_nonzero(changed) <= INCREMENTAL_SHARE * changed.size:
-                # neighbour tables need not be symmetric (ROI visibility, the
-                # quadtree's nearest nodes): who reads a changed node, looked up
-                reads = np.append(changed, False)[self.nbrs5].any(axis=1)
-                redo = np.nonzero(changed | reads)[0]
-                flags = flags.copy()
-                flags[redo] = median_test_at(redo, uv[:, 0], uv[:, 1], trusted, self.nbrs5)
-                self._outliers = (trusted.copy(), uv, flags)
-                return flags.copy()
-        flags = median_test(uv[:, 0], uv[:, 1], trusted, self.nbrs5)
-        self._outliers = (trusted.copy(), uv, flags)
-        return flags.copy()
+        nodes (the repair stage and the final flags ask up to three times per
+        run, 15 ms each at 15k nodes: :class:`MedianTest` tests again only
+        where the inputs changed)."""
+        return self._median.flags(self.p[:, 0], self.p[:, 3], trusted, self.nbrs5)
 
     def store(self, res, nodes: np.ndarray) -> None:
         rp, rz, ri, rr, rs = res

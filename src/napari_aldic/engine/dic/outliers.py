@@ -17,7 +17,7 @@ from .mesh import NodeGrid
 from .subsets import integral_image, rect_sums
 from .threads import in_threads
 
-__all__ = ["lattice_neighbours", "median_test", "median_test_at"]
+__all__ = ["lattice_neighbours", "median_test", "median_test_at", "MedianTest"]
 
 _RADIUS = 2  # lattice neighbourhood: 5 x 5 nodes
 
@@ -105,3 +105,40 @@ def median_test_at(nodes: np.ndarray, u: np.ndarray, v: np.ndarray, trusted: np.
     sub[:nodes.size] = local[rows]
     # the neighbours read have no rows of their own: never tested here
     return median_test(u[order], v[order], trusted[order], sub, **kw)[:nodes.size]
+
+
+class MedianTest:
+    """:func:`median_test` of inputs that change a little between calls.
+
+    The test of a node reads only its own and its neighbours' trust and
+    ``u, v``, so after a small change (at most :attr:`share` of the nodes)
+    only the changed nodes (trusted or untrusted since, trusted and moved)
+    and the nodes that read them are tested again (:func:`median_test_at`),
+    usually a few dozen after a repair wave; the flags equal a full test."""
+
+    share = 0.05
+
+    def __init__(self):
+        self._last = None  # (trusted, (n, 2) u v, flags) of the last call
+
+    def flags(self, u: np.ndarray, v: np.ndarray, trusted: np.ndarray,
+              neighbours: np.ndarray) -> np.ndarray:
+        """The outlier flags (a new array) of ``u, v`` at ``trusted`` nodes."""
+        uv = np.column_stack([u, v])
+        if self._last is not None:
+            was, uv_was, flags = self._last
+            changed = (was != trusted) | (trusted & np.any(uv_was != uv, axis=1))
+            if not changed.any():
+                return flags.copy()
+            if np.count_nonzero(changed) <= self.share * changed.size:
+                # neighbour tables need not be symmetric (ROI visibility, the
+                # quadtree's nearest nodes): who reads a changed node, looked up
+                reads = np.append(changed, False)[neighbours].any(axis=1)
+                redo = np.nonzero(changed | reads)[0]
+                flags = flags.copy()
+                flags[redo] = median_test_at(redo, u, v, trusted, neighbours)
+                self._last = (trusted.copy(), uv, flags)
+                return flags.copy()
+        flags = median_test(u, v, trusted, neighbours)
+        self._last = (trusted.copy(), uv, flags)
+        return flags.copy()
