@@ -64,6 +64,25 @@ def _moment_block(H, r0, c0, m0, mx, my, mxx, mxy, myy):
     H[r0 + 2, c0 + 2] = myy
 
 
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _two_blocks(j, ex, ey, dxs, dys, m):
+    """The six moments of ``w = (1, dx, dy)`` (``1, dx, dy, dx², dx dy, dy²``)
+    weighed by ``j ex``, then those weighed by ``j ey``, over the subset."""
+    a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+    c0 = c1 = c2 = c3 = c4 = c5 = 0.0
+    for q in range(m):
+        dx = dxs[q]
+        dy = dys[q]
+        xx, xy, yy = dx * dx, dx * dy, dy * dy
+        w = j[q] * ex[q]
+        a0, a1, a2 = a0 + w, a1 + w * dx, a2 + w * dy
+        a3, a4, a5 = a3 + w * xx, a4 + w * xy, a5 + w * yy
+        w = j[q] * ey[q]
+        c0, c1, c2 = c0 + w, c1 + w * dx, c2 + w * dy
+        c3, c4, c5 = c3 + w * xx, c4 + w * xy, c5 + w * yy
+    return a0, a1, a2, a3, a4, a5, c0, c1, c2, c3, c4, c5
+
+
 # called once per node: compiled once as a function (shared by the IC-GN kernels,
 # ~2 s less compiling), not inlined; the call costs nothing measurable
 @nb.njit(**SERIAL_CALLEE, fastmath=FASTMATH)
@@ -73,10 +92,11 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     With the steepest-descent images ``J = (gx, gx dx, gx dy, gy, gy dx,
     gy dy)`` and the exact linearisation ``e`` (the same with ``ex, ey``)
     three passes accumulate ``sum J`` and ``sum J (f - fm)``, then the
-    instrumental-variable matrix ``H = sum J e^T``. With ``J = e`` it is the symmetric
-    Gauss-Newton Hessian; with smoothed ``J`` the step ``H^-1 sum J r`` is
-    still Newton's (the warp is linearised with the true gradient), so the
-    iteration converges as fast while it solves ``sum J r = 0``.
+    instrumental-variable matrix ``H = sum J e^T`` (:func:`_two_blocks`).
+    With ``J = e`` it is the symmetric Gauss-Newton Hessian; with smoothed
+    ``J`` the step ``H^-1 sum J r`` is still Newton's (the warp is linearised
+    with the true gradient), so the iteration converges as fast while it
+    solves ``sum J r = 0``.
 
     Parameters
     ----------
@@ -124,30 +144,8 @@ def affine_reference_sums(dxs, dys, gx, gy, ex, ey, fs, m, fm, H):
     # scalars, two blocks per pass: 12 sums a loop keep LLVM's vectorised
     # reductions in registers (one pass of all 36 sums spilled them: 4.0
     # against 2.9 us a node, one thread, 961 pixels)
-    a0 = a1 = a2 = a3 = a4 = a5 = 0.0  # jx ex
-    c0 = c1 = c2 = c3 = c4 = c5 = 0.0  # jx ey
-    for q in range(m):
-        dx = dxs[q]
-        dy = dys[q]
-        xx, xy, yy = dx * dx, dx * dy, dy * dy
-        w = gx[q] * ex[q]
-        a0, a1, a2 = a0 + w, a1 + w * dx, a2 + w * dy
-        a3, a4, a5 = a3 + w * xx, a4 + w * xy, a5 + w * yy
-        w = gx[q] * ey[q]
-        c0, c1, c2 = c0 + w, c1 + w * dx, c2 + w * dy
-        c3, c4, c5 = c3 + w * xx, c4 + w * xy, c5 + w * yy
-    d0 = d1 = d2 = d3 = d4 = d5 = 0.0  # jy ex
-    e0 = e1 = e2 = e3 = e4 = e5 = 0.0  # jy ey
-    for q in range(m):
-        dx = dxs[q]
-        dy = dys[q]
-        xx, xy, yy = dx * dx, dx * dy, dy * dy
-        w = gy[q] * ex[q]
-        d0, d1, d2 = d0 + w, d1 + w * dx, d2 + w * dy
-        d3, d4, d5 = d3 + w * xx, d4 + w * xy, d5 + w * yy
-        w = gy[q] * ey[q]
-        e0, e1, e2 = e0 + w, e1 + w * dx, e2 + w * dy
-        e3, e4, e5 = e3 + w * xx, e4 + w * xy, e5 + w * yy
+    a0, a1, a2, a3, a4, a5, c0, c1, c2, c3, c4, c5 = _two_blocks(gx, ex, ey, dxs, dys, m)
+    d0, d1, d2, d3, d4, d5, e0, e1, e2, e3, e4, e5 = _two_blocks(gy, ex, ey, dxs, dys, m)
     _moment_block(H, 0, 0, a0, a1, a2, a3, a4, a5)
     _moment_block(H, 0, 3, c0, c1, c2, c3, c4, c5)
     _moment_block(H, 3, 0, d0, d1, d2, d3, d4, d5)
