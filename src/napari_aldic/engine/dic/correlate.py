@@ -34,7 +34,7 @@ from .quadtree import Refinement, build_quadtree, resolve_refinement
 from .regularise import gradient_noise_gain
 from .reliability import SubsetStats, Validity, image_noise
 from .result_quality import maps_job, probe_job, result_quality, speckle_job
-from .static import flag_static_features, prefetch_static
+from .static import flag_static_features, prefetch_static, prefetch_static_deformed
 from .subsets import SubsetMasks, split_subsets
 from .uncertainty_aldic import ADMMLinearisation
 
@@ -330,6 +330,7 @@ def _analyse(im: Images, roi, grid: NodeGrid, qmesh, params: DICParams, timing: 
         if params.method == "aldic":
             def probes_ahead():
                 _prefetch_probes(im, inputs, speckle[0], params.mu)
+    prefetch_static_deformed(im)  # queued after the jobs needed more
     validity = _validity(im, roi, grid, sub, params, timing)
     p, zncc, iters, reason, evidence = solve_local(im, roi, grid, sub, params, timing, report,
                                                    validity, guess=guess)

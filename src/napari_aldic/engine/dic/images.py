@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +19,12 @@ from .interpolation import (
     steepest_descent_gradients,
 )
 
-__all__ = ["Images", "prepare_images"]
+__all__ = ["Images", "prepare_images", "RUNNING_WAIT"]
+
+#: seconds :meth:`Images.memo` waits for a job the background thread has
+#: started before computing it in place (at 1024² a job still running when
+#: needed was computed twice in 2-3 runs of 6)
+RUNNING_WAIT = 0.25
 
 
 @dataclass
@@ -54,9 +59,14 @@ class Images:
         if keep and self.ref_cache is not None and key in self.ref_cache:
             return self.ref_cache[key]
         job = self.pending.pop(key, None)
-        # not done yet (a loaded machine starves the low-priority thread), or
-        # failed there (e.g. a job built on another that memo claimed and
-        # cancelled first): computed here rather than waited for
+        if job is not None and job.running():
+            # started: usually near its end (the jobs take 0.02-0.1 s at
+            # 1024²), and computing it here as well costs all of it twice
+            # over; a while only, as a loaded machine starves the thread
+            wait([job], timeout=RUNNING_WAIT)
+        # not done yet (not started, or starved), or failed there (e.g. a job
+        # built on another that memo claimed and cancelled first): computed
+        # here rather than waited for
         usable = (job is not None and job.done() and not job.cancelled()
                   and job.exception() is None)
         value = job.result() if usable else compute()
@@ -71,8 +81,9 @@ class Images:
         of ``key`` (unless it is kept already; nothing without a background
         thread; ``keep`` as for :meth:`memo`): work on the images alone that
         overlaps the analysis, on a core its serial stages leave idle (the
-        thread runs at a low priority; what it has not finished when needed
-        is computed there and then, so it never holds the analysis up)."""
+        thread runs at a low priority; what it has not started when needed
+        is computed there and then, what it has started is waited for up to
+        :data:`RUNNING_WAIT`, so it never holds the analysis up for long)."""
         if self.background is None or key in self.pending:
             return
         if self.ref_cache is None or key not in self.ref_cache or not keep:

@@ -251,14 +251,24 @@ def _peaks_key(roi, grid, sub, params) -> tuple:
 
 def prefetch_static(im, roi, grid, sub, params) -> None:
     """Start the tests' work on the reference alone on ``im``'s background
-    thread: the flat-pixel windows of ``f``, and the tiles' candidate lags
-    with the autocorrelation peaks of every usable node's subset
-    (:func:`ambiguity` then reads those of the nodes it tests)."""
+    thread (the deformed image's: :func:`prefetch_static_deformed`): the
+    flat-pixel windows of ``f``, and the tiles' candidate lags with the
+    autocorrelation peaks of every usable node's subset (:func:`ambiguity`
+    then reads those of the nodes it tests)."""
     im.prefetch(("flat_var",), lambda: _window_var(im.f))
-    im.prefetch(("flat_var_g",), lambda: _window_var(im.g), keep=False)
     im.prefetch(_peaks_key(roi, grid, sub, params),
                 lambda: _peak_heights(im, roi, grid, sub, sub.reason == Reason.OK, params,
                                       serial=True))
+
+
+def prefetch_static_deformed(im) -> None:
+    """Start the flat-pixel windows of the deformed image on ``im``'s
+    background thread, never kept for the next pair. Queued after the jobs
+    the analysis needs more (the reference's, the quality's): if the thread
+    has not started it when the tests need it, it is computed there (0.024 s
+    at 1024²); queued before them, it made those late (a speckle job computed
+    twice in 2 runs of 6)."""
+    im.prefetch(("flat_var_g",), lambda: _window_var(im.g), keep=False)
 
 
 def _peak_heights(im, roi, grid, sub, active, params, serial: bool = False) -> np.ndarray:
