@@ -98,3 +98,28 @@ def test_anchor_spacing_is_validated():
     p = DICParams(subset=31, step=8)  # coarse spacing 64
     assert p.resolved_anchor_spacing() == 256
     assert DICParams(anchor_spacing=200).resolved_anchor_spacing() == 192
+
+
+def test_coarse_nodes_search_8px_around_the_prediction_first(translation_strain, monkeypatch):
+    """The coarse nodes centred on their anchors' prediction search ±8 px first
+    (``PREDICTED_SEARCH``, an FFT of 48² instead of 72²), the anchors the
+    full ``search``; the result is the same as with the full first range."""
+    import napari_aldic.engine.dic.local as L
+
+    field, ref, dfm = translation_strain
+    ranges = []
+    real = L.ncc_search_widening
+
+    def spy(f, g, xs, ys, half, search, *a, **k):
+        ranges.append((xs.size, search, k.get("cu") is not None))
+        return real(f, g, xs, ys, half, search, *a, **k)
+    monkeypatch.setattr(L, "ncc_search_widening", spy)
+    res = correlate(ref, dfm, subset=31, step=8)
+    anchors, coarse = ranges[0], ranges[1]
+    assert anchors[1] == 20 and not anchors[2]
+    assert coarse[1] == L.PREDICTED_SEARCH == 8 and coarse[2] and coarse[0] > 4 * anchors[0]
+    monkeypatch.setattr(L, "PREDICTED_SEARCH", 20)
+    wide = correlate(ref, dfm, subset=31, step=8)
+    assert np.array_equal(res.valid, wide.valid)
+    assert np.abs(res.u - wide.u)[res.valid].max() < 1e-4
+    assert np.abs(res.v - wide.v)[res.valid].max() < 1e-4
