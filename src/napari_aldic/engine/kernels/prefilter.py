@@ -49,25 +49,29 @@ def _horizon(z):
 
 
 @nb.njit(**INLINE)
-def _causal_start(line, n, z):
-    """``c+[0]`` of one line for the pole ``z`` (mirror boundary)."""
+def _start_weights(z, n):
+    """Weights ``w`` of the causal start ``c+[0] = sum_k w[k] s[k]`` of a line
+    of ``n`` samples for the pole ``z`` (mirror boundary): ``z^k`` up to the
+    horizon, or on shorter lines the exact sum over the mirrored line, whose
+    period is ``2n - 2``."""
     horizon = _horizon(z)
     if horizon < n:
-        s = 0.0
+        w = np.empty(horizon)
         zk = 1.0
         for k in range(horizon):
-            s += zk * line[k]
+            w[k] = zk
             zk *= z
-        return s
-    # exact: the mirrored line has period 2n - 2
+        return w
+    w = np.empty(n)
     zn = z ** (n - 1)
-    z2n = zn * zn
-    s = line[0] + zn * line[n - 1]
+    scale = 1.0 / (1.0 - zn * zn)
+    w[0] = scale
+    w[n - 1] = zn * scale
     zk = z
     for k in range(1, n - 1):
-        s += (zk + z2n / zk) * line[k]
+        w[k] = (zk + zn * zn / zk) * scale
         zk *= z
-    return s / (1.0 - zn * zn)
+    return w
 
 
 @nb.njit(**INLINE)
@@ -79,7 +83,11 @@ def filter_line(line, n, poles, gain):
     for k in range(n):
         line[k] *= gain
     for z in poles:
-        line[0] = _causal_start(line, n, z)
+        w = _start_weights(z, n)
+        s = 0.0
+        for k in range(w.size):
+            s += w[k] * line[k]
+        line[0] = s
         for k in range(1, n):
             line[k] += z * line[k - 1]
         line[n - 1] = z / (z * z - 1.0) * (line[n - 1] + z * line[n - 2])
@@ -99,27 +107,12 @@ def filter_cols(a, poles, gain):
             a[k, i] *= gain
     start = np.empty(m)
     for z in poles:
-        horizon = _horizon(z)
-        if horizon < n:
+        w = _start_weights(z, n)
+        for i in range(m):
+            start[i] = w[0] * a[0, i]
+        for k in range(1, w.size):
             for i in range(m):
-                start[i] = 0.0
-            zk = 1.0
-            for k in range(horizon):
-                for i in range(m):
-                    start[i] += zk * a[k, i]
-                zk *= z
-        else:
-            zn = z ** (n - 1)
-            for i in range(m):
-                start[i] = a[0, i] + zn * a[n - 1, i]
-            zk = z
-            for k in range(1, n - 1):
-                wk = zk + zn * zn / zk
-                for i in range(m):
-                    start[i] += wk * a[k, i]
-                zk *= z
-            for i in range(m):
-                start[i] /= 1.0 - zn * zn
+                start[i] += w[k] * a[k, i]
         for i in range(m):
             a[0, i] = start[i]
         for k in range(1, n):
