@@ -191,8 +191,9 @@ class _State:
         cu = cv = None
         if centre is not None:
             cu, cv = np.rint(centre).astype(np.int64).T
-        first = min(prm.search, top) if centre is None else min(prm.search, PREDICTED_SEARCH,
-                                                                 top)
+        first = min(prm.search, top)
+        if centre is not None:
+            first = min(first, PREDICTED_SEARCH)
         res = ncc_search_widening(im.f, im.g, grid.x[nodes], grid.y[nodes], prm.half,
                                   first, top, masks, accept=accept, cu=cu, cv=cv)
         self.beyond[nodes] = (res.search >= top) & (res.on_border | ~(res.peak >= accept))

@@ -97,7 +97,7 @@ def median_test_at(nodes: np.ndarray, u: np.ndarray, v: np.ndarray, trusted: np.
     read, the same flags as a test of every node at those nodes (``kw``: as
     :func:`median_test`)."""
     rows = neighbours[nodes]
-    rest = np.setdiff1d(rows[rows >= 0], nodes, assume_unique=False)
+    rest = np.setdiff1d(rows[rows >= 0], nodes)
     order = np.concatenate([nodes, rest])
     local = np.full(u.size + 1, -1, np.int64)  # index -1 (no neighbour) stays -1
     local[order] = np.arange(order.size)

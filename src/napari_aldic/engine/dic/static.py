@@ -336,9 +336,9 @@ def _flat_pixels(f, g, roi, image_var: float, f_var=None, g_var=None) -> np.ndar
     local contrast (:data:`FLAT_CONTRAST` of the 75th percentile). The second
     condition keeps speckle under heavy noise (whose windows are not much
     above the noise either) from counting as flat: a static region stands
-    out from the speckle around it, noise does not. ``f_var``, ``g_var``: the
-    windows' variance of ``f`` and ``g`` (:func:`_window_var`), or callables
-    that return them (computed only when needed)."""
+    out from the speckle around it, noise does not. ``f_var``, ``g_var``:
+    callables that return the windows' variance of ``f`` and ``g``
+    (:func:`_window_var`; default: computed here), called only when needed."""
     thr2 = (FLAT_NOISE * np.sqrt(image_var) + FLAT_GL) ** 2
     roi = np.asarray(roi, bool)
     whole = roi.all()
@@ -346,7 +346,7 @@ def _flat_pixels(f, g, roi, image_var: float, f_var=None, g_var=None) -> np.ndar
     for a, var in ((f, f_var), (g, g_var)):
         if not flat.any():  # speckle: the reference alone shows nothing flat
             break
-        var = _window_var(a) if var is None else var() if callable(var) else var
+        var = _window_var(a) if var is None else var()
         flat &= var <= thr2
         if flat.any() and not _typical_at_least(var, roi, whole, thr2 / FLAT_CONTRAST ** 2):
             typical = np.percentile(var if whole else var[roi], 75)
@@ -411,7 +411,7 @@ def static_edges(im, roi, grid, sub, p, cand, image_var: float, std, params) -> 
     out = np.zeros(grid.n, bool)
     h, size = params.half, params.subset
     flat = _flat_pixels(im.f, im.g, roi, image_var,
-                        im.memo(("flat_var",), lambda: _window_var(im.f)),
+                        lambda: im.memo(("flat_var",), lambda: _window_var(im.f)),
                         lambda: im.memo(("flat_var_g",), lambda: _window_var(im.g), keep=False))
     if not flat.any():
         return out
