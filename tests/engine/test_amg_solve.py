@@ -113,3 +113,37 @@ def test_factor_copied_ahead_is_the_same_and_let_go():
     np.testing.assert_array_equal(ahead.solve(b), s.triangular().solve(b))
     np.testing.assert_allclose(A @ ahead.solve(b), b, atol=1e-9)
     linear_solvers.SPDSolver(A, "jacobi", 1e-8).triangular_ahead()  # no factor: nothing
+
+
+def test_triangular_solve_with_the_diagonal_anywhere_in_its_column():
+    """``TriangularSolver`` moves each column's diagonal entry to where the
+    compiled solve reads it (first in ``L``, last in ``U``): whatever order a
+    factor stores its columns in, the solves agree bit for bit, and with
+    SciPy's dense triangular solves to rounding."""
+    import scipy.linalg as sla
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(3)
+    n = 120
+    L = sp.tril(sp.random(n, n, density=0.08, random_state=2), -1) + sp.diags(rng.uniform(1, 2, n))
+    U = sp.triu(sp.random(n, n, density=0.08, random_state=5), 1) + sp.diags(rng.uniform(1, 2, n))
+
+    def shuffled(M):  # the same matrix, each column's entries in a random order
+        M = M.tocsc()
+        order = np.concatenate([lo + rng.permutation(hi - lo)
+                                for lo, hi in zip(M.indptr[:-1], M.indptr[1:])])
+        return sp.csc_matrix((M.data[order], M.indices[order], M.indptr), shape=M.shape)
+
+    class Factor:  # what TriangularSolver reads of a SuperLU object
+        def __init__(self, L, U):
+            self.L, self.U = L, U
+            self.perm_r = self.perm_c = np.arange(n)
+
+    b = rng.standard_normal((n, 5))
+    x1 = linear_solvers.TriangularSolver(Factor(L, U)).solve(b)
+    x2 = linear_solvers.TriangularSolver(Factor(shuffled(L), shuffled(U))).solve(b)
+    np.testing.assert_array_equal(x1, x2)
+    dense = sla.solve_triangular(U.toarray(), sla.solve_triangular(L.toarray(), b, lower=True))
+    np.testing.assert_allclose(x1, dense, rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="diagonal"):
+        linear_solvers.TriangularSolver(Factor(sp.tril(L, -1).tocsc(), U))

@@ -173,7 +173,8 @@ class TriangularSolver:
     0.2-0.4 s there and 3 ms here (equal to rounding)."""
 
     def __init__(self, lu):
-        self.L, self.U = lu.L.tocsc(), lu.U.tocsc()
+        self.L = _diagonal_at(lu.L.tocsc(), first=True)
+        self.U = _diagonal_at(lu.U.tocsc(), first=False)
         self.perm_r, self.perm_c = lu.perm_r, lu.perm_c
 
     def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None,
@@ -200,3 +201,23 @@ class TriangularSolver:
     def _solve(self, x: np.ndarray) -> None:
         for f, lower in ((self.L, True), (self.U, False)):
             triangular_solve(f.indptr, f.indices, f.data, x, lower)
+
+
+def _diagonal_at(M: sp.csc_matrix, first: bool) -> sp.csc_matrix:
+    """``M`` (a square triangular factor in CSC, every diagonal entry stored)
+    with each column's diagonal entry swapped into its first (``first``) or
+    last slot, in place, as :func:`~..kernels.cg.triangular_solve` expects
+    (SuperLU's factors come so already). Within a column every entry updates
+    another row, so their order does not change the solution."""
+    n = M.shape[1]
+    cols = np.repeat(np.arange(n), np.diff(M.indptr))
+    at = np.flatnonzero(M.indices == cols)
+    if at.size != n:
+        raise ValueError("triangular factor without a stored diagonal entry in every column")
+    slot = M.indptr[:-1] if first else M.indptr[1:] - 1
+    move = at != slot
+    if move.any():
+        a, b = at[move], slot[move]
+        for arr in (M.indices, M.data):
+            arr[a], arr[b] = arr[b], arr[a].copy()
+    return M

@@ -326,18 +326,19 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
             raise
         late.set_result(np.nan_to_num(lap))
         both = job.result()
-    diff = both[..., :2]
-    resid = np.sum(diff**2, axis=2)
-    c = _risk_constants(tuple(lengths), step, subset, bias_length, curv_length)
-    cross = 2 * (np.einsum("nkc,nc->nk", diff, np.nan_to_num(lap))
-                 - np.where(np.isfinite(lap).all(axis=1), 1.0, 0.0)[:, None]
-                 * c["cross_noise"] * nvar[:, None])
-    plain = resid + cross + c["plain"] * nvar[:, None]
-    if curv_length is None:
-        return plain, None, gain
-    deconv = np.sum((diff - both[..., 2:]) ** 2, axis=2)
+    # per component on (N, K) planes: sums and einsum over the last axis of
+    # length 2 cost four times as much (the result is the same)
+    d0, d1 = both[..., 0], both[..., 1]
+    l0, l1 = (np.nan_to_num(lap[:, c])[:, None] for c in (0, 1))
     # nodes without a curvature estimate (edges) are not deconvolved
     has = np.isfinite(lap).all(axis=1)[:, None]
+    c = _risk_constants(tuple(lengths), step, subset, bias_length, curv_length)
+    cross = 2 * ((d0 * l0 + d1 * l1) - np.where(has, 1.0, 0.0) * c["cross_noise"] * nvar[:, None])
+    plain = d0 * d0 + d1 * d1 + cross + c["plain"] * nvar[:, None]
+    if curv_length is None:
+        return plain, None, gain
+    e0, e1 = d0 - both[..., 2], d1 - both[..., 3]
+    deconv = e0 * e0 + e1 * e1
     deconv_noise = np.where(has, c["deconv_noise"], c["undeconvolved_noise"])
     warp = deconv + (c["fixed_point"] - deconv_noise) * nvar[:, None]
     return plain, warp, gain

@@ -286,18 +286,21 @@ def window_mean(mesh: Q4Mesh, values: np.ndarray, step: float, sigma_px: float) 
     ix = np.rint((mesh.x - mesh.x.min()) / step).astype(np.int64)
     iy = np.rint((mesh.y - mesh.y.min()) / step).astype(np.int64)
     shape = (int(iy.max()) + 1, int(ix.max()) + 1)
+    cell = iy * shape[1] + ix
     s = sigma_px / step
-    out = np.full(values.shape, np.nan)
-    for j in range(values.shape[1]):
-        ok = np.isfinite(values[:, j])
-        num = np.zeros(shape)
-        den = np.zeros(shape)
-        np.add.at(num, (iy[ok], ix[ok]), values[ok, j])
-        np.add.at(den, (iy[ok], ix[ok]), 1.0)
-        num = ndi.gaussian_filter(num, s, mode="constant", truncate=2.5)
-        den = ndi.gaussian_filter(den, s, mode="constant", truncate=2.5)
-        d = den[iy, ix]
-        out[:, j] = np.where(d > 1e-3, num[iy, ix] / np.maximum(d, 1e-3), np.nan)
-    return out
-
-
+    ok = np.isfinite(values)
+    m = values.shape[1]
+    # the columns binned and filtered at once (a zero sigma leaves their axis
+    # alone); one count of values when they share their NaN
+    same = bool((ok == ok[:, :1]).all())
+    num = np.empty((m, *shape))
+    den = np.empty((1 if same else m, *shape))
+    for j in range(m):
+        num[j].flat = np.bincount(cell[ok[:, j]], values[ok[:, j], j], minlength=num[j].size)
+        if j < den.shape[0]:
+            den[j].flat = np.bincount(cell[ok[:, j]], minlength=num[j].size)
+    num = ndi.gaussian_filter(num, (0, s, s), mode="constant", truncate=2.5)
+    den = ndi.gaussian_filter(den, (0, s, s), mode="constant", truncate=2.5)
+    d = den.reshape(den.shape[0], -1)[:, cell].T
+    out = num.reshape(m, -1)[:, cell].T
+    return np.where(d > 1e-3, out / np.maximum(d, 1e-3), np.nan)

@@ -59,12 +59,47 @@ def _matvec(indptr, indices, data, x, out):
 
 
 @nb.njit(**CALLEE)
-def _dot(a, b, c):
-    """``a[:, c] · b[:, c]``, summed in order."""
-    s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i, c] * b[i, c]
-    return s
+def _matvec_dot(indptr, indices, data, x, out, xo):
+    """``out = A x`` as :func:`_matvec`, and ``xo[c] = x[:, c] · out[:, c]``
+    summed in row order as the rows are done (one pass fewer over ``x``)."""
+    k = x.shape[1]
+    for c in range(k):
+        xo[c] = 0.0
+    for i in range(out.shape[0]):
+        lo, hi = indptr[i], indptr[i + 1]
+        c = 0
+        while c + 4 <= k:
+            a0 = a1 = a2 = a3 = 0.0
+            for p in range(lo, hi):
+                v = data[p]
+                j = indices[p]
+                a0 += v * x[j, c]
+                a1 += v * x[j, c + 1]
+                a2 += v * x[j, c + 2]
+                a3 += v * x[j, c + 3]
+            out[i, c], out[i, c + 1], out[i, c + 2], out[i, c + 3] = a0, a1, a2, a3
+            xo[c] += x[i, c] * a0
+            xo[c + 1] += x[i, c + 1] * a1
+            xo[c + 2] += x[i, c + 2] * a2
+            xo[c + 3] += x[i, c + 3] * a3
+            c += 4
+        if c + 2 <= k:
+            a0 = a1 = 0.0
+            for p in range(lo, hi):
+                v = data[p]
+                j = indices[p]
+                a0 += v * x[j, c]
+                a1 += v * x[j, c + 1]
+            out[i, c], out[i, c + 1] = a0, a1
+            xo[c] += x[i, c] * a0
+            xo[c + 1] += x[i, c + 1] * a1
+            c += 2
+        if c < k:
+            a0 = 0.0
+            for p in range(lo, hi):
+                a0 += data[p] * x[indices[p], c]
+            out[i, c] = a0
+            xo[c] += x[i, c] * a0
 
 
 @nb.njit(**CACHED)
@@ -99,35 +134,40 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
     n, k = b.shape
     r = np.empty((n, k))
     _matvec(indptr, indices, data, x, r)
-    for i in range(n):
-        for c in range(k):
-            r[i, c] = b[i, c] - r[i, c]
     z = np.empty((n, k))
     p = np.empty((n, k))
     q = np.empty((n, k))
-    rho = np.empty(k)
+    rr = np.zeros(k)  # r·r, the stopping test
+    rho = np.zeros(k)  # r·z
+    pq = np.empty(k)
     rho_prev = np.ones(k)
     beta = np.empty(k)
     alpha = np.empty(k)
     active = np.ones(k, np.bool_)
+    # each pass over the vectors also takes the sums the next step needs (each
+    # sum still runs in row order, so the iterates are SciPy's to rounding)
+    for i in range(n):
+        for c in range(k):
+            ri = b[i, c] - r[i, c]
+            r[i, c] = ri
+            zi = dinv[i] * ri
+            z[i, c] = zi
+            rr[c] += ri * ri
+            rho[c] += ri * zi
     for c in range(k):
         iters[c] = maxiter
     for it in range(maxiter):
         left = 0
         for c in range(k):
-            if active[c] and np.sqrt(_dot(r, r, c)) < atol[c]:
+            if active[c] and np.sqrt(rr[c]) < atol[c]:
                 active[c] = False
                 iters[c] = it
             left += active[c]
         if left == 0:
             return
-        # a finished column takes no more steps (its p, q stay as they were)
-        for i in range(n):
-            for c in range(k):
-                z[i, c] = dinv[i] * r[i, c]
         for c in range(k):
-            rho[c] = _dot(r, z, c)
             beta[c] = rho[c] / rho_prev[c]  # once per column, not per element
+        # a finished column takes no more steps (its p, q stay as they were)
         for i in range(n):
             for c in range(k):
                 if not active[c]:
@@ -136,38 +176,52 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
                     p[i, c] = p[i, c] * beta[c] + z[i, c]
                 else:
                     p[i, c] = z[i, c]
-        _matvec(indptr, indices, data, p, q)
+        _matvec_dot(indptr, indices, data, p, q, pq)
         for c in range(k):
             if active[c]:
-                alpha[c] = rho[c] / _dot(p, q, c)
+                alpha[c] = rho[c] / pq[c]
                 rho_prev[c] = rho[c]
+            rr[c] = 0.0
+            rho[c] = 0.0
         for i in range(n):
             for c in range(k):
                 if active[c]:
                     x[i, c] += alpha[c] * p[i, c]
                     r[i, c] -= alpha[c] * q[i, c]
+                ri = r[i, c]
+                zi = dinv[i] * ri
+                z[i, c] = zi
+                rr[c] += ri * ri
+                rho[c] += ri * zi
 
 
 @nb.njit(**CACHED)
 def triangular_solve(indptr, indices, data, x, lower):
     """Solve ``L y = x`` (``lower``) or ``U y = x`` in place for the columns
-    of ``x`` (n, K) with a sparse triangular factor in CSC arrays (a SuperLU
-    factor's ``L`` or ``U``), column-oriented and in order on one thread:
-    the K right-hand sides of one row sit side by side, so each factor
-    entry is read once for all of them.
+    of ``x`` (n, K) with a sparse triangular factor in CSC arrays whose
+    diagonal entry is each column's first (``L``) or last (``U``) one (a
+    SuperLU factor's, :class:`~..dic.linear_solvers.TriangularSolver` puts
+    it there), column-oriented and in order on one thread: the K
+    right-hand sides of one row sit side by side, so each factor entry is
+    read once for all of them. The solved row is held apart while the
+    column's entries update the rows below (above) it: ``x[i]`` and
+    ``x[j]`` may alias as far as the compiler knows, which kept it
+    re-reading ``x[j]`` after every update.
     """
     n, k = x.shape
+    xj = np.empty(k)
     for step in range(n):
         j = step if lower else n - 1 - step
-        d = 0.0
-        for p in range(indptr[j], indptr[j + 1]):
-            if indices[p] == j:
-                d = data[p]
+        if lower:
+            diag, lo, hi = indptr[j], indptr[j] + 1, indptr[j + 1]
+        else:
+            diag, lo, hi = indptr[j + 1] - 1, indptr[j], indptr[j + 1] - 1
+        d = data[diag]
         for c in range(k):
-            x[j, c] /= d
-        for p in range(indptr[j], indptr[j + 1]):
+            xj[c] = x[j, c] / d
+            x[j, c] = xj[c]
+        for p in range(lo, hi):
             i = indices[p]
-            if i != j:
-                a = data[p]
-                for c in range(k):
-                    x[i, c] -= a * x[j, c]
+            a = data[p]
+            for c in range(k):
+                x[i, c] -= a * xj[c]
