@@ -273,3 +273,45 @@ def test_lattice_pcg_solves_the_smoother_where_the_symbol_is_only_approximate(le
     assert pcg_columns(A, b, f, diagonal, 1e-10, 5000) is not None
     assert jacobi[0] > 2.5 * calls[0]
     assert pcg_columns(A, b, f, M, 1e-10, 3) is None  # a cap it cannot meet: None
+
+
+def test_mesh_operators_built_once_when_threads_ask_at_once(monkeypatch):
+    """The smoothing choice's two threads ask for the same mesh operators at
+    the same moment: the second waits for the first one's build instead of
+    building them again (each did, 2 x 30 ms at 15k nodes); a build that
+    fails is not kept, so the next call builds again."""
+    import threading
+    import time
+
+    from napari_aldic.engine.dic import global_solve as GS
+
+    mesh = _mesh()
+    builds = []
+    real = GS._second_differences
+
+    def slow(m):
+        builds.append(threading.get_ident())
+        time.sleep(0.2)
+        return real(m)
+    monkeypatch.setattr(GS, "_second_differences", slow)
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(GS.second_difference_operators(mesh)))
+               for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(builds) == 1 and len(got) == 3
+    assert all(g is got[0] for g in got)
+
+    calls = []
+
+    def failing(m):
+        calls.append(1)
+        raise RuntimeError("no")
+    fresh = GS.Q4Mesh(mesh.x, mesh.y, mesh.elements)
+    monkeypatch.setattr(GS, "_second_differences", failing)
+    for _ in range(2):
+        with pytest.raises(RuntimeError):
+            GS.second_difference_operators(fresh)
+    assert len(calls) == 2
