@@ -315,3 +315,16 @@ def test_mesh_operators_built_once_when_threads_ask_at_once(monkeypatch):
         with pytest.raises(RuntimeError):
             GS.second_difference_operators(fresh)
     assert len(calls) == 2
+
+
+def test_mesh_with_its_operators_pickles():
+    """A mesh whose operators were built keeps them as plain values (a
+    cluster's workers receive meshes; an operator still being built is the
+    only Future in its store)."""
+    import pickle
+
+    mesh = _mesh()
+    T, _ = mesh.prolongation()
+    curvature_operator(mesh)
+    back = pickle.loads(pickle.dumps(mesh))
+    assert (back.prolongation()[0] != T).nnz == 0

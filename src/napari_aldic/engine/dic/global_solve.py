@@ -88,6 +88,15 @@ class Q4Mesh:
         (built once per mesh; not to be modified)."""
         return _cached(self, "prolongation", _prolongation)
 
+    def reduced(self, A: sp.spmatrix) -> sp.csr_matrix:
+        """``Tᵀ A T`` (CSR): the nodal operator ``A`` on the free nodes; on a
+        mesh without hanging nodes (``T`` the identity) ``A`` as it is, without
+        the two sparse products (11 ms for the curvature operator at 15k nodes)."""
+        if not self.hanging.size:
+            return A.tocsr()
+        T, _ = self.prolongation()
+        return (T.T @ A @ T).tocsr()
+
 
 def _prolongation(mesh: Q4Mesh) -> tuple[sp.csr_matrix, np.ndarray]:
     """:meth:`Q4Mesh.prolongation`, built."""
@@ -229,22 +238,29 @@ def _cached(mesh: Q4Mesh, key: str, build):
     global solver and the curvature estimate of one analysis share them).
     Threads that ask for one while another builds it wait for that build:
     the smoothing choice's two threads ask for the same operators at once,
-    and each built them (2 x 30 ms at 15k nodes)."""
+    and each built them (2 x 30 ms at 15k nodes). Only a build in progress
+    is a Future in the mesh's store (a mesh stays picklable)."""
     with _CACHE_LOCK:
         store = mesh.__dict__.setdefault("_operators", {})
-        job = store.get(key)
-        mine = job is None
+        entry = store.get(key)
+        mine = entry is None
         if mine:
-            job = store[key] = Future()
-    if mine:
-        try:
-            job.set_result(build(mesh))
-        except BaseException as exc:
-            with _CACHE_LOCK:  # not kept: the next call tries again
-                del store[key]
-            job.set_exception(exc)
-            raise
-    return job.result()
+            entry = store[key] = Future()
+    if not isinstance(entry, Future):
+        return entry
+    if not mine:
+        return entry.result()
+    try:
+        value = build(mesh)
+    except BaseException as exc:
+        with _CACHE_LOCK:  # not kept: the next call tries again
+            del store[key]
+        entry.set_exception(exc)
+        raise
+    with _CACHE_LOCK:
+        store[key] = value
+    entry.set_result(value)
+    return value
 
 
 def _axis_neighbours(mesh: Q4Mesh) -> np.ndarray:
@@ -379,12 +395,12 @@ class CurvatureEstimator:
         n = mesh.n_nodes
         self.T, self.free = mesh.prolongation() if T is None else (T, free)
         Dxx, Dyy, Dxy, hx, hy = second_difference_operators(mesh)
-        K = self.T.T @ curvature_operator(mesh) @ self.T
+        K = mesh.reduced(curvature_operator(mesh))
         wd = np.ones(n) if data is None else np.where(data, 1.0, UNTRUSTED_WEIGHT)
         self._Wd = self.T.T @ sp.diags(wd)
         # well conditioned (length ~ step): warm-started CG beats a factor
-        self._smoother = SPDSolver((self._Wd @ self.T + length**4 * K).tocsc(), "jacobi",
-                                    rtol=1e-6)
+        self._smoother = SPDSolver((mesh.reduced(sp.diags(wd)) + length**4 * K).tocsc(),
+                                   "jacobi", rtol=1e-6)
         self._factor = None  # TriangularSolver of this matrix (__call__'s direct)
         nb = _cached(mesh, "axis_neighbours", _axis_neighbours)
         e = mesh.elements

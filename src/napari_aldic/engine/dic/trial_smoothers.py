@@ -96,8 +96,8 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     a factor by AMG-CG warm-started from the previous length (4 digits
     suffice)."""
     T, free = mesh.prolongation()
-    KtK = (T.T @ curvature_operator(mesh) @ T).tocsr()
-    Wd = (T.T @ sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)) @ T).tocsr()
+    KtK = mesh.reduced(curvature_operator(mesh))
+    Wd = mesh.reduced(sp.diags(np.where(keep, 1.0, UNTRUSTED_WEIGHT)))
     diag = np.maximum(Wd.diagonal(), UNTRUSTED_WEIGHT)[:, None]
     trials = [k for k, ell in enumerate(lengths) if ell != 0]
     first = np.where(keep[:, None], fields, np.nan)
