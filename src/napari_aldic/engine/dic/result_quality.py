@@ -8,6 +8,9 @@ them (:func:`~.uncertainty_aldic.probe_maps`)."""
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
 import numpy as np
 
 from ..core.files import array_digest
@@ -39,7 +42,7 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
     q = quality() if memo is None else memo(key, quality)
     out = {"sssig": q.sssig, "mig": q.mig, "u_std": None, "v_std": None}
     if zncc is not None:
-        s = node_uncertainty(q, zncc, u, v, grad, order)
+        gain = None
         if aldic is not None:
             base, project = _projector(sd_images, roi, xi, yi, subset, shape_function)
             if memo is not None:  # the probes may have been summed ahead (probe_job)
@@ -55,9 +58,31 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
                 return probe_maps(q, project(np.random.default_rng(aldic.seed), aldic.probes),
                                   aldic.mu)
             mkey = maps_key(key, pkey, aldic.mu)
-            s = s * aldic_gain(q, project, aldic, maps() if memo is None else memo(mkey, maps))
+
+            def gain():
+                return aldic_gain(q, project, aldic, maps() if memo is None else memo(mkey, maps))
+        if gain is None:
+            s = node_uncertainty(q, zncc, u, v, grad, order)
+        else:
+            g, s = _beside(gain, lambda: node_uncertainty(q, zncc, u, v, grad, order))
+            s = s * g
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
+
+
+def _beside(first, second) -> tuple:
+    """``(first(), second())``, the two side by side: the AL-DIC gain's probes
+    leave a core idle a third of their time, the Local model's uncertainty
+    fills it (the results do not depend on it)."""
+    threads = numba.get_num_threads()  # the run's (a new thread sees Numba's default)
+
+    def run():
+        numba.set_num_threads(threads)
+        return first()
+    with ThreadPoolExecutor(1) as aside:
+        job = aside.submit(run)
+        other = second()
+    return job.result(), other
 
 
 def speckle_job(f, gradients, order: int, roi, x, y, subset: int, shape_function="affine",
