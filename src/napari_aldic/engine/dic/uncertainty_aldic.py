@@ -219,7 +219,7 @@ def _propagate(solver: BatchSolver, lin: ADMMLinearisation, dp0: np.ndarray, b_t
     uh, vh = solver.solve(g0, W, u, v, vu, vv)
     act = lin.active[:, None]
     out = ~lin.solver.covered
-    for _ in range(lin.iterations):
+    for it in range(lin.iterations):
         F = solver.gradients(uh, vh)
         F[out] = g0[out]
         r = b_t + pen[:, None, None] * np.stack([uh + vu, vh + vv], axis=1)
@@ -231,9 +231,10 @@ def _propagate(solver: BatchSolver, lin: ADMMLinearisation, dp0: np.ndarray, b_t
         u = np.where(act, uv[:, 0], u)
         v = np.where(act, uv[:, 1], v)
         uh, vh = solver.solve(F, W, u, v, vu, vv)
-        W += solver.gradients(uh, vh) - F
-        vu += uh - u
-        vv += vh - v
+        if it + 1 < lin.iterations:  # the multipliers of a next iteration
+            W += solver.gradients(uh, vh) - F
+            vu += uh - u
+            vv += vh - v
     return uh, vh
 
 
