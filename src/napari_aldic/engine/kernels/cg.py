@@ -22,46 +22,13 @@ __all__ = ["jacobi_cg", "triangular_solve"]
 
 
 @nb.njit(**CALLEE)
-def _matvec(indptr, indices, data, x, out):
-    """``out = A x`` for CSR arrays and the columns of ``x`` (n, K), row by
-    row. Each column's sum runs in order in its own scalar accumulator, four
-    (or two) columns per pass over the row: one column's sum is a chain of
-    dependent additions, several interleave."""
-    k = x.shape[1]
-    for i in range(out.shape[0]):
-        lo, hi = indptr[i], indptr[i + 1]
-        c = 0
-        while c + 4 <= k:
-            a0 = a1 = a2 = a3 = 0.0
-            for p in range(lo, hi):
-                v = data[p]
-                j = indices[p]
-                a0 += v * x[j, c]
-                a1 += v * x[j, c + 1]
-                a2 += v * x[j, c + 2]
-                a3 += v * x[j, c + 3]
-            out[i, c], out[i, c + 1], out[i, c + 2], out[i, c + 3] = a0, a1, a2, a3
-            c += 4
-        if c + 2 <= k:
-            a0 = a1 = 0.0
-            for p in range(lo, hi):
-                v = data[p]
-                j = indices[p]
-                a0 += v * x[j, c]
-                a1 += v * x[j, c + 1]
-            out[i, c], out[i, c + 1] = a0, a1
-            c += 2
-        if c < k:
-            a0 = 0.0
-            for p in range(lo, hi):
-                a0 += data[p] * x[indices[p], c]
-            out[i, c] = a0
-
-
-@nb.njit(**CALLEE)
 def _matvec_dot(indptr, indices, data, x, out, xo):
-    """``out = A x`` as :func:`_matvec`, and ``xo[c] = x[:, c] · out[:, c]``
-    summed in row order as the rows are done (one pass fewer over ``x``)."""
+    """``out = A x`` for CSR arrays and the columns of ``x`` (n, K), row by
+    row, and ``xo[c] = x[:, c] · out[:, c]`` summed in row order as the rows
+    are done (CG's ``p·q`` without another pass). Each column's sum runs in
+    order in its own scalar accumulator, four (or two) columns per pass over
+    the row: one column's sum is a chain of dependent additions, several
+    interleave."""
     k = x.shape[1]
     for c in range(k):
         xo[c] = 0.0
@@ -133,13 +100,13 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
     """
     n, k = b.shape
     r = np.empty((n, k))
-    _matvec(indptr, indices, data, x, r)
+    pq = np.empty(k)
+    _matvec_dot(indptr, indices, data, x, r, pq)  # r = A x (one kernel: compile time)
     z = np.empty((n, k))
     p = np.empty((n, k))
     q = np.empty((n, k))
     rr = np.zeros(k)  # r·r, the stopping test
     rho = np.zeros(k)  # r·z
-    pq = np.empty(k)
     rho_prev = np.ones(k)
     beta = np.empty(k)
     alpha = np.empty(k)
