@@ -138,24 +138,7 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
         by_cg = sorted(short + spectral)
         cg = _CGSmoother(Wd, KtK, lengths, columns, late is not None, factor, solve,
                          by_cg[0] if by_cg else None)
-        # the long lengths' factors are independent and SuperLU releases the GIL:
-        # side by side (each freed once its solve is done);
-        # the shortest length's CG goes first, on the fields alone (it tells
-        # whether CG converges here, while the caller computes the late
-        # columns); the other lengths' CG fills the cores after the factors,
-        # longest first, on all columns at once (a CG pass costs about as much
-        # with four columns as with two: 36 against 86 ms for the 1024² pair's
-        # 0.7-spacing length in two halves); the shortest's late columns last
-        split = by_cg[:SPLIT_LENGTHS]
-        jobs = ([("cg", k) for k in split] + [("factor", k) for k in long]
-                + [("whole", k) for k in by_cg[:len(split) - 1:-1]]
-                + [("late", k) for k in split])
-        run = {"cg": cg.first_columns, "factor": factor, "whole": cg.whole,
-               "late": cg.late_columns}
-        # a job waits only on jobs listed before it: any number of workers is safe
-        done = side_by_side(lambda job: run[job[0]](job[1]), jobs, workers)
-        found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
-        sols = [found[k] for k in trials]
+        sols = _side_by_side(cg, factor, by_cg, long, trials, workers)
     else:
         sols = []
         for k in trials:
@@ -166,6 +149,31 @@ def trial_residuals(mesh: Q4Mesh, fields: np.ndarray, keep, lengths, step: float
     for k, sol in zip(trials, sols):
         out[keep, k] = ((T @ sol) - full)[keep]
     return out
+
+
+def _side_by_side(cg: _CGSmoother, factor, by_cg: list, long: list, trials: list,
+                  workers: int) -> list:
+    """The solutions of the ``trials`` lengths, ``by_cg`` by CG (``cg``) and
+    ``long`` by their factors, as jobs on ``workers`` threads.
+
+    The long lengths' factors are independent and SuperLU releases the GIL:
+    side by side (each freed once its solve is done). The shortest length's
+    CG goes first, on the fields alone (it tells whether CG converges here),
+    with the second shortest beside it while the caller computes the late
+    columns; the other lengths' CG fills the cores after the factors, longest
+    first, on all columns at once (a CG pass costs about as much with four
+    columns as with two: 36 against 86 ms for the 1024² pair's 0.7-spacing
+    length in two halves); the late columns of the two shortest go last."""
+    split = by_cg[:SPLIT_LENGTHS]
+    jobs = ([("cg", k) for k in split] + [("factor", k) for k in long]
+            + [("whole", k) for k in by_cg[:len(split) - 1:-1]]
+            + [("late", k) for k in split])
+    run = {"cg": cg.first_columns, "factor": factor, "whole": cg.whole,
+           "late": cg.late_columns}
+    # a job waits only on jobs listed before it: any number of workers is safe
+    done = side_by_side(lambda job: run[job[0]](job[1]), jobs, workers)
+    found = {k: x for (_, k), x in zip(jobs, done) if x is not None}
+    return [found[k] for k in trials]
 
 
 class _CGSmoother:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .flags import CACHED, CALLEE
+from .flags import CACHED, CALLEE, INLINE
 
 __all__ = ["jacobi_cg", "triangular_solve"]
 
@@ -69,6 +69,28 @@ def _matvec_dot(indptr, indices, data, x, out, xo):
             xo[c] += x[i, c] * a0
 
 
+@nb.njit(**INLINE)
+def _advance(x, r, z, p, q, dinv, alpha, active, rr, rho):
+    """One pass of CG over the vectors: ``x += alpha p``, ``r -= alpha q`` in
+    the ``active`` columns, then in every column ``z = dinv r`` and the sums
+    the next step needs, ``rr = r·r`` and ``rho = r·z`` (each in row order, so
+    the iterates are SciPy's to rounding)."""
+    n, k = r.shape
+    for c in range(k):
+        rr[c] = 0.0
+        rho[c] = 0.0
+    for i in range(n):
+        for c in range(k):
+            if active[c]:
+                x[i, c] += alpha[c] * p[i, c]
+                r[i, c] -= alpha[c] * q[i, c]
+            ri = r[i, c]
+            zi = dinv[i] * ri
+            z[i, c] = zi
+            rr[c] += ri * ri
+            rho[c] += ri * zi
+
+
 @nb.njit(**CACHED)
 def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
     """Solve ``A x = b`` by conjugate gradients preconditioned with ``dinv``,
@@ -111,16 +133,10 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
     beta = np.empty(k)
     alpha = np.empty(k)
     active = np.ones(k, np.bool_)
-    # each pass over the vectors also takes the sums the next step needs (each
-    # sum still runs in row order, so the iterates are SciPy's to rounding)
     for i in range(n):
         for c in range(k):
-            ri = b[i, c] - r[i, c]
-            r[i, c] = ri
-            zi = dinv[i] * ri
-            z[i, c] = zi
-            rr[c] += ri * ri
-            rho[c] += ri * zi
+            r[i, c] = b[i, c] - r[i, c]
+    _advance(x, r, z, p, q, dinv, alpha, np.zeros(k, np.bool_), rr, rho)
     for c in range(k):
         iters[c] = maxiter
     for it in range(maxiter):
@@ -148,18 +164,7 @@ def jacobi_cg(indptr, indices, data, dinv, b, x, atol, maxiter, iters):
             if active[c]:
                 alpha[c] = rho[c] / pq[c]
                 rho_prev[c] = rho[c]
-            rr[c] = 0.0
-            rho[c] = 0.0
-        for i in range(n):
-            for c in range(k):
-                if active[c]:
-                    x[i, c] += alpha[c] * p[i, c]
-                    r[i, c] -= alpha[c] * q[i, c]
-                ri = r[i, c]
-                zi = dinv[i] * ri
-                z[i, c] = zi
-                rr[c] += ri * ri
-                rho[c] += ri * zi
+        _advance(x, r, z, p, q, dinv, alpha, active, rr, rho)
 
 
 @nb.njit(**CACHED)
