@@ -91,7 +91,8 @@ class Q4Mesh:
     def reduced(self, A: sp.spmatrix) -> sp.csr_matrix:
         """``Tᵀ A T`` (CSR): the nodal operator ``A`` on the free nodes; on a
         mesh without hanging nodes (``T`` the identity) ``A`` as it is, without
-        the two sparse products (11 ms for the curvature operator at 15k nodes)."""
+        the two sparse products (11 ms for the curvature operator at 15k nodes):
+        then possibly ``A`` itself (a cached operator), not to be modified."""
         if not self.hanging.size:
             return A.tocsr()
         T, _ = self.prolongation()
