@@ -45,7 +45,7 @@ each get their own smoothing (per-node weights of the thin-plate term).
 from __future__ import annotations
 
 import functools
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numba
@@ -60,6 +60,7 @@ from .global_solve import (
     solver_method,
 )
 from .reliability import displacement_variance, subset_statistics
+from .threads import beside
 from .trial_smoothers import (
     FILL_SIGMA,
     SMOOTHING_THREADS,
@@ -313,19 +314,18 @@ def _node_risks(mesh: Q4Mesh, u, v, keep, noise_var, step, subset, lengths, curv
     # the trial smoothers factorise (they need only the mesh and the weights)
     # while this thread estimates the bias, their third field
     late = Future()
-    with ThreadPoolExecutor(1) as aside:
-        # the run's threads, read here (a new thread sees Numba's default)
-        workers = max(SMOOTHING_THREADS, numba.get_num_threads())
-        job = aside.submit(trial_residuals, mesh, np.column_stack([u, v]), keep, lengths, step,
-                           late, workers)
+    workers = max(SMOOTHING_THREADS, numba.get_num_threads())
+
+    def bias():  # hands its result (or failure) to the smoothers waiting for it
         try:
-            lap, gain = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset,
-                                            bias_length)
+            out = _undermatching_bias(mesh, u, v, keep, noise_var, step, subset, bias_length)
         except BaseException as exc:
             late.set_exception(exc)
             raise
-        late.set_result(np.nan_to_num(lap))
-        both = job.result()
+        late.set_result(np.nan_to_num(out[0]))
+        return out
+    both, (lap, gain) = beside(lambda: trial_residuals(mesh, np.column_stack([u, v]), keep,
+                                                       lengths, step, late, workers), bias)
     # per component on (N, K) planes: sums and einsum over the last axis of
     # length 2 cost four times as much (the result is the same)
     d0, d1 = both[..., 0], both[..., 1]

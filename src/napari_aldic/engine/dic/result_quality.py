@@ -8,13 +8,11 @@ them (:func:`~.uncertainty_aldic.probe_maps`)."""
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
-import numba
 import numpy as np
 
 from ..core.files import array_digest
 from .quality import SHAPE_TERMS, node_uncertainty, speckle_quality
+from .threads import beside
 from .uncertainty_aldic import aldic_gain, noise_projector, probe_maps
 
 __all__ = ["result_quality", "speckle_job", "probe_job", "probes_key", "maps_key", "maps_job"]
@@ -64,25 +62,11 @@ def result_quality(f, gradients, order: int, roi, x, y, subset: int, *, zncc, u,
         if gain is None:
             s = node_uncertainty(q, zncc, u, v, grad, order)
         else:
-            g, s = _beside(gain, lambda: node_uncertainty(q, zncc, u, v, grad, order))
+            # the probes leave a core idle a third of their time: the Local model fills it
+            g, s = beside(gain, lambda: node_uncertainty(q, zncc, u, v, grad, order))
             s = s * g
         out["u_std"], out["v_std"] = s[:, 0], s[:, 1]
     return out
-
-
-def _beside(first, second) -> tuple:
-    """``(first(), second())``, the two side by side: the AL-DIC gain's probes
-    leave a core idle a third of their time, the Local model's uncertainty
-    fills it (the results do not depend on it)."""
-    threads = numba.get_num_threads()  # the run's (a new thread sees Numba's default)
-
-    def run():
-        numba.set_num_threads(threads)
-        return first()
-    with ThreadPoolExecutor(1) as aside:
-        job = aside.submit(run)
-        other = second()
-    return job.result(), other
 
 
 def speckle_job(f, gradients, order: int, roi, x, y, subset: int, shape_function="affine",

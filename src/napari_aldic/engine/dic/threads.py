@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-__all__ = ["in_threads", "side_by_side", "TASKS_PER_THREAD"]
+__all__ = ["in_threads", "side_by_side", "beside", "TASKS_PER_THREAD"]
 
 #: ranges of items per thread (several: a range of slow items, e.g. nodes that
 #: hit the iteration cap, does not hold the others up)
@@ -50,3 +50,19 @@ def in_threads(kernel, items: int, *args, grain: int = 1) -> None:
     edges = np.linspace(0, items, tasks + 1).astype(np.int64)
     side_by_side(lambda ab: kernel(int(ab[0]), int(ab[1]), *args), zip(edges[:-1], edges[1:]),
                  min(numba.get_num_threads(), tasks))
+
+
+def beside(first, second) -> tuple:
+    """``(first(), second())``: ``first`` on a thread of its own while this
+    thread runs ``second``, with this thread's ``numba.get_num_threads()`` (the
+    run's; a new thread would see Numba's default). When ``second`` raises,
+    ``first`` is still waited for (it must not wait on ``second`` then)."""
+    threads = numba.get_num_threads()
+
+    def run():
+        numba.set_num_threads(threads)
+        return first()
+    with ThreadPoolExecutor(1) as aside:
+        job = aside.submit(run)
+        other = second()
+    return job.result(), other
