@@ -131,6 +131,14 @@ def test_window_mean_is_a_normalised_average():
     inner = (mesh.x > 40) & (mesh.x < 110)
     np.testing.assert_allclose(out[inner, 1], mesh.x[inner], atol=1e-6)  # linear: kept
     assert np.all(np.isnan(window_mean(mesh, np.full((mesh.n_nodes, 1), np.nan), 8, 8.0)))
+    # columns missing at the same nodes share one count of values: the same
+    # averages as each column alone
+    both = vals.copy()
+    both[::3, 1] = np.nan
+    out = window_mean(mesh, both, 8, 8.0)
+    np.testing.assert_allclose(out[:, 0], 3.0)
+    for j in range(2):
+        np.testing.assert_array_equal(out[:, j], window_mean(mesh, both[:, j:j + 1], 8, 8.0)[:, 0])
 
 
 def test_very_large_meshes_fall_back_to_one_length_from_a_window(monkeypatch):
