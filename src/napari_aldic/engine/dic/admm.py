@@ -48,9 +48,11 @@ CURVATURE_SMOOTHING = 0.5
 __all__ = ["ADMMState", "LocalStep", "run_admm", "image_local_step"]
 
 #: the ADMM local step: ``(start (n, 2), F (n, 4), target (n, 2), mu, active (n,),
-#: curvature (n, 6) or None, prior (n, 6) or None) -> (uv (n, 2), zncc, iterations,
-#: reason)`` for the ``active`` nodes (see :func:`~.icgn.icgn_solve_translation`;
-#: ``prior``: the targets and gradients the starts were optimal for)
+#: curvature (n, 6) or None, prior (n, 12) or None, settled (n,) or None) ->
+#: (uv (n, 2), zncc, iterations, reason)`` for the ``active`` nodes (see
+#: :func:`~.icgn.icgn_solve_translation`; ``prior``: the targets, gradients and
+#: curvatures the starts were optimal for; ``settled``: the starts that are
+#: sampled optima, whose prediction may be taken unsampled)
 LocalStep = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
@@ -61,10 +63,11 @@ def image_local_step(f, fgx, fgy, g_spline, nodes_x, nodes_y, slot, masks, half:
     gradients; ``lin``: the exact ones, :func:`~.icgn.icgn_solve`; ``slot,
     masks``: the subsets cut by the ROI)."""
 
-    def step(start, F, target, mu, active, curvature, prior=None):
+    def step(start, F, target, mu, active, curvature, prior=None, settled=None):
         return icgn_solve_translation(f, fgx, fgy, g_spline, nodes_x, nodes_y, start, F,
                                       target, mu, active, slot, masks, half, max_iter, tol,
-                                      curvature=curvature, lin=lin, prior=prior)
+                                      curvature=curvature, lin=lin, prior=prior,
+                                      settled=settled)
 
     return step
 
@@ -131,10 +134,12 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
     if second_order and noise_var is not None and subset is not None:
         gains = _noise_gains(smooth, CURVATURE_SMOOTHING * half, step, subset)
     grad = solver.gradients(uh, vh)
-    # the targets and gradients the local displacements are optimal for: the
-    # Local DIC result is the data term's own optimum (no penalty: its own
-    # target) with its own gradient
-    prior = np.column_stack([u, v, grad0])
+    # the targets, gradients and curvatures the local displacements are optimal
+    # for: the Local DIC result is the data term's own optimum (no penalty: its
+    # own target) with its own gradient and an affine warp; trusted Local
+    # results converged there (settled), the others are starts only
+    prior = np.column_stack([u, v, grad0, np.zeros((n, 6))])
+    settled = trusted.copy()
     for k in range(max_iter):
         if on_iteration is not None:
             on_iteration(k + 1)
@@ -146,13 +151,18 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
         t = time.perf_counter()
         curv = (_warp_curvature(solver, uh, vh, half, cut, gains, noise_var)
                 if second_order else None)
-        uv, zncc, iters, reason_k = local_step(start, F, target, mu, active, curv, prior)
+        uv, zncc_k, iters, reason_k = local_step(start, F, target, mu, active, curv, prior,
+                                                 settled)
         timing["local"] += time.perf_counter() - t
         ok = active & (reason_k == Reason.OK)
         # failed local steps keep the previous value (no new information)
         u = np.where(ok, uv[:, 0], u)
         v = np.where(ok, uv[:, 1], v)
-        prior = np.where(ok[:, None], np.column_stack([target, F]), prior)
+        prior = np.where(ok[:, None], np.column_stack(
+            [target, F, np.zeros((n, 6)) if curv is None else curv]), prior)
+        settled |= ok
+        # a prediction taken unsampled keeps the last ZNCC measured (NaN: Local's)
+        zncc = np.where(ok & np.isnan(zncc_k), zncc, zncc_k)
         reason = np.where(active, reason_k, reason).astype(np.int8)
         uh_new, vh_new, G = _global_step(solver, F, W, u, v, vu, vv, timing)
         history.append(_progress(k, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok))
@@ -236,10 +246,12 @@ def _warp_curvature(solver: GlobalSolver, uh, vh, half: int, cut, gains, noise_v
 
 def _progress(k: int, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok) -> dict:
     """History entry of ADMM iteration ``k``: the change of ``û`` (the
-    stopping criterion), the primal residual ``û - u`` on trusted nodes and
-    the mean local IC-GN iterations."""
+    stopping criterion), the primal residual ``û - u`` on trusted nodes, the
+    mean local IC-GN iterations and how many nodes took the linear prediction
+    unsampled (0 iterations)."""
     change = float(np.sqrt(np.mean((uh_new - uh) ** 2 + (vh_new - vh) ** 2)))
     gap = ((uh_new - u) ** 2 + (vh_new - v) ** 2)[trusted]
     primal = float(np.sqrt(np.mean(gap))) if gap.size else 0.0
     return {"iteration": k + 1, "uhat_change_px": change, "primal_residual_px": primal,
-            "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0}
+            "local_iterations_mean": float(iters[ok].mean()) if ok.any() else 0.0,
+            "local_predicted": int(np.count_nonzero(ok & (iters == 0)))}

@@ -194,9 +194,22 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
     return p, zn, it, rs
 
 
+#: a settled node takes the linear prediction of its local-step optimum without
+#: sampling when no sample moved more than this (px) from where the subset was
+#: optimal: the prediction's error then stays well under ``tol`` (measured on
+#: the 1024² pair, the OHT coupon and the crack: 99th percentile 1e-4 to
+#: 5e-4 px, benchmarks/RESULTS.md, "Eighteenth session")
+PREDICTION_REACH = 0.05
+#: ... and when that move, as a misfit of the subset (px, see
+#: ``reliability.Validity.misfit``), is at most half the global-mismatch
+#: test's tolerance (``reliability.GLOBAL_TOLERANCE``): the ZNCC a sample
+#: would measure could not fail that test
+PREDICTION_MISFIT = 0.1
+
+
 def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad, target,
                            mu, active, slot, masks, half, max_iter=40, tol=1e-3,
-                           curvature=None, lin=None, prior=None):
+                           curvature=None, lin=None, prior=None, settled=None):
     """AL-DIC local step: IC-GN on the displacement only, with the gradient fixed.
 
     Minimises, per node, ``SSD(u; F fixed) + mu' / 2 |u - target|^2`` where
@@ -215,13 +228,19 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
         added to the warp as ``0.5 dXᵀ ∇∇u dX``; None keeps the warp affine.
     lin : (egx, egy) or None
         Exact reference gradients (as :func:`icgn_solve`).
-    prior : (n, 6) or None
-        The penalty targets and gradients the starts were optimal for (the
-        previous ADMM iteration's; for a Local DIC start the start itself and
-        its own gradient): the iteration
+    prior : (n, 12) or None
+        The penalty targets, gradients and second derivatives the starts were
+        optimal for (the previous ADMM iteration's; for a Local DIC start the
+        start itself, its own gradient and zero curvature): the iteration
         then starts from the linear prediction of the new optimum (one
         sampled step fewer on most nodes; the converged result moves by
         less than ``tol``).
+    settled : (n,) bool or None
+        Nodes whose start is a sampled optimum for ``prior``: where the
+        prediction moves no sample more than ``PREDICTION_REACH`` (and
+        ``PREDICTION_MISFIT`` as a misfit), it is taken without sampling the
+        deformed image (0 iterations, ZNCC NaN: not measured again). None:
+        every node is sampled.
 
     Returns
     -------
@@ -229,8 +248,13 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
     """
     curv = (np.zeros((0, 6)) if curvature is None
             else np.ascontiguousarray(curvature, np.float64))
-    prior = np.zeros((0, 6)) if prior is None else np.ascontiguousarray(prior, np.float64)
+    prior = np.zeros((0, 12)) if prior is None else np.ascontiguousarray(prior, np.float64)
     n = nodes_x.size
+    if settled is None:
+        settled, reach = np.zeros(n, bool), (0.0, 0.0)
+    else:
+        settled, reach = np.ascontiguousarray(settled, bool), (PREDICTION_REACH,
+                                                                PREDICTION_MISFIT)
     check_masks(slot, masks, half, n)
     uv = np.array(uv_init, dtype=np.float64, copy=True)
     zn = np.full(n, np.nan)
@@ -241,6 +265,6 @@ def icgn_solve_translation(f, fgx, fgy, spline, nodes_x, nodes_y, uv_init, grad,
         icgn_translation, -(-n // status.CHUNK), f, fgx, fgy, egx, egy, spline.coef,
         spline.order, nodes_x, nodes_y,
         np.ascontiguousarray(uv_init, np.float64), np.ascontiguousarray(grad, np.float64), curv,
-        np.ascontiguousarray(target, np.float64), prior, float(mu), active, slot, masks,
-        int(half), int(max_iter), float(tol), uv, zn, it, rs)
+        np.ascontiguousarray(target, np.float64), prior, settled, reach, float(mu), active,
+        slot, masks, int(half), int(max_iter), float(tol), uv, zn, it, rs)
     return uv, zn, it, rs

@@ -43,6 +43,7 @@ from .translation import (
     curvature_offsets,
     penalty_system,
     predicted_start,
+    prediction_holds,
     translation_reference_sums,
     translation_step,
 )
@@ -348,8 +349,8 @@ def icgn_affine(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, p_init,
 # ------------------------------------------------------------- translation IC-GN
 @nb.njit(**SERIAL, fastmath=FASTMATH)
 def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv_init, grad, curv,
-                     target, prior, mu, active, slot, masks, h, max_iter, tol, uv_out, zncc_out,
-                     iters_out, reason_out):
+                     target, prior, settled, reach, mu, active, slot, masks, h, max_iter, tol,
+                     uv_out, zncc_out, iters_out, reason_out):
     """Penalised IC-GN of the displacement at the ``active`` nodes of chunks
     ``first`` to ``stop`` (AL-DIC; chunks as :func:`icgn_affine`).
 
@@ -362,7 +363,10 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
     on: the start is taken as the penalised optimum for the target ``prior``
     (so the data term's gradient there is that penalty's), and the step to
     the optimum for ``target`` is :func:`translation_step`'s with that
-    gradient. Most nodes then converge in one sampled step instead of two.
+    gradient. Most nodes then converge in one sampled step instead of two;
+    a ``settled`` node whose samples moved within ``reach`` of where they were
+    optimal takes the prediction with no sampled step at all
+    (:func:`prediction_holds`: 0 iterations, ZNCC NaN, i.e. not measured again).
 
     Parameters
     ----------
@@ -377,10 +381,17 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
         Second derivatives of the warp, or no rows for an affine warp.
     target : (n, 2) float64
         Penalty targets.
-    prior : (n, 6) or (0, 6) float64
-        The targets and gradients the starts were optimal for (a Local DIC
-        start: the start itself, no penalty, and its own gradient), or no
-        rows: start where ``uv_init`` says (:func:`predicted_start`).
+    prior : (n, 12) or (0, 12) float64
+        The targets, gradients and second derivatives the starts were
+        optimal for (a Local DIC start: the start itself, no penalty, its own
+        gradient and no curvature), or no rows: start where ``uv_init`` says
+        (:func:`predicted_start`).
+    settled : (n,) bool
+        Nodes whose start is an optimum found by sampling (within ``tol``);
+        only these may take the prediction unsampled.
+    reach : (float, float)
+        ``(px, misfit px)``: how far the samples may have moved for that
+        (:func:`prediction_holds`); ``(0, 0)``: always sample.
     mu : float
         Dimensionless penalty weight.
     uv_out, zncc_out, iters_out, reason_out : (n, 2), (n,), (n,), (n,)
@@ -418,8 +429,15 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
             node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
                     m11, det, target[k, 0], target[k, 1], u, v)
             if prior.shape[0] == n:
-                u, v = predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys,
-                                       m)
+                u, v, shift = predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey,
+                                              dxs, dys, m, qx, qy)
+                moved = shift + np.sqrt((u - start[0]) ** 2 + (v - start[1]) ** 2)
+                if settled[k] and prediction_holds(moved, h00, h01, h10, h11, reach[0],
+                                                   reach[1], x0, y0, u, v, grad, curv, k,
+                                                   quad, h, xmax, ymax):
+                    store_node(k, (u, v), np.nan, 0, OK, uv_out, zncc_out, iters_out,
+                               reason_out)
+                    continue
             status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1

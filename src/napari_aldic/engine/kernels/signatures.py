@@ -62,8 +62,9 @@ KERNELS: dict[str, tuple[str, ...]] = {
     # AL-DIC only
     "icgn.icgn_translation": (_sig(
         "int64", "int64", _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, _F32_2, "int64", _I64_1,
-        _I64_1, _F64_2, _F64_2, _F64_2, _F64_2, _F64_2, "float64", "boolean[::1]", _I32_1,
-        "uint8[:, :, ::1]", "int64", "int64", "float64", _F64_2, _F64_1, _I32_1, "int8[::1]"),),
+        _I64_1, _F64_2, _F64_2, _F64_2, _F64_2, _F64_2, "boolean[::1]", "UniTuple(float64, 2)",
+        "float64", "boolean[::1]", _I32_1, "uint8[:, :, ::1]", "int64", "int64", "float64",
+        _F64_2, _F64_1, _I32_1, "int8[::1]"),),
     "cg.jacobi_cg": (_sig(_I32_1, _I32_1, _F64_1, _F64_1, _F64_2, _F64_2, _F64_1, "int64",
                           _I64_1),),
     "cg.triangular_solve": (_sig(_I32_1, _I32_1, _F64_1, _F64_2, "boolean"),),

@@ -3,9 +3,11 @@ IC-GN of a subset's displacement with its gradient held fixed and a penalty
 towards the global field. The reference sums are built once per node
 (:func:`translation_reference_sums`), the penalised 2 x 2 system once
 (:func:`penalty_system`); the start is moved to the linear prediction of the
-optimum (:func:`predicted_start`), then :func:`translation_step` samples the
-deformed image until the update is below ``tol``. The second-order warp adds
-fixed offsets to the subset (:func:`curvature_offsets`).
+optimum (:func:`predicted_start`), which a node whose samples barely moved
+takes as its solution (:func:`prediction_holds`); the others go on with
+:func:`translation_step`, sampling the deformed image until the update is
+below ``tol``. The second-order warp adds fixed offsets to the subset
+(:func:`curvature_offsets`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import numpy as np
 from .flags import FASTMATH, INLINE
 from .gauss_newton import DIVERGED, NOT_CONVERGED, OK, gn_step
 
-__all__ = ["translation_reference_sums", "predicted_start", "curvature_offsets",
+__all__ = ["translation_reference_sums", "predicted_start", "prediction_holds",
+           "curvature_offsets",
            "penalty_system", "translation_step"]
 
 
@@ -62,34 +65,83 @@ def translation_reference_sums(gx, gy, ex, ey, fs, m, fm):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys, m):
+def predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys, m, qx, qy):
     """The start moved one linear step, to the predicted penalised optimum.
 
     ``(u, v)`` was optimal for the target ``prior[k, :2]`` with the gradient
-    ``prior[k, 2:]``: there the data term's gradient was ``pen Aᵀ (u - prior)``.
-    Holding the subset at the new gradient moves the warped samples by
-    ``δF dx``, which changes it by about ``-Σ J ∇fᵀ δF dx`` (the first
-    moments of the subset). :func:`translation_step`'s update with that
-    gradient, without sampling the deformed image."""
+    ``prior[k, 2:6]`` and the second derivatives ``prior[k, 6:]``: there the
+    data term's gradient was ``pen Aᵀ (u - prior)``. Holding the subset at the
+    new gradient and curvature (offsets ``qx, qy``) moves each warped sample
+    by ``a = δF dx + δq``, which changes that gradient by about ``-Σ J ∇fᵀ a``
+    (the subset's moments). :func:`translation_step`'s update with that
+    gradient, without sampling the deformed image.
+
+    Returns
+    -------
+    u, v : float
+        The predicted optimum.
+    shift : float
+        The largest ``|a|`` over the subset (px): with ``|(u, v) - start|``
+        a bound on how far any sample moved from where it was optimal.
+    """
     (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
      tu, tv, u0, v0) = node
     dux = ux - prior[k, 2]
     duy = uy - prior[k, 3]
     dvx = vx - prior[k, 4]
     dvy = vy - prior[k, 5]
-    c0 = c1 = 0.0
+    # the prior's own second-order offsets, 0.5 dXᵀ ∇∇u dX (curvature_offsets)
+    p0, p1, p2 = 0.5 * prior[k, 6], prior[k, 7], 0.5 * prior[k, 8]
+    p3, p4, p5 = 0.5 * prior[k, 9], prior[k, 10], 0.5 * prior[k, 11]
+    c0 = c1 = a2max = 0.0
     for q in range(m):
-        # the reference-frame change of the sample under the gradient change
-        s = ex[q] * (dux * dxs[q] + duy * dys[q]) + ey[q] * (dvx * dxs[q] + dvy * dys[q])
+        dx = dxs[q]
+        dy = dys[q]
+        # the reference-frame change of the sample under the warp change
+        ax = dux * dx + duy * dy + qx[q] - (p0 * dx * dx + p1 * dx * dy + p2 * dy * dy)
+        ay = dvx * dx + dvy * dy + qy[q] - (p3 * dx * dx + p4 * dx * dy + p5 * dy * dy)
+        s = ex[q] * ax + ey[q] * ay
         c0 += gx[q] * s
         c1 += gy[q] * s
+        a2max = max(a2max, ax * ax + ay * ay)
     pu = prior[k, 0] - tu
     pv = prior[k, 1] - tv
     r0 = pen * (a11 * pu + a21 * pv) + c0
     r1 = pen * (a12 * pu + a22 * pv) + c1
     d0 = (m11 * r0 - m01 * r1) / det
     d1 = (m00 * r1 - m10 * r0) / det
-    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1)
+    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1), np.sqrt(a2max)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def prediction_holds(moved, h00, h01, h10, h11, reach, misfit, x0, y0, u, v, grad, curv, k,
+                     quad, h, xmax, ymax):
+    """Whether a settled node's predicted optimum is taken without sampling.
+
+    Every sample moved by at most ``moved`` px from where the subset was
+    optimal (and sampled). Below ``reach`` the prediction's error is second
+    order in ``moved`` (well under ``tol``); below ``misfit`` as a misfit of
+    the subset (``moved`` scaled by ``sqrt(tr H / λ_min H)``: an elongated
+    texture loses more correlation along its weak direction) the lower ZNCC
+    the sample would measure could not fail the global-mismatch test. The
+    warped subset must also stay inside the image (a bound from the node's
+    warp, without the samples).
+    """
+    if not moved <= reach:
+        return False
+    tr = h00 + h11
+    hs = 0.5 * (h01 + h10)
+    lam = 0.5 * (tr - np.sqrt((h00 - h11) ** 2 + 4.0 * hs * hs))
+    if not (lam > 0.0 and moved * moved * tr <= misfit * misfit * lam):
+        return False
+    bend_x = bend_y = 0.0
+    if quad:
+        bend_x = 0.5 * h * h * (abs(curv[k, 0]) + 2.0 * abs(curv[k, 1]) + abs(curv[k, 2]))
+        bend_y = 0.5 * h * h * (abs(curv[k, 3]) + 2.0 * abs(curv[k, 4]) + abs(curv[k, 5]))
+    rx = h * (1.0 + abs(grad[k, 0]) + abs(grad[k, 1])) + bend_x
+    ry = h * (1.0 + abs(grad[k, 2]) + abs(grad[k, 3])) + bend_y
+    return (x0 + u - rx >= 0.0 and y0 + v - ry >= 0.0 and x0 + u + rx <= xmax
+            and y0 + v + ry <= ymax)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)

@@ -163,7 +163,7 @@ class _TiledLocalStep:
         self.jacobian_sigma = p.extra.get("jacobian_sigma")
         self.passes = 0
 
-    def __call__(self, start, F, target, mu, active, curvature, prior=None):
+    def __call__(self, start, F, target, mu, active, curvature, prior=None, settled=None):
         n = start.shape[0]
         uv = np.array(start, np.float64, copy=True)
         zn = np.full(n, np.nan)
@@ -174,7 +174,7 @@ class _TiledLocalStep:
         done = itertools.count(1)  # next() is atomic: blocks finish in worker threads
 
         def one(ids):
-            out = self._block(ids, start, F, target, mu, active, curvature, prior)
+            out = self._block(ids, start, F, target, mu, active, curvature, prior, settled)
             self.report(self.passes, next(done) / len(self.blocks))
             return ids, out
 
@@ -183,7 +183,7 @@ class _TiledLocalStep:
                 uv[ids], zn[ids], it[ids], rs[ids] = out
         return uv, zn, it, rs
 
-    def _block(self, ids, start, F, target, mu, active, curvature, prior):
+    def _block(self, ids, start, F, target, mu, active, curvature, prior, settled):
         act = active[ids]
         if not act.any():
             return None
@@ -205,7 +205,8 @@ class _TiledLocalStep:
         return icgn_solve_translation(f, jgx, jgy, prefilter(g, self.order), x, y, start[ids],
                                       F[ids], target[ids], mu, act, sub.slot, sub.masks,
                                       p.half, p.max_iter, p.tol, curvature=curv, lin=lin,
-                                      prior=None if prior is None else prior[ids])
+                                      prior=None if prior is None else prior[ids],
+                                      settled=None if settled is None else settled[ids])
 
 
 def aldic_tiled(ref, dfm, roi, local: DICResult, params: DICParams, per_block: int, *,
