@@ -15,7 +15,11 @@ from napari_aldic.engine.dic.icgn import (
     icgn_solve_translation,
 )
 from napari_aldic.engine.dic.reliability import GLOBAL_TOLERANCE
-from napari_aldic.engine.kernels.translation import prediction_holds
+from napari_aldic.engine.kernels.translation import (
+    predicted_start,
+    prediction_holds,
+    prediction_moments,
+)
 
 AFFINE = synthetic.Affine.strain_rotation(exx=0.003, angle_deg=0.3, center=(128, 128),
                                           t=(0.7, -0.4))
@@ -126,3 +130,38 @@ def test_when_a_prediction_holds():
     bent = np.array([[0.02, 0.0, 0.0, 0.0, 0.0, 0.0]])  # 0.5 * 0.02 * 10² = 1 px
     assert not holds(0.01, x0=10, curv=bent, quad=True)
     assert holds(0.01, x0=11, curv=bent, quad=True)
+
+
+def test_prediction_moments_are_the_subsets_sums_and_the_shift_a_bound():
+    rng = np.random.default_rng(0)
+    fgx, fgy, egx, egy = (rng.normal(size=(64, 64)).astype(np.float32) for _ in range(4))
+    h, side = 7, 15
+    masks = (rng.random((1, side, side)) > 0.3).astype(np.uint8)  # a cut subset's component
+    slot, nx, ny = np.array([-1, 0], np.int32), np.array([20, 40]), np.array([30, 25])
+    rows, cols = np.mgrid[-h:h + 1, -h:h + 1]
+    for k in (0, 1):
+        mom = np.empty((4, 6))
+        prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom)
+        keep = np.ones((side, side), bool) if slot[k] < 0 else masks[0] == 1
+
+        def window(im, k=k, keep=keep):
+            return im[ny[k] - h:ny[k] + h + 1, nx[k] - h:nx[k] + h + 1].astype(float)[keep]
+        gx, gy, ex, ey = map(window, (fgx, fgy, egx, egy))
+        dx, dy = cols[keep].astype(float), rows[keep].astype(float)
+        weights = (np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy)
+        expect = [[np.sum(p * w) for w in weights] for p in (gx * ex, gx * ey, gy * ex, gy * ey)]
+        np.testing.assert_allclose(mom, expect, rtol=1e-9, atol=1e-9)
+    # the shift bound: at least the largest sample move of the whole square
+    prior = np.zeros((1, 12))
+    prior[0, 2:] = rng.normal(scale=1e-3, size=10)
+    grad, curv = rng.normal(scale=1e-3, size=(1, 4)), rng.normal(scale=1e-4, size=(1, 6))
+    system = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0)
+    *_, shift = predicted_start(0.0, 0.0, prior, 0, 0.0, 0.0, system, mom, grad, curv, True, h)
+    d = grad[0] - prior[0, 2:6]
+    c = curv[0] - prior[0, 6:]
+    def bend(c0, c1, c2):
+        return 0.5 * c0 * cols**2 + c1 * cols * rows + 0.5 * c2 * rows**2
+    ax = d[0] * cols + d[1] * rows + bend(*c[:3])
+    ay = d[2] * cols + d[3] * rows + bend(*c[3:])
+    largest = np.hypot(ax, ay).max()
+    assert largest <= shift < 2.5 * largest

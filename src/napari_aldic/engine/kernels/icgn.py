@@ -44,6 +44,7 @@ from .translation import (
     penalty_system,
     predicted_start,
     prediction_holds,
+    prediction_moments,
     translation_reference_sums,
     translation_step,
 )
@@ -363,10 +364,12 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
     on: the start is taken as the penalised optimum for the target ``prior``
     (so the data term's gradient there is that penalty's), and the step to
     the optimum for ``target`` is :func:`translation_step`'s with that
-    gradient. Most nodes then converge in one sampled step instead of two;
-    a ``settled`` node whose samples moved within ``reach`` of where they were
-    optimal takes the prediction with no sampled step at all
-    (:func:`prediction_holds`: 0 iterations, ZNCC NaN, i.e. not measured again).
+    gradient, from the subset's moments (:func:`prediction_moments`, read
+    before anything is gathered). Most nodes then converge in one sampled
+    step instead of two; a ``settled`` node whose samples moved within
+    ``reach`` of where they were optimal takes the prediction with nothing
+    gathered or sampled (:func:`prediction_holds`: 0 iterations, ZNCC NaN,
+    i.e. not measured again).
 
     Parameters
     ----------
@@ -406,9 +409,27 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
         ey = np.empty(npx)
         qx = np.zeros(npx)
         qy = np.zeros(npx)
+        mom = np.empty((4, 6))
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             if not active[k]:
                 continue
+            start = (uv_init[k, 0], uv_init[k, 1])
+            u, v = start
+            ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
+            if prior.shape[0] == n:
+                prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom)
+                h00, h01, h10, h11 = mom[0, 0], mom[1, 0], mom[2, 0], mom[3, 0]
+                if h00 * h11 - h01 * h10 > 1e-12 * (h00 + h11) ** 2:
+                    system = penalty_system(h00, h01, h10, h11, ux, uy, vx, vy, mu)
+                    u, v, shift = predicted_start(u, v, prior, k, target[k, 0], target[k, 1],
+                                                  system, mom, grad, curv, quad, h)
+                    moved = shift + np.sqrt((u - start[0]) ** 2 + (v - start[1]) ** 2)
+                    if settled[k] and prediction_holds(
+                            moved, h00, h01, h10, h11, reach[0], reach[1], nx[k], ny[k], u, v,
+                            grad, curv, k, quad, h, xmax, ymax):
+                        store_node(k, (u, v), np.nan, 0, OK, uv_out, zncc_out, iters_out,
+                                   reason_out)
+                        continue
             x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
                                                dxs, dys, gx, gy, fs)
             gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
@@ -416,28 +437,15 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
                 curvature_offsets(curv, k, dxs, dys, m, qx, qy)
             h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(
                 gx, gy, ex, ey, fs, m, fm)
-            start = (uv_init[k, 0], uv_init[k, 1])
             if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
                 store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
                            reason_out)
                 continue
             dfn = np.sqrt(df2)
-            ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
             a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
                 h00, h01, h10, h11, ux, uy, vx, vy, mu)
-            u, v = start
             node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
-                    m11, det, target[k, 0], target[k, 1], u, v)
-            if prior.shape[0] == n:
-                u, v, shift = predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey,
-                                              dxs, dys, m, qx, qy)
-                moved = shift + np.sqrt((u - start[0]) ** 2 + (v - start[1]) ** 2)
-                if settled[k] and prediction_holds(moved, h00, h01, h10, h11, reach[0],
-                                                   reach[1], x0, y0, u, v, grad, curv, k,
-                                                   quad, h, xmax, ymax):
-                    store_node(k, (u, v), np.nan, 0, OK, uv_out, zncc_out, iters_out,
-                               reason_out)
-                    continue
+                    m11, det, target[k, 0], target[k, 1], start[0], start[1])
             status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1

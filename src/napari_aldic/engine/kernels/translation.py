@@ -18,7 +18,8 @@ import numpy as np
 from .flags import FASTMATH, INLINE
 from .gauss_newton import DIVERGED, NOT_CONVERGED, OK, gn_step
 
-__all__ = ["translation_reference_sums", "predicted_start", "prediction_holds",
+__all__ = ["translation_reference_sums", "prediction_moments", "predicted_start",
+           "prediction_holds",
            "curvature_offsets",
            "penalty_system", "translation_step"]
 
@@ -65,52 +66,133 @@ def translation_reference_sums(gx, gy, ex, ey, fs, m, fm):
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def predicted_start(u, v, prior, k, target, node, gx, gy, ex, ey, dxs, dys, m, qx, qy):
+def prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom):
+    """The subset sums a prediction needs, read straight from the images.
+
+    For the products ``gx ex, gx ey, gy ex, gy ey`` of the steepest-descent
+    and the exact reference gradients (rows of ``mom``), their sums over node
+    ``k``'s subset (its mask component) weighted by ``1, dx, dy, dx², dx dy,
+    dy²`` (columns). Column 0 is :func:`translation_reference_sums`' 2 x 2
+    matrix; the others give any affine or quadratic change of the warp's
+    effect on the data term's gradient. One pass, without gathering the
+    subset: a node that takes its prediction reads nothing else.
+
+    Parameters
+    ----------
+    fgx, fgy, egx, egy : (H, W) float32
+        Steepest-descent and exact reference gradients.
+    masks, slot, nx, ny, k, h
+        As :func:`~.subset.gather_subset`.
+    mom : (4, 6) float64
+        Receives the sums.
+    """
+    x0 = nx[k]
+    y0 = ny[k]
+    sl = slot[k]
+    mom[:, :] = 0.0
+    for a in range(-h, h + 1):
+        # per row: the sums weighted by 1, dx and dx²; dy is the row's
+        s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = s30 = s31 = s32 = 0.0
+        for bb in range(-h, h + 1):
+            w = 1.0
+            if sl >= 0 and masks[sl, a + h, bb + h] == 0:
+                w = 0.0
+            gxv = w * fgx[y0 + a, x0 + bb]
+            gyv = w * fgy[y0 + a, x0 + bb]
+            exv = np.float64(egx[y0 + a, x0 + bb])
+            eyv = np.float64(egy[y0 + a, x0 + bb])
+            d = np.float64(bb)
+            p = gxv * exv
+            s00 += p
+            s01 += p * d
+            s02 += p * d * d
+            p = gxv * eyv
+            s10 += p
+            s11 += p * d
+            s12 += p * d * d
+            p = gyv * exv
+            s20 += p
+            s21 += p * d
+            s22 += p * d * d
+            p = gyv * eyv
+            s30 += p
+            s31 += p * d
+            s32 += p * d * d
+        _row_moments(mom, 0, a, s00, s01, s02)
+        _row_moments(mom, 1, a, s10, s11, s12)
+        _row_moments(mom, 2, a, s20, s21, s22)
+        _row_moments(mom, 3, a, s30, s31, s32)
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _row_moments(mom, i, dy, s0, s1, s2):
+    """Add one subset row's sums (weights 1, dx, dx²) to ``mom[i]``."""
+    mom[i, 0] += s0
+    mom[i, 1] += s1
+    mom[i, 2] += dy * s0
+    mom[i, 3] += s2
+    mom[i, 4] += dy * s1
+    mom[i, 5] += dy * dy * s0
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def predicted_start(u, v, prior, k, tu, tv, system, mom, grad, curv, quad, h):
     """The start moved one linear step, to the predicted penalised optimum.
 
     ``(u, v)`` was optimal for the target ``prior[k, :2]`` with the gradient
     ``prior[k, 2:6]`` and the second derivatives ``prior[k, 6:]``: there the
     data term's gradient was ``pen Aᵀ (u - prior)``. Holding the subset at the
-    new gradient and curvature (offsets ``qx, qy``) moves each warped sample
-    by ``a = δF dx + δq``, which changes that gradient by about ``-Σ J ∇fᵀ a``
-    (the subset's moments). :func:`translation_step`'s update with that
-    gradient, without sampling the deformed image.
+    new gradient ``grad[k]`` and curvature (``curv[k]`` when ``quad``) moves
+    each warped sample by ``a = δF dx + ½ dxᵀ δ∇∇u dx``, which changes that
+    gradient by about ``-Σ J ∇fᵀ a`` (the moments of
+    :func:`prediction_moments`). :func:`translation_step`'s update with that
+    gradient (``system``: :func:`penalty_system`'s, target ``tu, tv``),
+    without sampling the deformed image.
 
     Returns
     -------
     u, v : float
         The predicted optimum.
     shift : float
-        The largest ``|a|`` over the subset (px): with ``|(u, v) - start|``
-        a bound on how far any sample moved from where it was optimal.
+        A bound on ``|a|`` over the subset (px, half-width ``h``): with
+        ``|(u, v) - start|`` a bound on how far any sample moved from where
+        it was optimal.
     """
-    (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
-     tu, tv, u0, v0) = node
-    dux = ux - prior[k, 2]
-    duy = uy - prior[k, 3]
-    dvx = vx - prior[k, 4]
-    dvy = vy - prior[k, 5]
-    # the prior's own second-order offsets, 0.5 dXᵀ ∇∇u dX (curvature_offsets)
-    p0, p1, p2 = 0.5 * prior[k, 6], prior[k, 7], 0.5 * prior[k, 8]
-    p3, p4, p5 = 0.5 * prior[k, 9], prior[k, 10], 0.5 * prior[k, 11]
-    c0 = c1 = a2max = 0.0
-    for q in range(m):
-        dx = dxs[q]
-        dy = dys[q]
-        # the reference-frame change of the sample under the warp change
-        ax = dux * dx + duy * dy + qx[q] - (p0 * dx * dx + p1 * dx * dy + p2 * dy * dy)
-        ay = dvx * dx + dvy * dy + qy[q] - (p3 * dx * dx + p4 * dx * dy + p5 * dy * dy)
-        s = ex[q] * ax + ey[q] * ay
-        c0 += gx[q] * s
-        c1 += gy[q] * s
-        a2max = max(a2max, ax * ax + ay * ay)
+    a11, a12, a21, a22, pen, m00, m01, m10, m11, det = system
+    # the warp change, as coefficients of dx, dy, dx², dx dy, dy² (u, then v)
+    u1 = grad[k, 0] - prior[k, 2]
+    u2 = grad[k, 1] - prior[k, 3]
+    v1 = grad[k, 2] - prior[k, 4]
+    v2 = grad[k, 3] - prior[k, 5]
+    u3, u4, u5 = -prior[k, 6], -prior[k, 7], -prior[k, 8]
+    v3, v4, v5 = -prior[k, 9], -prior[k, 10], -prior[k, 11]
+    if quad:
+        u3 += curv[k, 0]
+        u4 += curv[k, 1]
+        u5 += curv[k, 2]
+        v3 += curv[k, 3]
+        v4 += curv[k, 4]
+        v5 += curv[k, 5]
+    u3 *= 0.5
+    u5 *= 0.5
+    v3 *= 0.5
+    v5 *= 0.5
+    c0 = (u1 * mom[0, 1] + u2 * mom[0, 2] + u3 * mom[0, 3] + u4 * mom[0, 4] + u5 * mom[0, 5]
+          + v1 * mom[1, 1] + v2 * mom[1, 2] + v3 * mom[1, 3] + v4 * mom[1, 4] + v5 * mom[1, 5])
+    c1 = (u1 * mom[2, 1] + u2 * mom[2, 2] + u3 * mom[2, 3] + u4 * mom[2, 4] + u5 * mom[2, 5]
+          + v1 * mom[3, 1] + v2 * mom[3, 2] + v3 * mom[3, 3] + v4 * mom[3, 4] + v5 * mom[3, 5])
     pu = prior[k, 0] - tu
     pv = prior[k, 1] - tv
     r0 = pen * (a11 * pu + a21 * pv) + c0
     r1 = pen * (a12 * pu + a22 * pv) + c1
     d0 = (m11 * r0 - m01 * r1) / det
     d1 = (m00 * r1 - m10 * r0) / det
-    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1), np.sqrt(a2max)
+    # |a|: the affine part is largest at a corner of the square, the
+    # quadratic part at most its coefficients' sum times h²
+    corner = max((u1 + u2) ** 2 + (v1 + v2) ** 2, (u1 - u2) ** 2 + (v1 - v2) ** 2)
+    bend = np.hypot(abs(u3) + abs(u4) + abs(u5), abs(v3) + abs(v4) + abs(v5))
+    shift = h * np.sqrt(corner) + h * h * bend
+    return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1), shift
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
