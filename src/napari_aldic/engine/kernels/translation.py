@@ -91,8 +91,9 @@ def prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom):
     sl = slot[k]
     mom[:, :] = 0.0
     for a in range(-h, h + 1):
-        # per row: the sums weighted by 1, dx and dx²; dy is the row's
-        s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = s30 = s31 = s32 = 0.0
+        # per row: the four products' sums weighted by 1, dx and dx²; dy is the row's
+        zero = (0.0, 0.0, 0.0, 0.0)
+        s0, s1, s2 = zero, zero, zero
         for bb in range(-h, h + 1):
             w = 1.0
             if sl >= 0 and masks[sl, a + h, bb + h] == 0:
@@ -102,37 +103,23 @@ def prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom):
             exv = np.float64(egx[y0 + a, x0 + bb])
             eyv = np.float64(egy[y0 + a, x0 + bb])
             d = np.float64(bb)
-            p = gxv * exv
-            s00 += p
-            s01 += p * d
-            s02 += p * d * d
-            p = gxv * eyv
-            s10 += p
-            s11 += p * d
-            s12 += p * d * d
-            p = gyv * exv
-            s20 += p
-            s21 += p * d
-            s22 += p * d * d
-            p = gyv * eyv
-            s30 += p
-            s31 += p * d
-            s32 += p * d * d
-        _row_moments(mom, 0, a, s00, s01, s02)
-        _row_moments(mom, 1, a, s10, s11, s12)
-        _row_moments(mom, 2, a, s20, s21, s22)
-        _row_moments(mom, 3, a, s30, s31, s32)
+            p = (gxv * exv, gxv * eyv, gyv * exv, gyv * eyv)
+            s0 = _weighted_add(s0, p, 1.0)
+            s1 = _weighted_add(s1, p, d)
+            s2 = _weighted_add(s2, p, d * d)
+        for i in range(4):
+            mom[i, 0] += s0[i]
+            mom[i, 1] += s1[i]
+            mom[i, 2] += a * s0[i]
+            mom[i, 3] += s2[i]
+            mom[i, 4] += a * s1[i]
+            mom[i, 5] += a * a * s0[i]
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
-def _row_moments(mom, i, dy, s0, s1, s2):
-    """Add one subset row's sums (weights 1, dx, dx²) to ``mom[i]``."""
-    mom[i, 0] += s0
-    mom[i, 1] += s1
-    mom[i, 2] += dy * s0
-    mom[i, 3] += s2
-    mom[i, 4] += dy * s1
-    mom[i, 5] += dy * dy * s0
+def _weighted_add(acc, p, w):
+    """``acc + w p`` for 4-tuples (sums held in registers)."""
+    return (acc[0] + w * p[0], acc[1] + w * p[1], acc[2] + w * p[2], acc[3] + w * p[3])
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
