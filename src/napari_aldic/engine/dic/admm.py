@@ -155,14 +155,8 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
                                                  settled)
         timing["local"] += time.perf_counter() - t
         ok = active & (reason_k == Reason.OK)
-        # failed local steps keep the previous value (no new information)
-        u = np.where(ok, uv[:, 0], u)
-        v = np.where(ok, uv[:, 1], v)
-        prior = np.where(ok[:, None], np.column_stack(
-            [target, F, np.zeros((n, 6)) if curv is None else curv]), prior)
+        u, v, zncc, prior = _accept(ok, uv, zncc_k, target, F, curv, u, v, zncc, prior)
         settled |= ok
-        # a prediction taken unsampled keeps the last ZNCC measured (NaN: Local's)
-        zncc = np.where(ok & np.isnan(zncc_k), zncc, zncc_k)
         reason = np.where(active, reason_k, reason).astype(np.int8)
         uh_new, vh_new, G = _global_step(solver, F, W, u, v, vu, vv, timing)
         history.append(_progress(k, uh, vh, uh_new, vh_new, u, v, trusted, iters, ok))
@@ -172,6 +166,20 @@ def run_admm(local_step: LocalStep, cut: np.ndarray, half: int, mesh: Q4Mesh,
     grad = grad.copy()
     grad[~solver.covered] = grad0[~solver.covered]  # no element: local gradient
     return ADMMState(uh, vh, u, v, grad, zncc, reason, iters, history, timing), solver
+
+
+def _accept(ok, uv, zncc_k, target, F, curv, u, v, zncc, prior) -> tuple:
+    """``(u, v, zncc, prior)`` after a local step: where it succeeded (``ok``)
+    its displacements, the ZNCC it measured (a prediction taken unsampled
+    measured none, NaN: the last one measured stays, at first Local's) and
+    the target, gradient and curvature they are optimal for; a failed step
+    keeps the previous values (no new information)."""
+    u = np.where(ok, uv[:, 0], u)
+    v = np.where(ok, uv[:, 1], v)
+    zncc = np.where(ok & np.isnan(zncc_k), zncc, zncc_k)
+    prior = np.where(ok[:, None], np.column_stack(
+        [target, F, np.zeros((ok.size, 6)) if curv is None else curv]), prior)
+    return u, v, zncc, prior
 
 
 def _global_solver(solver: GlobalSolver | None, mesh: Q4Mesh, trusted, beta_step2: float,

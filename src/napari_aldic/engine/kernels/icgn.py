@@ -40,12 +40,8 @@ from .icgn_node import begin_node, lu_solve, solve_buffers, step_status
 from .static import zero_motion_evidence
 from .subset import gather_gradients, gather_subset, subset_buffers
 from .translation import (
-    curvature_offsets,
-    penalty_system,
-    predicted_start,
-    prediction_holds,
-    prediction_moments,
-    translation_reference_sums,
+    predict_node,
+    translation_node,
     translation_step,
 )
 
@@ -355,21 +351,14 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
     """Penalised IC-GN of the displacement at the ``active`` nodes of chunks
     ``first`` to ``stop`` (AL-DIC; chunks as :func:`icgn_affine`).
 
-    Per node: gather the subset, add the fixed second-order warp offsets when
-    ``curv`` has a row per node, build the 2 x 2 reference sums (a node
-    without texture is stored as ``NO_TEXTURE`` with its initial
-    displacement) and the constant penalised normal matrix, then iterate
-    :func:`translation_step` while it reports ``NOT_CONVERGED`` and
-    ``max_iter`` allows. With ``prior`` the iteration starts one linear step
-    on: the start is taken as the penalised optimum for the target ``prior``
-    (so the data term's gradient there is that penalty's), and the step to
-    the optimum for ``target`` is :func:`translation_step`'s with that
-    gradient, from the subset's moments (:func:`prediction_moments`, read
-    before anything is gathered). Most nodes then converge in one sampled
-    step instead of two; a ``settled`` node whose samples moved within
-    ``reach`` of where they were optimal takes the prediction with nothing
-    gathered or sampled (:func:`prediction_holds`: 0 iterations, ZNCC NaN,
-    i.e. not measured again).
+    Per node: with ``prior``, the linear prediction of the penalised optimum
+    (:func:`predict_node`), which a ``settled`` node whose samples moved within
+    ``reach`` takes with nothing gathered or sampled (0 iterations, ZNCC NaN:
+    not measured again). Otherwise gather the subset (:func:`translation_node`;
+    a node without texture is stored as ``NO_TEXTURE`` at its start) and
+    iterate :func:`translation_step` from the prediction while it reports
+    ``NOT_CONVERGED`` and ``max_iter`` allows: most nodes converge in one
+    sampled step.
 
     Parameters
     ----------
@@ -415,37 +404,21 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
                 continue
             start = (uv_init[k, 0], uv_init[k, 1])
             u, v = start
-            ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
             if prior.shape[0] == n:
-                prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom)
-                h00, h01, h10, h11 = mom[0, 0], mom[1, 0], mom[2, 0], mom[3, 0]
-                if h00 * h11 - h01 * h10 > 1e-12 * (h00 + h11) ** 2:
-                    system = penalty_system(h00, h01, h10, h11, ux, uy, vx, vy, mu)
-                    u, v, shift = predicted_start(u, v, prior, k, target[k, 0], target[k, 1],
-                                                  system, mom, grad, curv, quad, h)
-                    moved = shift + np.sqrt((u - start[0]) ** 2 + (v - start[1]) ** 2)
-                    if settled[k] and prediction_holds(
-                            moved, h00, h01, h10, h11, reach[0], reach[1], nx[k], ny[k], u, v,
-                            grad, curv, k, quad, h, xmax, ymax):
-                        store_node(k, (u, v), np.nan, 0, OK, uv_out, zncc_out, iters_out,
-                                   reason_out)
-                        continue
-            x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h,
-                                               dxs, dys, gx, gy, fs)
-            gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
-            if quad:
-                curvature_offsets(curv, k, dxs, dys, m, qx, qy)
-            h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(
-                gx, gy, ex, ey, fs, m, fm)
-            if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
+                u, v, taken = predict_node(k, u, v, fgx, fgy, egx, egy, masks, slot, nx, ny,
+                                           h, mom, prior, target, grad, curv, quad, mu,
+                                           settled, reach, xmax, ymax)
+                if taken:
+                    store_node(k, (u, v), np.nan, 0, OK, uv_out, zncc_out, iters_out,
+                               reason_out)
+                    continue
+            x0, y0, m, fm, dfn, node = translation_node(
+                f, fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, grad, curv, quad, target,
+                start, mu, dxs, dys, gx, gy, fs, ex, ey, qx, qy)
+            if dfn == 0.0:
                 store_node(k, start, np.nan, 0, NO_TEXTURE, uv_out, zncc_out, iters_out,
                            reason_out)
                 continue
-            dfn = np.sqrt(df2)
-            a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
-                h00, h01, h10, h11, ux, uy, vx, vy, mu)
-            node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10,
-                    m11, det, target[k, 0], target[k, 1], start[0], start[1])
             status, zn, it = NOT_CONVERGED, np.nan, 0
             while status == NOT_CONVERGED and it < max_iter:
                 it += 1

@@ -17,9 +17,10 @@ import numpy as np
 
 from .flags import FASTMATH, INLINE
 from .gauss_newton import DIVERGED, NOT_CONVERGED, OK, gn_step
+from .subset import gather_gradients, gather_subset
 
 __all__ = ["translation_reference_sums", "prediction_moments", "predicted_start",
-           "prediction_holds",
+           "prediction_holds", "predict_node", "translation_node",
            "curvature_offsets",
            "penalty_system", "translation_step"]
 
@@ -180,6 +181,62 @@ def predicted_start(u, v, prior, k, tu, tv, system, mom, grad, curv, quad, h):
     bend = np.hypot(abs(u3) + abs(u4) + abs(u5), abs(v3) + abs(v4) + abs(v5))
     shift = h * np.sqrt(corner) + h * h * bend
     return u - (a11 * d0 + a12 * d1), v - (a21 * d0 + a22 * d1), shift
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def translation_node(f, fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, grad, curv, quad,
+                     target, start, mu, dxs, dys, gx, gy, fs, ex, ey, qx, qy):
+    """Node ``k``'s subset gathered for sampled steps: its pixels (into the
+    buffers ``dxs ... ey``; ``qx, qy``: the second-order offsets when
+    ``quad``), reference sums and penalised system.
+
+    Returns
+    -------
+    x0, y0, m, fm : int, int, int, float
+        As :func:`~.subset.gather_subset`.
+    dfn : float
+        ``sqrt(sum (f - fm)^2)``; 0 when the subset has no texture.
+    node : tuple
+        The constants of :func:`translation_step` (divergence measured from
+        ``start``).
+    """
+    x0, y0, m, fm, df2 = gather_subset(f, fgx, fgy, masks, slot, nx, ny, k, h, dxs, dys, gx,
+                                       gy, fs)
+    gather_gradients(egx, egy, masks, slot, nx, ny, k, h, ex, ey)
+    if quad:
+        curvature_offsets(curv, k, dxs, dys, m, qx, qy)
+    h00, h01, h10, h11, sj0, sj3, b0, b3 = translation_reference_sums(gx, gy, ex, ey, fs, m,
+                                                                       fm)
+    ux, uy, vx, vy = grad[k, 0], grad[k, 1], grad[k, 2], grad[k, 3]
+    a11, a12, a21, a22, pen, m00, m01, m10, m11, det = penalty_system(
+        h00, h01, h10, h11, ux, uy, vx, vy, mu)
+    node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
+            target[k, 0], target[k, 1], start[0], start[1])
+    if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
+        return x0, y0, m, fm, 0.0, node
+    return x0, y0, m, fm, np.sqrt(df2), node
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def predict_node(k, u, v, fgx, fgy, egx, egy, masks, slot, nx, ny, h, mom, prior, target,
+                 grad, curv, quad, mu, settled, reach, xmax, ymax):
+    """Node ``k``'s predicted optimum from its start ``u, v`` (the start
+    itself when its subset has no texture) and whether it is taken without
+    sampling: :func:`prediction_moments` (into ``mom``), :func:`penalty_system`,
+    :func:`predicted_start` and, for a ``settled`` node, :func:`prediction_holds`
+    with ``reach = (px, misfit px)``."""
+    prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom)
+    h00, h01, h10, h11 = mom[0, 0], mom[1, 0], mom[2, 0], mom[3, 0]
+    if not h00 * h11 - h01 * h10 > 1e-12 * (h00 + h11) ** 2:
+        return u, v, False
+    system = penalty_system(h00, h01, h10, h11, grad[k, 0], grad[k, 1], grad[k, 2],
+                            grad[k, 3], mu)
+    up, vp, shift = predicted_start(u, v, prior, k, target[k, 0], target[k, 1], system, mom,
+                                    grad, curv, quad, h)
+    moved = shift + np.sqrt((up - u) ** 2 + (vp - v) ** 2)
+    return up, vp, settled[k] and prediction_holds(
+        moved, h00, h01, h10, h11, reach[0], reach[1], nx[k], ny[k], up, vp, grad, curv, k,
+        quad, h, xmax, ymax)
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
