@@ -357,8 +357,7 @@ def icgn_translation(first, stop, f, fgx, fgy, egx, egy, coef, order, nx, ny, uv
     not measured again). Otherwise gather the subset (:func:`translation_node`;
     a node without texture is stored as ``NO_TEXTURE`` at its start) and
     iterate :func:`translation_step` from the prediction while it reports
-    ``NOT_CONVERGED`` and ``max_iter`` allows: most nodes converge in one
-    sampled step.
+    ``NOT_CONVERGED`` and ``max_iter`` allows (mostly once).
 
     Parameters
     ----------
