@@ -196,9 +196,10 @@ def icgn_solve(f, fgx, fgy, spline, nodes_x, nodes_y, p_init, active, slot, mask
 
 #: a settled node takes the linear prediction of its local-step optimum without
 #: sampling when no sample moved more than this (px) from where the subset was
-#: optimal: the prediction's error then stays well under ``tol`` (measured on
-#: the 1024² pair, the OHT coupon and the crack: 99th percentile 1e-4 to
-#: 5e-4 px, benchmarks/RESULTS.md, "Eighteenth session")
+#: optimal: the prediction's error is then second order in that move (against
+#: a sampled step, 99th percentile 0.4-5e-4 px on the 1024² pair and the OHT
+#: coupon, up to 1.5e-3 px in the crack's passes, largest 5e-3 px there;
+#: benchmarks/RESULTS.md, "Eighteenth session")
 PREDICTION_REACH = 0.05
 #: ... and when that move, as a misfit of the subset (px, see
 #: ``reliability.Validity.misfit``), is at most half the global-mismatch
