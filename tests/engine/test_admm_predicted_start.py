@@ -103,6 +103,9 @@ def test_settled_nodes_take_the_prediction_without_sampling(monkeypatch, field):
     moved = np.hypot(res.u - sampled.u, res.v - sampled.v)[ok]
     assert moved.max() < 1e-3
     assert np.sqrt(np.mean(moved**2)) < 2.5e-4
+    # the run's convergence record and summary count them: 0 iterations
+    assert res.meta["convergence"]["predicted"] == int((res.iterations[ok] == 0).sum()) > 0
+    assert f"{int((its[-1] == 0).sum())} nodes took their linear prediction" in res.summary()
     assert np.isfinite(res.zncc[ok]).all()  # not sampled again: the last ZNCC measured
     assert np.abs(res.zncc - sampled.zncc)[ok].max() < 1e-3
     assert _rms_error(res, field) <= 1.01 * _rms_error(sampled, field)

@@ -161,8 +161,11 @@ class DICResult:
         hist = self.meta.get("admm_history") or []
         how = "chosen from the noise" if reg.get("mode") == "auto" else "fixed"
         warp = "second-order" if reg.get("second_order_warp") else "affine"
+        taken = hist[-1].get("local_predicted", 0) if hist else 0
         return (f"AL-DIC: smoothing length {reg['smooth_px']:.1f} px ({how}), {warp} "
-                f"subset warp, {len(hist)} ADMM iterations")
+                f"subset warp, {len(hist)} ADMM iterations"
+                + (f"; last local step: {taken} nodes took their linear prediction "
+                   "(no IC-GN iteration)" if taken else ""))
 
     def summary(self) -> str:
         """A short text summary."""

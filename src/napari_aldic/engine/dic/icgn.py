@@ -90,16 +90,20 @@ def convergence_record(reason, iterations, usable, max_iter: int) -> dict:
     -------
     dict
         ``max_iter``; ``median_iterations`` and ``p95_iterations`` of the
-        trusted nodes (None without any); ``at_cap``: nodes flagged
-        ``NOT_CONVERGED``; ``fraction_at_cap``: their share of the usable ones.
+        trusted nodes (None without any); ``predicted``: trusted nodes with 0
+        iterations (AL-DIC's last local step took their linear prediction,
+        ``method.md`` 7); ``at_cap``: nodes flagged ``NOT_CONVERGED``;
+        ``fraction_at_cap``: their share of the usable ones.
     """
     reason = np.asarray(reason)
     it = np.asarray(iterations)[reason == Reason.OK]
+    predicted = int(np.count_nonzero(it == 0))
     at_cap = int(np.count_nonzero(reason == Reason.NOT_CONVERGED))
     n_usable = int(np.count_nonzero(usable))
     return {"max_iter": int(max_iter),
             "median_iterations": float(np.median(it)) if it.size else None,
             "p95_iterations": float(np.percentile(it, 95)) if it.size else None,
+            "predicted": predicted,
             "at_cap": at_cap, "fraction_at_cap": at_cap / n_usable if n_usable else 0.0}
 
 
