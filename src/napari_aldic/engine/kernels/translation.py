@@ -1,13 +1,14 @@
 """The per-node pieces of AL-DIC's local step (:func:`~.icgn.icgn_translation`):
 IC-GN of a subset's displacement with its gradient held fixed and a penalty
-towards the global field. The reference sums are built once per node
-(:func:`translation_reference_sums`), the penalised 2 x 2 system once
-(:func:`penalty_system`); the start is moved to the linear prediction of the
-optimum (:func:`predicted_start`), which a node whose samples barely moved
-takes as its solution (:func:`prediction_holds`); the others go on with
-:func:`translation_step`, sampling the deformed image until the update is
-below ``tol``. The second-order warp adds fixed offsets to the subset
-(:func:`curvature_offsets`).
+towards the global field. First the start is moved to the linear prediction
+of the optimum (:func:`predict_node`: the subset's moments read from the
+gradient images, :func:`prediction_moments`; the penalised 2 x 2 system,
+:func:`penalty_system`; :func:`predicted_start`), which a node whose samples
+barely moved takes as its solution (:func:`prediction_holds`). The others
+gather their subset (:func:`translation_node`: the reference sums,
+:func:`translation_reference_sums`; the second-order warp's fixed offsets,
+:func:`curvature_offsets`) and go on with :func:`translation_step`, sampling
+the deformed image until the update is below ``tol``.
 """
 
 from __future__ import annotations
