@@ -213,9 +213,16 @@ def translation_node(f, fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, grad, cur
         h00, h01, h10, h11, ux, uy, vx, vy, mu)
     node = (ux, uy, vx, vy, sj0, sj3, b0, b3, a11, a12, a21, a22, pen, m00, m01, m10, m11, det,
             target[k, 0], target[k, 1], start[0], start[1])
-    if df2 <= 1e-6 * m or h00 * h11 - h01 * h10 <= 1e-12 * (h00 + h11) ** 2:
+    if df2 <= 1e-6 * m or not _invertible(h00, h01, h10, h11):
         return x0, y0, m, fm, 0.0, node
     return x0, y0, m, fm, np.sqrt(df2), node
+
+
+@nb.njit(**INLINE, fastmath=FASTMATH)
+def _invertible(h00, h01, h10, h11):
+    """Whether the subset's 2 x 2 reference matrix is far from singular (a
+    subset textured in both directions; NaN sums are not)."""
+    return h00 * h11 - h01 * h10 > 1e-12 * (h00 + h11) ** 2
 
 
 @nb.njit(**INLINE, fastmath=FASTMATH)
@@ -228,7 +235,7 @@ def predict_node(k, u, v, fgx, fgy, egx, egy, masks, slot, nx, ny, h, mom, prior
     with ``reach = (px, misfit px)``."""
     prediction_moments(fgx, fgy, egx, egy, masks, slot, nx, ny, k, h, mom)
     h00, h01, h10, h11 = mom[0, 0], mom[1, 0], mom[2, 0], mom[3, 0]
-    if not h00 * h11 - h01 * h10 > 1e-12 * (h00 + h11) ** 2:
+    if not _invertible(h00, h01, h10, h11):
         return u, v, False
     system = penalty_system(h00, h01, h10, h11, grad[k, 0], grad[k, 1], grad[k, 2],
                             grad[k, 3], mu)
