@@ -27,12 +27,18 @@ AFFINE = synthetic.Affine.strain_rotation(exx=0.003, angle_deg=0.3, center=(128,
 WAVE = synthetic.Sinusoid(amplitude_u=0.5, amplitude_v=0.35, wavelength=128.0)
 
 
+#: the settled flags of each local pass of the last ``_run``, at its active nodes
+SETTLED: list = []
+
+
 def _run(monkeypatch, mode: str, field=AFFINE, **kw):
     """AL-DIC with the local step's prior dropped (``plain``), with every node
-    sampled (``sampled``) or as it runs (``taken``); the iterations of each
-    local pass at its active nodes."""
+    sampled (``sampled``), with no start settled (``unsettled``) or as it runs
+    (``taken``); the iterations of each local pass at its active nodes (and
+    in ``SETTLED`` the settled flags there)."""
     ref, dfm = synthetic.speckle_pair((256, 256), field, noise=2.0, seed=3)
     iterations = []
+    SETTLED.clear()
 
     def spy(*args, **kwargs):
         assert kwargs["prior"].shape[1] == 12 and kwargs["settled"] is not None
@@ -40,8 +46,11 @@ def _run(monkeypatch, mode: str, field=AFFINE, **kw):
             kwargs = dict(kwargs, prior=None, settled=None)
         elif mode == "sampled":
             kwargs = dict(kwargs, settled=None)
+        elif mode == "unsettled":  # no start is a sampled optimum
+            kwargs = dict(kwargs, settled=np.zeros_like(kwargs["settled"]))
         out = icgn_solve_translation(*args, **kwargs)
         iterations.append(out[2][args[10]])  # args[10]: the active nodes
+        SETTLED.append(None if kwargs["settled"] is None else kwargs["settled"][args[10]])
         return out
     monkeypatch.setattr(AD, "icgn_solve_translation", spy)
     res = correlate(ref, dfm, subset=21, step=6, method="aldic", **kw)
@@ -87,10 +96,15 @@ def test_the_prediction_follows_the_second_order_warp(monkeypatch):
 @pytest.mark.parametrize("field", [AFFINE, WAVE], ids=["affine", "curved"])
 def test_settled_nodes_take_the_prediction_without_sampling(monkeypatch, field):
     res, its = _run(monkeypatch, "taken", field)
+    settled = list(SETTLED)
+    _, its_unsettled = _run(monkeypatch, "unsettled", field)
+    assert all((i > 0).all() for i in its_unsettled)
     sampled, _ = _run(monkeypatch, "sampled", field)
     # nearly every trusted Local result is a settled optimum whose samples
     # move by hundredths of a pixel on the affine field: no sampled step; the
     # curved field's first pass bends the subsets by more, its later ones not
+    # only settled nodes (sampled optima) take it: none when no start is one
+    assert all(s[i == 0].all() for i, s in zip(its, settled))
     taken = [(i == 0).mean() for i in its]
     assert taken[0] > 0.8 if field is AFFINE else max(taken[1:]) > 0.8, taken
     assert [h["local_predicted"] for h in res.meta["admm_history"]] == [
